@@ -1,0 +1,71 @@
+#pragma once
+// A float image with named channels, interleaved per pixel, plus typed metadata. This is what
+// the renderer produces and what formats/image writes to OpenEXR (channel names are EXR
+// names: "R", "G", "B", "A", "albedo.R", "normal.X", "depth.Z", ...).
+
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "core/util/check.h"
+
+namespace pbgi {
+
+using MetadataValue = std::variant<std::string, int, float>;
+
+struct MetadataEntry {
+  std::string name;
+  MetadataValue value;
+};
+
+class Image {
+ public:
+  Image() = default;
+  Image(int width, int height, std::vector<std::string> channels)
+      : width_(width), height_(height), channels_(std::move(channels)),
+        pixels_(static_cast<size_t>(width) * height * channels_.size(), 0.0f) {
+    PBGI_CHECK_GE(width, 0);
+    PBGI_CHECK_GE(height, 0);
+  }
+
+  int width() const { return width_; }
+  int height() const { return height_; }
+  int channelCount() const { return static_cast<int>(channels_.size()); }
+  const std::vector<std::string>& channels() const { return channels_; }
+  // Index of a channel by name, or -1.
+  int channelIndex(const std::string& name) const {
+    for (size_t i = 0; i < channels_.size(); ++i)
+      if (channels_[i] == name) return static_cast<int>(i);
+    return -1;
+  }
+
+  float& at(int x, int y, int c) { return pixels_[index(x, y, c)]; }
+  float at(int x, int y, int c) const { return pixels_[index(x, y, c)]; }
+  std::vector<float>& pixels() { return pixels_; }
+  const std::vector<float>& pixels() const { return pixels_; }
+
+  std::vector<MetadataEntry>& metadata() { return metadata_; }
+  const std::vector<MetadataEntry>& metadata() const { return metadata_; }
+  void setMetadata(const std::string& name, MetadataValue value) {
+    for (auto& m : metadata_) {
+      if (m.name == name) {
+        m.value = std::move(value);
+        return;
+      }
+    }
+    metadata_.push_back({name, std::move(value)});
+  }
+
+ private:
+  size_t index(int x, int y, int c) const {
+    return (static_cast<size_t>(y) * width_ + x) * channels_.size() + c;
+  }
+
+  int width_ = 0;
+  int height_ = 0;
+  std::vector<std::string> channels_;
+  std::vector<float> pixels_;
+  std::vector<MetadataEntry> metadata_;
+};
+
+}  // namespace pbgi

@@ -1,0 +1,146 @@
+#pragma once
+// The in-memory form of a shot file (../shared/spec/shot.md). The TOML parser that fills it
+// lives in formats/shot; everything here is plain data plus keyframe evaluation.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/math/vec.h"
+#include "core/util/source_location.h"
+
+namespace pbgi {
+
+struct CameraParams {
+  Vec3f position{0.0f, 0.0f, 0.0f};
+  Vec3f lookAt{0.0f, 0.0f, 1.0f};
+  Vec3f up{0.0f, 1.0f, 0.0f};
+  float fovYDeg = 45.0f;
+  float apertureRadius = 0.0f;
+  float focusDistance = 0.0f;
+};
+
+// A keyframe sets any subset of the animatable values; the others come from other keys.
+struct CameraKey {
+  int frame = 0;
+  std::optional<Vec3f> position, lookAt, up;
+  std::optional<float> fovYDeg, apertureRadius, focusDistance;
+  SourceLocation where;
+};
+
+struct CameraDesc {
+  CameraParams base;  // the [camera] table's own values
+  Vec2i views{1, 1};  // columns, rows of a camera array
+  float viewSpacing = 0.0f;
+  std::vector<CameraKey> keys;
+  SourceLocation where;
+};
+
+struct TransformParams {
+  Vec3f translate{0.0f, 0.0f, 0.0f};
+  Vec3f rotateDeg{0.0f, 0.0f, 0.0f};  // XYZ Euler angles
+  float scale = 1.0f;
+};
+
+struct TransformKey {
+  int frame = 0;
+  std::optional<Vec3f> translate, rotateDeg;
+  std::optional<float> scale;
+  SourceLocation where;
+};
+
+struct GeometryDesc {
+  std::string file;  // absolute, or relative to the working directory (resolved by the parser)
+  TransformParams base;
+  std::vector<TransformKey> keys;
+  SourceLocation where;
+};
+
+enum class MaterialType { kDiffuse, kConductor, kDielectric, kEmissive };
+enum class MicrofacetDistribution { kGgx, kBeckmann };
+
+struct MaterialDesc {
+  std::string name;
+  MaterialType type = MaterialType::kDiffuse;
+  std::optional<Rgb> albedo;
+  std::optional<std::string> albedoTexture;  // resolved path
+  float roughness = 0.0f;
+  MicrofacetDistribution distribution = MicrofacetDistribution::kGgx;
+  std::optional<Rgb> specular;  // conductor, Schlick
+  std::optional<Rgb> eta, k;    // conductor, complex index of refraction
+  Rgb tint{1.0f, 1.0f, 1.0f};
+  float ior = 1.5f;  // dielectric
+  Rgb radiance{0.0f, 0.0f, 0.0f};  // emissive
+  SourceLocation where;
+};
+
+enum class LightType { kQuad, kSphere, kPoint, kSpot, kDirectional, kEnvironment };
+
+struct LightDesc {
+  LightType type = LightType::kPoint;
+  // quad
+  Vec3f corner{0.0f}, edgeU{0.0f}, edgeV{0.0f};
+  // sphere
+  Vec3f center{0.0f};
+  float radius = 0.0f;
+  // quad, sphere
+  Rgb radiance{0.0f};
+  // point, spot
+  Vec3f position{0.0f};
+  Rgb intensity{0.0f};
+  // spot, directional (the direction light travels towards)
+  Vec3f direction{0.0f, -1.0f, 0.0f};
+  float coneDeg = 30.0f;  // spot: half-angle of the cone
+  // directional
+  Rgb irradiance{0.0f};
+  // environment
+  std::string file;  // resolved path of a lat-long OpenEXR
+  float scale = 1.0f;
+  float rotateDeg = 0.0f;
+  SourceLocation where;
+};
+
+enum class FilterType { kBox, kGaussian, kBlackmanHarris };
+
+struct RenderSettings {
+  std::string integrator = "path";
+  int spp = 4;
+  uint64_t seed = 0;
+  int maxDepth = 64;
+  FilterType filter = FilterType::kBox;
+  float filterWidth = 1.0f;  // full width of the filter's support, in pixels
+  // Project-defined settings (README: "Render settings").
+  int tileSize = 32;
+  int rouletteDepth = 3;  // Russian roulette starts after this many bounces
+};
+
+struct ShotDesc {
+  std::string path;  // the shot file, as given
+  std::string dir;   // its folder; relative paths resolve against it
+  int version = 1;
+  std::string name;
+  int firstFrame = 1;
+  int lastFrame = 1;
+  int width = 0;
+  int height = 0;
+  std::string output;  // resolved pattern; runs of '#' become the frame number
+  CameraDesc camera;
+  std::vector<GeometryDesc> geometry;
+  std::vector<MaterialDesc> materials;
+  std::vector<LightDesc> lights;
+  RenderSettings render;
+};
+
+// Keyframe evaluation. The table's own values act as a key at the shot's first frame;
+// explicit keys override it. Each value interpolates linearly between the keys that set it
+// and is held constant before the first and after the last.
+CameraParams cameraAt(const CameraDesc& camera, int firstFrame, int frame);
+TransformParams transformAt(const GeometryDesc& geometry, int firstFrame, int frame);
+
+// The output path of one frame: each run of '#' becomes the zero-padded frame number
+// (padded to the run's length). A pattern without '#' gets ".####" inserted before the
+// extension when the shot has more than one frame.
+std::string outputPathForFrame(const std::string& pattern, int frame, bool multiFrame);
+
+}  // namespace pbgi

@@ -1,0 +1,36 @@
+#!/bin/sh
+# Installs every Debian 12 package pbgi needs to build, test and run; only what is missing.
+# Idempotent: a second run installs nothing and takes about a second.
+set -eu
+
+PACKAGES="
+build-essential cmake ninja-build git ccache pkg-config
+libembree-dev libopenexr-dev libimath-dev libopenimageio-dev libopenvdb-dev
+libboost-iostreams-dev libopencolorio-dev libtbb-dev
+libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
+libsqlite3-dev libpqxx-dev libassimp-dev libtomlplusplus-dev libcli11-dev
+libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
+libcpp-httplib-dev
+"
+
+missing=""
+for p in $PACKAGES; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing="$missing $p"
+  fi
+done
+
+if [ -z "$missing" ]; then
+  exit 0
+fi
+
+if [ "$(id -u)" -ne 0 ]; then
+  echo "setup-debian.sh: these packages are missing and installing them needs root:$missing" >&2
+  exit 1
+fi
+
+echo "setup-debian.sh: installing:$missing"
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -q
+# shellcheck disable=SC2086
+apt-get install -y -q --no-install-recommends $missing

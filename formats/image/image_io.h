@@ -1,0 +1,29 @@
+#pragma once
+// Reading and writing images. OpenEXR output is written to a temporary file in the same
+// folder and renamed, so a reader never sees a partial file.
+
+#include <string>
+
+#include <absl/status/statusor.h>
+
+#include "core/render/image.h"
+#include "core/scene/texture.h"
+
+namespace pbgi {
+
+// Writes every channel of `image` as 32-bit float into one OpenEXR part, with the image's
+// metadata as EXR attributes. Channel names are EXR layer names ("albedo.R").
+absl::Status writeExr(const Image& image, const std::string& path);
+
+// Reads any image OIIO can read (EXR, PNG, JPEG, ...) into float channels with its metadata.
+absl::StatusOr<Image> readImage(const std::string& path);
+
+// Reads a lat-long environment map (RGB of the first three channels).
+absl::StatusOr<LatLongImage> readLatLong(const std::string& path);
+
+// Writes an 8-bit sRGB PNG preview of the image's R, G, B channels, converted from the
+// scene-linear colour space to the display through the OCIO config at `ocioConfig`.
+absl::Status writePreviewPng(const Image& image, const std::string& path,
+                             const std::string& ocioConfig);
+
+}  // namespace pbgi

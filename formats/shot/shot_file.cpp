@@ -1,0 +1,1 @@
+#include "formats/shot/shot_file.h"

@@ -1,0 +1,64 @@
+#include "services/cli/cli.h"
+
+#include <cstdio>
+
+#include <CLI/CLI.hpp>
+
+#include "core/util/log.h"
+
+namespace pbgi::cli {
+
+int reportError(const absl::Status& status) {
+  std::fprintf(stderr, "pbgi: error: %s\n", std::string(status.message()).c_str());
+  switch (status.code()) {
+    case absl::StatusCode::kInvalidArgument:
+    case absl::StatusCode::kNotFound:
+    case absl::StatusCode::kFailedPrecondition:
+    case absl::StatusCode::kOutOfRange:
+      return kExitBadInput;
+    default:
+      return kExitFailed;
+  }
+}
+
+int run(int argc, char** argv) {
+  CLI::App app{"pbgi: point-based global illumination renderer"};
+  app.set_version_flag("--version", std::string("pbgi ") + PBGI_VERSION);
+  app.require_subcommand(1);
+  bool verbose = false;
+  bool quiet = false;
+  app.add_flag("-v,--verbose", verbose, "Log debug messages");
+  app.add_flag("-q,--quiet", quiet, "Log errors only");
+
+  CommandAction action;
+  registerRenderCommand(app, action);
+  registerCompareCommand(app, action);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "pbgi: error: %s\n", e.what());
+    std::fprintf(stderr, "Run with --help for more information.\n");
+    return kExitBadInput;
+  }
+  log::setLevel(verbose ? log::Level::kDebug : quiet ? log::Level::kError : log::Level::kInfo);
+  if (!action) {
+    std::fprintf(stderr, "pbgi: error: no command given\n");
+    return kExitBadInput;
+  }
+  try {
+    return action();
+  } catch (const std::exception& e) {
+    // Library errors are Status; an exception here is a bug or resource exhaustion.
+    std::fprintf(stderr, "pbgi: error: %s\n", e.what());
+    return kExitFailed;
+  }
+}
+
+}  // namespace pbgi::cli

@@ -1,0 +1,42 @@
+#pragma once
+// Where tests find their inputs: the repo's tests/data, the build tree, and the shared test
+// scenes beside the checkout (../shared/scenes), which may be absent.
+
+#include <cstdlib>
+#include <unistd.h>
+#include <filesystem>
+#include <optional>
+#include <string>
+
+namespace pbgi::testing {
+
+inline std::filesystem::path sourceDir() { return PBGI_SOURCE_DIR; }
+inline std::filesystem::path binaryDir() { return PBGI_BINARY_DIR; }
+inline std::filesystem::path testDataDir() { return PBGI_TEST_DATA_DIR; }
+inline std::filesystem::path pbgiBinary() { return binaryDir() / "bin" / "pbgi"; }
+
+// ../shared/scenes beside the checkout, or $PBGI_SHARED_SCENES; nullopt when neither exists.
+inline std::optional<std::filesystem::path> sharedScenesDir() {
+  if (const char* env = std::getenv("PBGI_SHARED_SCENES")) {
+    if (std::filesystem::is_directory(env)) return std::filesystem::path(env);
+  }
+  const auto p = sourceDir().parent_path() / "shared" / "scenes";
+  if (std::filesystem::is_directory(p)) return p;
+  return std::nullopt;
+}
+
+// A fresh, empty folder under the system's temporary folder, unique per call.
+inline std::filesystem::path makeTempDir(const std::string& tag) {
+  std::string templ = (std::filesystem::temp_directory_path() / ("pbgi-" + tag + "-XXXXXX")).string();
+  char* made = mkdtemp(templ.data());
+  if (made == nullptr) std::abort();
+  return std::filesystem::path(made);
+}
+
+}  // namespace pbgi::testing
+
+// Skips the current test when the shared scenes are missing, saying so.
+#define PBGI_REQUIRE_SHARED_SCENES(var)                                              \
+  const auto var##_opt = ::pbgi::testing::sharedScenesDir();                         \
+  if (!var##_opt) GTEST_SKIP() << "../shared/scenes is absent (set PBGI_SHARED_SCENES)"; \
+  const std::filesystem::path var = *var##_opt
