@@ -1,0 +1,140 @@
+#include "core/render/path_tracer.h"
+
+#include <algorithm>
+
+namespace pbgi {
+
+namespace {
+
+Vec2f next2(Rng& rng) {
+  const float a = rng.uniform();
+  return {a, rng.uniform()};
+}
+
+// The shading frame, with the normal on the side the dielectric convention expects (the
+// geometric front); two-sided BSDFs handle either side themselves.
+Frame shadingFrame(const SurfaceHit& hit) { return Frame(hit.ns); }
+
+}  // namespace
+
+Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng) {
+  // Consume a fixed number of random numbers whatever happens, so that later decisions of
+  // the same path use the same numbers whichever branch this one took.
+  const float uLight = rng.uniform();
+  const Vec2f u = next2(rng);
+  float selectPdf = 0.0f;
+  const Light* light = scene.sampleLight(uLight, &selectPdf);
+  if (light == nullptr || selectPdf <= 0.0f) return Rgb(0.0f);
+  const std::optional<LightSample> ls = light->sample(hit.p, u);
+  if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return Rgb(0.0f);
+  const Vec3f wiLocal = frame.toLocal(ls->wi);
+  // Reflection or transmission must agree between the shading and geometric normals, or
+  // light leaks through the surface.
+  const float cosGeo = dot(ls->wi, hit.ng);
+  const float cosGeoOut = dot(frame.toWorld(woLocal), hit.ng);
+  const bool reflectGeo = cosGeo * cosGeoOut > 0.0f;
+  const bool reflectShading = wiLocal.z * woLocal.z > 0.0f;
+  if (reflectGeo != reflectShading) return Rgb(0.0f);
+  const Rgb f = bsdf.f(woLocal, wiLocal);
+  if (isBlack(f)) return Rgb(0.0f);
+  if (scene.occluded(scene.spawnShadowRay(hit.p, hit.ng, ls->wi, ls->distance))) {
+    return Rgb(0.0f);
+  }
+  const float lightPdf = ls->pdf * selectPdf;
+  const float weight = ls->delta ? 1.0f : powerHeuristic(lightPdf, bsdf.pdf(woLocal, wiLocal));
+  return f * ls->radiance * (std::abs(wiLocal.z) * weight / lightPdf);
+}
+
+PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
+                     const PathTracerSettings& settings) {
+  PathSample out;
+  Rgb beta(1.0f);
+  Ray ray = cameraRay;
+  float prevBsdfPdf = 0.0f;
+  bool prevDelta = true;  // the camera ray: emission seen directly counts in full
+  Vec3f prevP = ray.origin;
+  Rgb* sink = &out.direct;  // emission found at bounce <= 1 is direct light
+
+  for (int bounce = 0;; ++bounce) {
+    if (bounce >= 2) sink = &out.indirect;
+    SurfaceHit hit;
+    if (!scene.intersect(ray, &hit)) {
+      for (const int index : scene.infiniteLights()) {
+        const Light* light = scene.lights()[index].get();
+        const Rgb Le = light->escaped(ray.dir);
+        if (isBlack(Le)) continue;
+        float weight = 1.0f;
+        if (!prevDelta) {
+          const float lightPdf =
+              scene.lightProbability(index) * light->pdf(prevP, ray.dir, Vec3f(0.0f), Vec3f(0.0f));
+          weight = powerHeuristic(prevBsdfPdf, lightPdf);
+        }
+        *sink += beta * Le * weight;
+      }
+      break;
+    }
+    if (bounce == 0) {
+      out.hit = true;
+      out.depth = hit.t;
+      out.normal = hit.ns;
+      out.albedo = scene.albedoAt(hit);
+    }
+    const Vec3f wo = -ray.dir;
+    if (hit.light >= 0) {
+      const Light& light = *scene.lights()[hit.light];
+      const Rgb Le = light.emitted(hit.ng, wo);
+      if (!isBlack(Le)) {
+        float weight = 1.0f;
+        if (!prevDelta) {
+          const float lightPdf =
+              scene.lightProbability(hit.light) * light.pdf(prevP, ray.dir, hit.p, hit.ng);
+          weight = powerHeuristic(prevBsdfPdf, lightPdf);
+        }
+        *sink += beta * Le * weight;
+      }
+    }
+    if (hit.material == kNoMaterial || bounce >= settings.maxDepth) break;
+    const Material& material = scene.material(hit.material);
+    const Bsdf bsdf(material, scene.albedoAt(hit));
+    if (bsdf.isBlack()) break;
+
+    const Frame frame = shadingFrame(hit);
+    const Vec3f woLocal = frame.toLocal(wo);
+    // Light arriving at this vertex belongs to the next bounce's sink.
+    Rgb* nextSink = bounce + 1 >= 2 ? &out.indirect : &out.direct;
+    if (!bsdf.isDelta()) {
+      *nextSink += beta * sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng);
+    } else {
+      rng.uniform();
+      rng.uniform();
+      rng.uniform();
+    }
+
+    const float uc = rng.uniform();
+    const Vec2f u = next2(rng);
+    const std::optional<BsdfSample> bs = bsdf.sample(woLocal, uc, u);
+    if (!bs || bs->pdf <= 0.0f || isBlack(bs->f)) break;
+    const Vec3f wi = frame.toWorld(bs->wi);
+    // Reject samples whose side disagrees between shading and geometric normals.
+    const bool reflectShading = bs->wi.z * woLocal.z > 0.0f;
+    const bool reflectGeo = dot(wi, hit.ng) * dot(wo, hit.ng) > 0.0f;
+    if (reflectShading != reflectGeo) break;
+    beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+    if (!isFinite(beta)) break;
+    prevBsdfPdf = bs->pdf;
+    prevDelta = bs->delta;
+    prevP = hit.p;
+    ray = scene.spawnRay(hit.p, hit.ng, wi);
+
+    if (bounce + 1 >= settings.rouletteDepth) {
+      const float q = std::min(0.95f, maxComponent(beta));
+      const float ur = rng.uniform();
+      if (ur >= q) break;
+      beta /= q;
+    }
+  }
+  return out;
+}
+
+}  // namespace pbgi

@@ -1,0 +1,38 @@
+#pragma once
+// The unbiased reference: unidirectional path tracing with next-event estimation and
+// multiple importance sampling (power heuristic), Russian roulette after a set depth.
+// Every other integrator is measured against this one.
+
+#include "core/math/vec.h"
+#include "core/sampling/rng.h"
+#include "core/scene/scene.h"
+
+namespace pbgi {
+
+struct PathTracerSettings {
+  int maxDepth = 64;      // scattering vertices after the camera; 1 = direct light only
+  int rouletteDepth = 3;  // Russian roulette from this many bounces on
+};
+
+// What one camera sample brings back: radiance split into direct (emitters seen directly
+// and light after one bounce) and indirect (the rest), and first-hit AOVs.
+struct PathSample {
+  Rgb direct{0.0f};
+  Rgb indirect{0.0f};
+  Rgb albedo{0.0f};
+  Vec3f normal{0.0f};
+  float depth = 0.0f;  // distance along the primary ray; 0 where it escapes
+  bool hit = false;    // the primary ray hit a surface
+  Rgb radiance() const { return direct + indirect; }
+};
+
+// Direct light arriving at a surface point from one light sample, MIS-weighted against
+// BSDF sampling. Shared with the PBGI integrators and the surfel baker, so that they differ
+// from the path tracer only in indirect light.
+Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng);
+
+PathSample tracePath(const Scene& scene, const Ray& ray, Rng& rng,
+                     const PathTracerSettings& settings);
+
+}  // namespace pbgi

@@ -1,0 +1,56 @@
+#pragma once
+// The tile renderer. A frame is cut into square tiles visited in Morton order; each pixel's
+// samples draw their random numbers from (seed, frame, pixel, sample), so a tile is
+// bit-identical whatever the tiling, the thread count or the machine.
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "core/render/image.h"
+#include "core/render/integrator.h"
+#include "core/scene/camera.h"
+#include "core/scene/shot.h"
+
+namespace pbgi {
+
+struct TileRect {
+  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // half-open pixel bounds in the (mosaic) image
+  int width() const { return x1 - x0; }
+  int height() const { return y1 - y0; }
+};
+
+struct RenderCounters {
+  uint64_t cameraSamples = 0;
+  uint64_t discardedSamples = 0;  // NaN or Inf radiance, dropped from the pixel's average
+  uint64_t pixelsWithoutHit = 0;  // primary rays found no geometry in any sample
+  void add(const RenderCounters& o) {
+    cameraSamples += o.cameraSamples;
+    discardedSamples += o.discardedSamples;
+    pixelsWithoutHit += o.pixelsWithoutHit;
+  }
+};
+
+struct FrameRenderOptions {
+  int threads = 0;  // 0: all cores
+  int tileSize = 0; // 0: the shot's render.tile_size
+  std::function<void(int tilesDone, int tilesTotal)> progress;  // called from worker threads
+};
+
+// The channels of a rendered frame: RGBA, then the AOV layers.
+const std::vector<std::string>& frameChannels();
+
+// Tiles covering width x height, in Morton (Z) order of their grid positions.
+std::vector<TileRect> makeTiles(int width, int height, int tileSize);
+
+// Renders the pixels of `tile` into `image` (which has frameChannels() and the full size).
+RenderCounters renderTile(const Integrator& integrator, const Camera& camera,
+                          const RenderSettings& settings, int frame, const TileRect& tile,
+                          Image& image);
+
+Image renderFrame(const Integrator& integrator, const Camera& camera,
+                  const RenderSettings& settings, int frame, const FrameRenderOptions& options,
+                  RenderCounters* counters);
+
+}  // namespace pbgi

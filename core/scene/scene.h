@@ -1,0 +1,116 @@
+#pragma once
+// The renderable scene of one frame: triangle meshes, materials and lights in an Embree 3
+// BVH (robust intersection mode), plus the light-selection distribution.
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <absl/status/statusor.h>
+
+#include "core/math/vec.h"
+#include "core/sampling/sampling.h"
+#include "core/scene/camera.h"
+#include "core/scene/light.h"
+#include "core/scene/material.h"
+#include "core/scene/mesh.h"
+
+namespace pbgi {
+
+inline constexpr uint32_t kNoMaterial = ~0u;
+
+struct SurfaceHit {
+  float t = 0.0f;
+  Vec3f p{0.0f};
+  Vec3f ng{0.0f, 0.0f, 1.0f};  // geometric normal: the front side by the triangle's winding
+  Vec3f ns{0.0f, 0.0f, 1.0f};  // shading normal, on the same side as ng
+  Vec2f uv{0.0f, 0.0f};
+  uint32_t material = kNoMaterial;  // kNoMaterial on a light's own surface
+  int light = -1;                   // index into Scene::lights() where the surface emits
+  uint32_t geometry = 0;            // Embree geometry id
+  uint32_t primitive = 0;
+};
+
+struct SceneStats {
+  size_t meshes = 0;
+  size_t triangles = 0;
+  size_t lights = 0;
+  size_t emissiveTriangles = 0;
+};
+
+class Scene {
+ public:
+  ~Scene();
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  bool intersect(const Ray& ray, SurfaceHit* hit) const;
+  // True when anything blocks the segment [ray.tMin, ray.tMax].
+  bool occluded(const Ray& ray) const;
+
+  // A ray leaving surface point p (with geometric normal ng) in direction dir, offset off
+  // the surface on dir's side so that it cannot hit the surface it starts on.
+  Ray spawnRay(const Vec3f& p, const Vec3f& ng, const Vec3f& dir) const;
+  // A shadow ray from p towards a light sample at `distance` (infinite for distant lights),
+  // shortened so that it cannot hit the light's own surface.
+  Ray spawnShadowRay(const Vec3f& p, const Vec3f& ng, const Vec3f& wi, float distance) const;
+
+  const Material& material(uint32_t index) const { return materials_[index]; }
+  const std::vector<Material>& materials() const { return materials_; }
+  const std::vector<std::unique_ptr<Light>>& lights() const { return lights_; }
+  // Indices (into lights()) of the lights that surround the scene.
+  const std::vector<int>& infiniteLights() const { return infiniteLights_; }
+  // Picks a light in proportion to its power; nullptr when the scene has none.
+  const Light* sampleLight(float u, float* probability) const;
+  float lightProbability(int lightIndex) const;
+
+  // Albedo of a material at a hit (texture looked up).
+  Rgb albedoAt(const SurfaceHit& hit) const;
+
+  const Bounds3f& bounds() const { return bounds_; }
+  const SceneStats& stats() const { return stats_; }
+
+ private:
+  friend class SceneBuilder;
+  Scene() = default;
+  float offsetScale(const Vec3f& p) const;
+
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::vector<Material> materials_;
+  std::vector<std::unique_ptr<Light>> lights_;
+  std::vector<int> infiniteLights_;
+  Distribution1D lightDistribution_;
+  Bounds3f bounds_;
+  SceneStats stats_;
+};
+
+class SceneBuilder {
+ public:
+  SceneBuilder();
+  ~SceneBuilder();
+
+  uint32_t addMaterial(Material material);
+  // Triangles' material indices refer to addMaterial's return values. The mesh is cleaned
+  // (cleanMesh) here if the caller has not done so.
+  void addMesh(MeshData mesh);
+  // A light from the shot. Quad and sphere lights become surfaces of the scene too;
+  // environment lights need `environment` (the decoded lat-long image).
+  void addLight(const LightDesc& desc, std::shared_ptr<const LatLongImage> environment = nullptr);
+  // Any other light (no surface).
+  void addLight(std::unique_ptr<Light> light);
+
+  absl::StatusOr<std::unique_ptr<Scene>> build();
+
+ private:
+  std::vector<Material> materials_;
+  std::vector<MeshData> meshes_;
+  struct PendingLight {
+    LightDesc desc;
+    std::shared_ptr<const LatLongImage> environment;
+    std::unique_ptr<Light> custom;
+  };
+  std::vector<PendingLight> lights_;
+};
+
+}  // namespace pbgi

@@ -1,0 +1,159 @@
+#include "formats/scene/frame_scene.h"
+
+#include <map>
+
+#include <Imath/ImathMatrix.h>
+#include <fmt/format.h>
+
+#include "formats/image/image_io.h"
+#include "formats/image/texture.h"
+#include "formats/mesh/mesh_loader.h"
+
+namespace pbgi {
+
+namespace {
+
+// Scale, then rotate about X, Y and Z in that order, then translate.
+struct Transform {
+  Imath::M33f rotation;
+  float scale = 1.0f;
+  Vec3f translate{0.0f};
+
+  explicit Transform(const TransformParams& p) : scale(p.scale), translate(p.translate) {
+    Imath::M33f rx, ry, rz;
+    const float ax = radians(p.rotateDeg.x), ay = radians(p.rotateDeg.y), az = radians(p.rotateDeg.z);
+    // Column-vector convention written out explicitly: Imath multiplies row vectors.
+    rx = Imath::M33f(1, 0, 0, 0, std::cos(ax), -std::sin(ax), 0, std::sin(ax), std::cos(ax));
+    ry = Imath::M33f(std::cos(ay), 0, std::sin(ay), 0, 1, 0, -std::sin(ay), 0, std::cos(ay));
+    rz = Imath::M33f(std::cos(az), -std::sin(az), 0, std::sin(az), std::cos(az), 0, 0, 0, 1);
+    rotation = rz * ry * rx;  // as matrices acting on column vectors
+  }
+  Vec3f rotate(const Vec3f& v) const {
+    const Imath::M33f& m = rotation;
+    return {m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z,
+            m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
+            m[2][0] * v.x + m[2][1] * v.y + m[2][2] * v.z};
+  }
+  Vec3f point(const Vec3f& p) const { return rotate(p * scale) + translate; }
+  bool identity() const {
+    return scale == 1.0f && translate == Vec3f(0.0f) && rotation == Imath::M33f();
+  }
+};
+
+Material toMaterial(const MaterialDesc& d) {
+  Material m;
+  m.name = d.name;
+  m.type = d.type;
+  if (d.albedo) m.albedo = *d.albedo;
+  m.roughness = d.roughness;
+  m.distribution = d.distribution;
+  if (d.eta && d.k) {
+    m.complexIor = true;
+    m.eta = *d.eta;
+    m.k = *d.k;
+  } else if (d.specular) {
+    m.specular = *d.specular;
+  }
+  m.tint = d.tint;
+  m.ior = d.ior;
+  m.radiance = d.type == MaterialType::kEmissive ? d.radiance : Rgb(0.0f);
+  return m;
+}
+
+}  // namespace
+
+absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
+  std::vector<std::string> warnings;
+  SceneBuilder builder;
+
+  // Materials by name: the shot's override the files'.
+  std::map<std::string, uint32_t> materialIndex;
+  std::map<std::string, std::shared_ptr<const Texture>> textures;
+  auto texture = [&](const std::string& path) -> absl::StatusOr<std::shared_ptr<const Texture>> {
+    if (auto it = textures.find(path); it != textures.end()) return it->second;
+    auto t = loadImageTexture(path);
+    if (!t.ok()) return t.status();
+    textures[path] = *t;
+    return *t;
+  };
+  auto addMaterial = [&](const MaterialDesc& d) -> absl::StatusOr<uint32_t> {
+    Material m = toMaterial(d);
+    if (d.albedoTexture) {
+      auto t = texture(*d.albedoTexture);
+      if (!t.ok()) {
+        if (d.where.line > 0) {
+          return absl::Status(t.status().code(),
+                              fmt::format("{}: {}", d.where.toString(), t.status().message()));
+        }
+        warnings.push_back(fmt::format("material '{}': {}; using its constant albedo", d.name,
+                                       t.status().message()));
+      } else {
+        m.albedoTexture = *t;
+      }
+    }
+    return builder.addMaterial(std::move(m));
+  };
+  for (const MaterialDesc& d : shot.materials) {
+    auto index = addMaterial(d);
+    if (!index.ok()) return index.status();
+    materialIndex[d.name] = *index;
+  }
+
+  for (const GeometryDesc& g : shot.geometry) {
+    auto loaded = loadGeometry(g.file);
+    if (!loaded.ok()) {
+      return absl::Status(loaded.status().code(),
+                          fmt::format("{}: {}", g.where.toString(), loaded.status().message()));
+    }
+    for (std::string& w : loaded->warnings) warnings.push_back(std::move(w));
+    // Map the file's material indices to the scene's.
+    std::vector<uint32_t> remap(loaded->materials.size());
+    for (size_t i = 0; i < loaded->materials.size(); ++i) {
+      const MaterialDesc& fileMaterial = loaded->materials[i];
+      if (auto it = materialIndex.find(fileMaterial.name); it != materialIndex.end()) {
+        remap[i] = it->second;
+        continue;
+      }
+      auto index = addMaterial(fileMaterial);
+      if (!index.ok()) return index.status();
+      materialIndex[fileMaterial.name] = *index;
+      remap[i] = *index;
+    }
+    const Transform xf(transformAt(g, shot.firstFrame, frame));
+    for (MeshData& mesh : loaded->meshes) {
+      for (uint32_t& m : mesh.materials) m = remap.at(m);
+      if (!xf.identity()) {
+        for (Vec3f& p : mesh.positions) p = xf.point(p);
+        for (Vec3f& n : mesh.normals) {
+          const Vec3f r = xf.rotate(n);
+          const float len = length(r);
+          n = len > 0.0f ? r / len : Vec3f(0.0f);
+        }
+      }
+      builder.addMesh(std::move(mesh));
+    }
+  }
+
+  for (const LightDesc& l : shot.lights) {
+    if (l.type == LightType::kEnvironment) {
+      auto image = readLatLong(l.file);
+      if (!image.ok()) {
+        return absl::Status(image.status().code(),
+                            fmt::format("{}: {}", l.where.toString(), image.status().message()));
+      }
+      builder.addLight(l, std::make_shared<const LatLongImage>(std::move(*image)));
+    } else {
+      builder.addLight(l);
+    }
+  }
+
+  auto scene = builder.build();
+  if (!scene.ok()) return scene.status();
+  const CameraParams params = cameraAt(shot.camera, shot.firstFrame, frame);
+  FrameScene out{std::move(*scene),
+                 Camera(params, shot.width, shot.height, shot.camera.views, shot.camera.viewSpacing),
+                 std::move(warnings)};
+  return out;
+}
+
+}  // namespace pbgi
