@@ -309,7 +309,8 @@ Vec3f latLongToDirection(const Vec2f& uv) {
 }
 
 Vec2f directionToLatLong(const Vec3f& d) {
-  const float theta = safeAcos(d.y);
+  // atan2 keeps full precision near the poles, where acos(y) loses half its bits.
+  const float theta = std::atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
   float u = std::atan2(d.z, d.x) / (2.0f * kPi) + 0.5f;
   if (u >= 1.0f) u -= 1.0f;
   if (u < 0.0f) u += 1.0f;
