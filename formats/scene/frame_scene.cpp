@@ -5,6 +5,7 @@
 #include <Imath/ImathMatrix.h>
 #include <fmt/format.h>
 
+#include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/texture.h"
 #include "formats/mesh/mesh_loader.h"
@@ -81,10 +82,7 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
     if (d.albedoTexture) {
       auto t = texture(*d.albedoTexture);
       if (!t.ok()) {
-        if (d.where.line > 0) {
-          return absl::Status(t.status().code(),
-                              fmt::format("{}: {}", d.where.toString(), t.status().message()));
-        }
+        if (d.where.line > 0) return withContext(t.status(), d.where.toString());
         warnings.push_back(fmt::format("material '{}': {}; using its constant albedo", d.name,
                                        t.status().message()));
       } else {
@@ -102,8 +100,7 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
   for (const GeometryDesc& g : shot.geometry) {
     auto loaded = loadGeometry(g.file);
     if (!loaded.ok()) {
-      return absl::Status(loaded.status().code(),
-                          fmt::format("{}: {}", g.where.toString(), loaded.status().message()));
+      return withContext(loaded.status(), g.where.toString());
     }
     for (std::string& w : loaded->warnings) warnings.push_back(std::move(w));
     // Map the file's material indices to the scene's.
@@ -138,8 +135,7 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
     if (l.type == LightType::kEnvironment) {
       auto image = readLatLong(l.file);
       if (!image.ok()) {
-        return absl::Status(image.status().code(),
-                            fmt::format("{}: {}", l.where.toString(), image.status().message()));
+        return withContext(image.status(), l.where.toString());
       }
       builder.addLight(l, std::make_shared<const LatLongImage>(std::move(*image)));
     } else {

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "core/render/integrator.h"
+#include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
 #include "formats/scene/frame_scene.h"
