@@ -1,5 +1,9 @@
 #include "formats/shot/shot_file.h"
 
+#include <absl/status/status.h>
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
@@ -7,10 +11,6 @@
 #include <set>
 #include <string>
 #include <vector>
-
-#include <absl/status/status.h>
-#include <fmt/format.h>
-#include <gtest/gtest.h>
 
 #include "core/scene/shot.h"
 #include "tests/support/test_paths.h"
@@ -44,60 +44,116 @@ void PrintTo(const Malformed& m, std::ostream* os) { *os << m.file; }
 
 const Malformed kMalformed[] = {
     {"syntax_error.toml", absl::StatusCode::kInvalidArgument, 12, "TOML syntax error"},
-    {"unknown_key_camera.toml", absl::StatusCode::kInvalidArgument, 14, "[camera]: unknown key 'fov' (expected one of: position, look_at, up, fov_y_deg"},
+    {"unknown_key_camera.toml", absl::StatusCode::kInvalidArgument, 14,
+     "[camera]: unknown key 'fov' (expected one of: position, look_at, up, fov_y_deg"},
     {"unknown_table.toml", absl::StatusCode::kInvalidArgument, 19, "unknown key 'renderer'"},
-    {"unknown_key_render.toml", absl::StatusCode::kInvalidArgument, 20, "[render]: unknown key 'samples'"},
-    {"wrong_type_fov.toml", absl::StatusCode::kInvalidArgument, 14, "'fov_y_deg': expected a number, found string \"wide\""},
-    {"float_for_int.toml", absl::StatusCode::kInvalidArgument, 20, "'spp': expected an integer, found float 4.0"},
-    {"nan_position.toml", absl::StatusCode::kInvalidArgument, 11, "'position'[1]: expected a finite number, found float nan"},
-    {"inf_radius.toml", absl::StatusCode::kInvalidArgument, 22, "'radius': expected a finite number, found float inf"},
-    {"negative_fov.toml", absl::StatusCode::kInvalidArgument, 14, "'fov_y_deg' must be in (0, 180), found -10.0"},
-    {"fov_180.toml", absl::StatusCode::kInvalidArgument, 14, "'fov_y_deg' must be in (0, 180), found 180"},
-    {"missing_geometry_file.toml", absl::StatusCode::kNotFound, 17, "file \"missing.obj\" not found (resolved to "},
-    {"geometry_format.toml", absl::StatusCode::kInvalidArgument, 17, "expected a Wavefront OBJ (.obj) or glTF 2.0 (.gltf, .glb) file, found \"tri.fbx\""},
-    {"absurd_resolution.toml", absl::StatusCode::kInvalidArgument, 7, "'resolution'[0] must be in [1, 16384], found 1000000"},
-    {"too_many_pixels.toml", absl::StatusCode::kInvalidArgument, 7, "'resolution' 16384 x 16384 is 268435456 pixels; at most 67108864"},
-    {"up_parallel.toml", absl::StatusCode::kInvalidArgument, 13, "is parallel to the view direction"},
-    {"position_is_look_at.toml", absl::StatusCode::kInvalidArgument, 12, "position and look_at coincide"},
-    {"aperture_without_focus.toml", absl::StatusCode::kInvalidArgument, 15, "needs 'focus_distance' (> 0), which is missing"},
-    {"camera_key_degenerate.toml", absl::StatusCode::kInvalidArgument, 16, "the camera at frame 2 is degenerate: up"},
-    {"camera_key_float_frame.toml", absl::StatusCode::kInvalidArgument, 17, "[[camera.key]] #1: 'frame': expected an integer, found float 1.5"},
-    {"camera_key_duplicate.toml", absl::StatusCode::kInvalidArgument, 21, "frame 2 already has a key at line 16"},
-    {"camera_key_empty.toml", absl::StatusCode::kInvalidArgument, 16, "key at frame 2 sets nothing"},
-    {"unknown_material_type.toml", absl::StatusCode::kInvalidArgument, 21, "unknown material type \"plastic\" (expected one of: diffuse, conductor, dielectric, emissive)"},
-    {"material_foreign_key.toml", absl::StatusCode::kInvalidArgument, 23, "unknown key 'ior' for a conductor material: it belongs to dielectric materials"},
-    {"albedo_out_of_range.toml", absl::StatusCode::kInvalidArgument, 22, "'albedo'[1] must be in [0, 1], found 1.2"},
-    {"diffuse_both_albedos.toml", absl::StatusCode::kInvalidArgument, 23, "takes 'albedo' or 'albedo_texture', not both"},
-    {"missing_albedo_texture.toml", absl::StatusCode::kNotFound, 22, "file \"textures/nowhere.png\" not found (resolved to "},
-    {"conductor_both_fresnels.toml", absl::StatusCode::kInvalidArgument, 23, "either 'specular' or 'eta' and 'k', not both"},
-    {"conductor_no_fresnel.toml", absl::StatusCode::kInvalidArgument, 19, "a conductor needs 'specular' = [r, g, b] or both 'eta' and 'k'"},
+    {"unknown_key_render.toml", absl::StatusCode::kInvalidArgument, 20,
+     "[render]: unknown key 'samples'"},
+    {"wrong_type_fov.toml", absl::StatusCode::kInvalidArgument, 14,
+     "'fov_y_deg': expected a number, found string \"wide\""},
+    {"float_for_int.toml", absl::StatusCode::kInvalidArgument, 20,
+     "'spp': expected an integer, found float 4.0"},
+    {"nan_position.toml", absl::StatusCode::kInvalidArgument, 11,
+     "'position'[1]: expected a finite number, found float nan"},
+    {"inf_radius.toml", absl::StatusCode::kInvalidArgument, 22,
+     "'radius': expected a finite number, found float inf"},
+    {"negative_fov.toml", absl::StatusCode::kInvalidArgument, 14,
+     "'fov_y_deg' must be in (0, 180), found -10.0"},
+    {"fov_180.toml", absl::StatusCode::kInvalidArgument, 14,
+     "'fov_y_deg' must be in (0, 180), found 180"},
+    {"missing_geometry_file.toml", absl::StatusCode::kNotFound, 17,
+     "file \"missing.obj\" not found (resolved to "},
+    {"geometry_format.toml", absl::StatusCode::kInvalidArgument, 17,
+     "expected a Wavefront OBJ (.obj) or glTF 2.0 (.gltf, .glb) file, found \"tri.fbx\""},
+    {"absurd_resolution.toml", absl::StatusCode::kInvalidArgument, 7,
+     "'resolution'[0] must be in [1, 16384], found 1000000"},
+    {"too_many_pixels.toml", absl::StatusCode::kInvalidArgument, 7,
+     "'resolution' 16384 x 16384 is 268435456 pixels; at most 67108864"},
+    {"up_parallel.toml", absl::StatusCode::kInvalidArgument, 13,
+     "is parallel to the view direction"},
+    {"position_is_look_at.toml", absl::StatusCode::kInvalidArgument, 12,
+     "position and look_at coincide"},
+    {"aperture_without_focus.toml", absl::StatusCode::kInvalidArgument, 15,
+     "needs 'focus_distance' (> 0), which is missing"},
+    {"camera_key_degenerate.toml", absl::StatusCode::kInvalidArgument, 16,
+     "the camera at frame 2 is degenerate: up"},
+    {"camera_key_float_frame.toml", absl::StatusCode::kInvalidArgument, 17,
+     "[[camera.key]] #1: 'frame': expected an integer, found float 1.5"},
+    {"camera_key_duplicate.toml", absl::StatusCode::kInvalidArgument, 21,
+     "frame 2 already has a key at line 16"},
+    {"camera_key_empty.toml", absl::StatusCode::kInvalidArgument, 16,
+     "key at frame 2 sets nothing"},
+    {"unknown_material_type.toml", absl::StatusCode::kInvalidArgument, 21,
+     "unknown material type \"plastic\" (expected one of: diffuse, conductor, dielectric, "
+     "emissive)"},
+    {"material_foreign_key.toml", absl::StatusCode::kInvalidArgument, 23,
+     "unknown key 'ior' for a conductor material: it belongs to dielectric materials"},
+    {"albedo_out_of_range.toml", absl::StatusCode::kInvalidArgument, 22,
+     "'albedo'[1] must be in [0, 1], found 1.2"},
+    {"diffuse_both_albedos.toml", absl::StatusCode::kInvalidArgument, 23,
+     "takes 'albedo' or 'albedo_texture', not both"},
+    {"missing_albedo_texture.toml", absl::StatusCode::kNotFound, 22,
+     "file \"textures/nowhere.png\" not found (resolved to "},
+    {"conductor_both_fresnels.toml", absl::StatusCode::kInvalidArgument, 23,
+     "either 'specular' or 'eta' and 'k', not both"},
+    {"conductor_no_fresnel.toml", absl::StatusCode::kInvalidArgument, 19,
+     "a conductor needs 'specular' = [r, g, b] or both 'eta' and 'k'"},
     {"dielectric_ior.toml", absl::StatusCode::kInvalidArgument, 22, "'ior' must be > 1, found 1"},
-    {"duplicate_material.toml", absl::StatusCode::kInvalidArgument, 25, "material \"white\" is already defined at line 19"},
-    {"unknown_light_type.toml", absl::StatusCode::kInvalidArgument, 20, "unknown light type \"area\" (expected one of: quad, sphere, point, spot, directional, environment)"},
-    {"light_foreign_key.toml", absl::StatusCode::kInvalidArgument, 23, "unknown key 'radiance' for a point light: it belongs to quad and sphere lights (expected one of: type, position, intensity)"},
-    {"light_missing_type.toml", absl::StatusCode::kInvalidArgument, 19, "[[light]] #1: missing required key 'type'"},
-    {"degenerate_quad.toml", absl::StatusCode::kInvalidArgument, 23, "are parallel or zero: the quad has no area"},
-    {"zero_direction.toml", absl::StatusCode::kInvalidArgument, 21, "'direction' must be a non-zero vector"},
-    {"spot_cone.toml", absl::StatusCode::kInvalidArgument, 23, "'cone_deg' must be in (0, 90], found 120.0"},
-    {"negative_radiance.toml", absl::StatusCode::kInvalidArgument, 24, "'radiance'[1] must be >= 0, found -1.0"},
-    {"missing_environment_map.toml", absl::StatusCode::kNotFound, 21, "file \"maps/nowhere.exr\" not found (resolved to "},
-    {"two_environments.toml", absl::StatusCode::kInvalidArgument, 23, "at most one environment light; another is at line 19"},
-    {"future_version.toml", absl::StatusCode::kInvalidArgument, 2, "'version' 2 is newer than this build of pbgi reads (1)"},
-    {"missing_version.toml", absl::StatusCode::kInvalidArgument, 1, "missing required key 'version'"},
-    {"frames_reversed.toml", absl::StatusCode::kInvalidArgument, 6, "'frames' must be [first, last] with first <= last, found [5, 2]"},
-    {"missing_required_key.toml", absl::StatusCode::kInvalidArgument, 10, "[camera]: missing required key 'up'"},
-    {"missing_shot_table.toml", absl::StatusCode::kInvalidArgument, 1, "missing required table [shot]"},
+    {"duplicate_material.toml", absl::StatusCode::kInvalidArgument, 25,
+     "material \"white\" is already defined at line 19"},
+    {"unknown_light_type.toml", absl::StatusCode::kInvalidArgument, 20,
+     "unknown light type \"area\" (expected one of: quad, sphere, point, spot, directional, "
+     "environment)"},
+    {"light_foreign_key.toml", absl::StatusCode::kInvalidArgument, 23,
+     "unknown key 'radiance' for a point light: it belongs to quad and sphere lights (expected one "
+     "of: type, position, intensity)"},
+    {"light_missing_type.toml", absl::StatusCode::kInvalidArgument, 19,
+     "[[light]] #1: missing required key 'type'"},
+    {"degenerate_quad.toml", absl::StatusCode::kInvalidArgument, 23,
+     "are parallel or zero: the quad has no area"},
+    {"zero_direction.toml", absl::StatusCode::kInvalidArgument, 21,
+     "'direction' must be a non-zero vector"},
+    {"spot_cone.toml", absl::StatusCode::kInvalidArgument, 23,
+     "'cone_deg' must be in (0, 90], found 120.0"},
+    {"negative_radiance.toml", absl::StatusCode::kInvalidArgument, 24,
+     "'radiance'[1] must be >= 0, found -1.0"},
+    {"missing_environment_map.toml", absl::StatusCode::kNotFound, 21,
+     "file \"maps/nowhere.exr\" not found (resolved to "},
+    {"two_environments.toml", absl::StatusCode::kInvalidArgument, 23,
+     "at most one environment light; another is at line 19"},
+    {"future_version.toml", absl::StatusCode::kInvalidArgument, 2,
+     "'version' 2 is newer than this build of pbgi reads (1)"},
+    {"missing_version.toml", absl::StatusCode::kInvalidArgument, 1,
+     "missing required key 'version'"},
+    {"frames_reversed.toml", absl::StatusCode::kInvalidArgument, 6,
+     "'frames' must be [first, last] with first <= last, found [5, 2]"},
+    {"missing_required_key.toml", absl::StatusCode::kInvalidArgument, 10,
+     "[camera]: missing required key 'up'"},
+    {"missing_shot_table.toml", absl::StatusCode::kInvalidArgument, 1,
+     "missing required table [shot]"},
     {"no_geometry.toml", absl::StatusCode::kInvalidArgument, 1, "missing required [[geometry]]"},
-    {"geometry_not_array.toml", absl::StatusCode::kInvalidArgument, 16, "'geometry': expected an array of tables [[geometry]], found a table"},
-    {"bad_name.toml", absl::StatusCode::kInvalidArgument, 5, "'name' must match [A-Za-z0-9_-]+, found \"my shot!\""},
-    {"bad_filter.toml", absl::StatusCode::kInvalidArgument, 20, "unknown pixel filter \"mitchell\" (expected one of: box, gaussian, blackman-harris)"},
-    {"zero_spp.toml", absl::StatusCode::kInvalidArgument, 20, "'spp' must be in [1, 1048576], found 0"},
-    {"zero_filter_width.toml", absl::StatusCode::kInvalidArgument, 20, "'filter_width' must be in (0, 32], found 0"},
-    {"small_tile.toml", absl::StatusCode::kInvalidArgument, 20, "'tile_size' must be in [4, 1024], found 2"},
-    {"empty_integrator.toml", absl::StatusCode::kInvalidArgument, 20, "'integrator': expected a name"},
-    {"zero_views.toml", absl::StatusCode::kInvalidArgument, 15, "'views'[0] must be in [1, 1024], found 0"},
+    {"geometry_not_array.toml", absl::StatusCode::kInvalidArgument, 16,
+     "'geometry': expected an array of tables [[geometry]], found a table"},
+    {"bad_name.toml", absl::StatusCode::kInvalidArgument, 5,
+     "'name' must match [A-Za-z0-9_-]+, found \"my shot!\""},
+    {"bad_filter.toml", absl::StatusCode::kInvalidArgument, 20,
+     "unknown pixel filter \"mitchell\" (expected one of: box, gaussian, blackman-harris)"},
+    {"zero_spp.toml", absl::StatusCode::kInvalidArgument, 20,
+     "'spp' must be in [1, 1048576], found 0"},
+    {"zero_filter_width.toml", absl::StatusCode::kInvalidArgument, 20,
+     "'filter_width' must be in (0, 32], found 0"},
+    {"small_tile.toml", absl::StatusCode::kInvalidArgument, 20,
+     "'tile_size' must be in [4, 1024], found 2"},
+    {"empty_integrator.toml", absl::StatusCode::kInvalidArgument, 20,
+     "'integrator': expected a name"},
+    {"zero_views.toml", absl::StatusCode::kInvalidArgument, 15,
+     "'views'[0] must be in [1, 1024], found 0"},
+    {"views_mosaic_too_big.toml", absl::StatusCode::kInvalidArgument, 15,
+     "'views' 4 x 2 of 4096 x 4096 pixels make a mosaic of 134217728 pixels; at most 67108864"},
     {"geometry_scale.toml", absl::StatusCode::kInvalidArgument, 18, "'scale' must be > 0, found 0"},
-    {"geometry_key_unknown.toml", absl::StatusCode::kInvalidArgument, 21, "[[geometry.key]] #1: unknown key 'rotate' (expected one of: frame, translate, rotate_deg, scale)"},
+    {"geometry_key_unknown.toml", absl::StatusCode::kInvalidArgument, 21,
+     "[[geometry.key]] #1: unknown key 'rotate' (expected one of: frame, translate, rotate_deg, "
+     "scale)"},
 };
 
 class ShotFileMalformedTest : public ::testing::TestWithParam<Malformed> {};
@@ -111,8 +167,8 @@ TEST_P(ShotFileMalformedTest, IsRejectedWithFileLineColumnAndReason) {
   EXPECT_EQ(shot.status().code(), m.code) << message;
   // "FILE:LINE:COLUMN: " with a positive column.
   const std::string prefix = fmt::format("{}:{}:", path, m.line);
-  ASSERT_EQ(message.rfind(prefix, 0), 0u) << "expected the message to start with " << prefix
-                                           << "\n  got: " << message;
+  ASSERT_EQ(message.rfind(prefix, 0), 0u)
+      << "expected the message to start with " << prefix << "\n  got: " << message;
   size_t i = prefix.size();
   while (i < message.size() && std::isdigit(static_cast<unsigned char>(message[i]))) ++i;
   EXPECT_GT(i, prefix.size()) << "no column in: " << message;
@@ -144,8 +200,9 @@ TEST(ShotFileMalformed, EveryMalformedFileIsInTheTable) {
 TEST(ShotFileMalformed, MessagesSayWhatWasExpectedInFull) {
   const std::string path = shotPath("unknown_key_camera.toml");
   EXPECT_EQ(loadShotFile(path).status().message(),
-            path + ":14:1: [camera]: unknown key 'fov' (expected one of: position, look_at, up, "
-                   "fov_y_deg, aperture_radius, focus_distance, views, view_spacing, key)");
+            path +
+                ":14:1: [camera]: unknown key 'fov' (expected one of: position, look_at, up, "
+                "fov_y_deg, aperture_radius, focus_distance, views, view_spacing, key)");
   const std::string fov = shotPath("negative_fov.toml");
   EXPECT_EQ(loadShotFile(fov).status().message(),
             fov + ":14:13: [camera]: 'fov_y_deg' must be in (0, 180), found -10.0");
@@ -155,10 +212,11 @@ TEST(ShotFileMalformed, MissingFileNamesTheShotLineAndResolvedPath) {
   const std::string path = shotPath("missing_geometry_file.toml");
   const absl::Status status = loadShotFile(path).status();
   EXPECT_EQ(status.code(), absl::StatusCode::kNotFound);
-  EXPECT_EQ(status.message(),
-            fmt::format("{}:17:8: [[geometry]] #1: 'file': file \"missing.obj\" not found (resolved "
-                        "to {})",
-                        path, resolved(shotsDir() / "missing.obj")));
+  EXPECT_EQ(
+      status.message(),
+      fmt::format("{}:17:8: [[geometry]] #1: 'file': file \"missing.obj\" not found (resolved "
+                  "to {})",
+                  path, resolved(shotsDir() / "missing.obj")));
 }
 
 // ---- loading: the shot file itself ----
@@ -188,7 +246,8 @@ TEST(ShotFile, HugeFileIsRejectedBeforeParsing) {
   const absl::StatusOr<ShotDesc> shot = loadShotFile(path.string());
   ASSERT_FALSE(shot.ok());
   EXPECT_EQ(shot.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_NE(shot.status().message().find("a shot file is at most 16777216 bytes"), std::string::npos)
+  EXPECT_NE(shot.status().message().find("a shot file is at most 16777216 bytes"),
+            std::string::npos)
       << shot.status();
   fs::remove_all(dir);
 }
@@ -406,7 +465,8 @@ fov_y_deg = 30
 [[geometry]]
 file = "meshes/tri.obj"
 [[geometry]]
-file = ")" + (dir / "meshes" / "tri.obj").string() + R"("
+file = ")" + (dir / "meshes" / "tri.obj").string() +
+                           R"("
 )";
   const std::string path = (dir / "shot.toml").string();
   const absl::StatusOr<ShotDesc> shot = parseShot(text, path);
