@@ -1,6 +1,7 @@
 #pragma once
 // Triangle meshes as loaded from geometry files, before they enter the Embree scene.
 
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -12,7 +13,9 @@ namespace pbgi {
 struct MeshData {
   std::string name;
   std::vector<Vec3f> positions;
-  std::vector<Vec3f> normals;  // per vertex, or empty (face normals are used)
+  // Per vertex, or empty (face normals are used). A zero vector marks a vertex without a
+  // usable normal: the renderer then uses the face normal for triangles touching it.
+  std::vector<Vec3f> normals;
   std::vector<Vec2f> uvs;      // per vertex, or empty
   std::vector<uint32_t> indices;    // three per triangle
   std::vector<uint32_t> materials;  // one per triangle: index into the scene's material table
@@ -22,15 +25,26 @@ struct MeshData {
 
 // What cleaning a mesh removed or repaired, for the warning the loader prints.
 struct MeshCleanReport {
-  size_t nonFiniteTriangles = 0;  // a vertex with NaN or Inf
-  size_t degenerateTriangles = 0; // zero area
+  size_t nonFiniteTriangles = 0;  // a vertex with NaN or Inf (or edges that overflow float)
+  size_t degenerateTriangles = 0; // zero area, or collinear within float precision
+  size_t badIndices = 0;          // a vertex index past the end of `positions`
   size_t badNormals = 0;          // non-finite or zero vertex normals (face normal used)
   size_t badUvs = 0;              // non-finite texture coordinates (set to 0)
-  size_t total() const { return nonFiniteTriangles + degenerateTriangles + badNormals + badUvs; }
+  size_t droppedTriangles() const { return nonFiniteTriangles + degenerateTriangles + badIndices; }
+  size_t total() const { return droppedTriangles() + badNormals + badUvs; }
+  // "dropped 2 triangles with NaN/Inf vertices, 1 degenerate (zero-area) triangle; ...";
+  // empty when nothing was changed.
+  std::string toString() const;
 };
 
-// Drops triangles with non-finite vertices or zero area, and repairs bad normals and uvs, so
-// that nothing downstream sees a NaN from the input.
+// Drops triangles with out-of-range indices, non-finite vertices or (near) zero area, keeping
+// `materials` in step, and repairs per-vertex data so that nothing downstream sees a NaN from
+// the input: non-finite or zero normals become the zero vector (the renderer then shades
+// with the face normal), the others are normalized; non-finite uvs become 0. Vertices that
+// no triangle uses any more are left in place. Idempotent on the data (the scene cleans again
+// on build); zero normals are reported again, as a zero normal from a file would be.
+// `indices` must hold whole triangles and `materials` one entry per triangle; `normals` and
+// `uvs` are empty or one per vertex (programmer errors otherwise).
 MeshCleanReport cleanMesh(MeshData& mesh);
 
 }  // namespace pbgi

@@ -1,0 +1,27 @@
+#pragma once
+// Image textures for the renderer through one process-wide OIIO TextureSystem, which caches
+// tiles under a memory cap and is safe to query from many threads.
+
+#include <memory>
+#include <string>
+
+#include <absl/status/statusor.h>
+
+#include "core/scene/texture.h"
+
+namespace pbgi {
+
+// Opens an image (PNG, JPEG, OpenEXR, ... anything OIIO reads) as a texture. The file is
+// opened and its first tile decoded here, so that a missing or corrupt texture is an error
+// at load time rather than black texels mid-render: NotFound when the path does not exist,
+// InvalidArgument when OIIO cannot read it.
+//
+// evaluate(uv) is bilinear, without MIP-mapping, periodic in u and v, with v = 0 at the
+// bottom row (OBJ convention). Texels of 8- and 16-bit sources that are sRGB-encoded (by the
+// file's "oiio:ColorSpace", or by default for integer formats) are decoded to linear before
+// they are interpolated, as the reference renders were made (Cycles, "bilinear in linear
+// space": ../shared/scenes/SOURCES.md); float sources are linear already. One- and
+// two-channel images are grey (plus alpha); alpha is ignored.
+absl::StatusOr<std::shared_ptr<const Texture>> loadImageTexture(const std::string& path);
+
+}  // namespace pbgi
