@@ -1,8 +1,139 @@
+// `pbgi compare IMAGE REFERENCE [--diff OUT.exr] [--json]`: error metrics of a render
+// against a reference (definitions in formats/image/compare.h).
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include <absl/strings/str_cat.h>
+#include <fmt/format.h>
 #include <CLI/CLI.hpp>
 
+#include "formats/image/compare.h"
+#include "formats/image/image_io.h"
 #include "services/cli/cli.h"
 
 namespace pbgi::cli {
-// Filled in by the compare work (pbgi compare IMAGE REF [--diff OUT.exr]).
-void registerCompareCommand(CLI::App& app, CommandAction& action) {}
+namespace {
+
+struct CompareOptions {
+  std::string image;
+  std::string reference;
+  std::string diff;
+  bool json = false;
+};
+
+std::string jsonString(const std::string& s) {
+  std::string out = "\"";
+  for (const char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += ch;
+    } else if (c < 0x20) {
+      out += fmt::format("\\u{:04x}", c);
+    } else {
+      out += ch;
+    }
+  }
+  return out + "\"";
+}
+
+// JSON has no NaN or infinity; null stands for both (PSNR of identical images, metrics of an
+// image with no finite pixel).
+std::string jsonNumber(double v) { return std::isfinite(v) ? fmt::format("{:.9g}", v) : "null"; }
+
+std::string toJson(const CompareOptions& options, const Image& image, const ImageMetrics& m) {
+  static constexpr const char* kNames[3] = {"R", "G", "B"};
+  std::string channels;
+  for (int c = 0; c < 3; ++c) {
+    const ChannelMetrics& ch = m.channels[c];
+    absl::StrAppend(
+        &channels, c ? "," : "", "\"", kNames[c], "\":{\"mean\":", jsonNumber(ch.meanImage),
+        ",\"mean_reference\":", jsonNumber(ch.meanReference), ",\"rmse\":", jsonNumber(ch.rmse),
+        ",\"relmse\":", jsonNumber(ch.relMse), ",\"psnr\":", jsonNumber(ch.psnr), "}");
+  }
+  return absl::StrCat(
+      "{\"image\":", jsonString(options.image), ",\"reference\":", jsonString(options.reference),
+      ",\"width\":", image.width(), ",\"height\":", image.height(),
+      ",\"rmse\":", jsonNumber(m.rmse), ",\"relmse\":", jsonNumber(m.relMse),
+      ",\"psnr\":", jsonNumber(m.psnr), ",\"relmse_epsilon\":", jsonNumber(kRelMseEpsilon),
+      ",\"psnr_peak\":", jsonNumber(kPsnrPeak), ",\"compared_pixels\":", m.comparedPixels,
+      ",\"nonfinite_image\":", m.nonFiniteImage, ",\"nonfinite_reference\":", m.nonFiniteReference,
+      ",\"channels\":{", channels, "}",
+      options.diff.empty() ? "" : absl::StrCat(",\"diff\":", jsonString(options.diff)), "}");
+}
+
+void printTable(const CompareOptions& options, const Image& image, const ImageMetrics& m) {
+  std::printf("image      %s (%dx%d)\n", options.image.c_str(), image.width(), image.height());
+  std::printf("reference  %s\n", options.reference.c_str());
+  std::printf("%-8s %12s %12s %12s %12s %10s\n", "channel", "mean", "mean ref", "RMSE", "relMSE",
+              "PSNR dB");
+  static constexpr const char* kNames[3] = {"R", "G", "B"};
+  for (int c = 0; c < 3; ++c) {
+    const ChannelMetrics& ch = m.channels[c];
+    std::printf("%-8s %12.6g %12.6g %12.6g %12.6g %10.2f\n", kNames[c], ch.meanImage,
+                ch.meanReference, ch.rmse, ch.relMse, ch.psnr);
+  }
+  const double meanImage =
+      (m.channels[0].meanImage + m.channels[1].meanImage + m.channels[2].meanImage) / 3.0;
+  const double meanRef =
+      (m.channels[0].meanReference + m.channels[1].meanReference + m.channels[2].meanReference) /
+      3.0;
+  std::printf("%-8s %12.6g %12.6g %12.6g %12.6g %10.2f\n", "RGB", meanImage, meanRef, m.rmse,
+              m.relMse, m.psnr);
+  std::printf("relMSE = mean((a-b)^2 / (b^2 + %g)); PSNR peak %g\n", kRelMseEpsilon, kPsnrPeak);
+  const int64_t total = static_cast<int64_t>(image.width()) * image.height();
+  std::printf("compared %lld of %lld pixels; non-finite pixels: image %lld, reference %lld\n",
+              static_cast<long long>(m.comparedPixels), static_cast<long long>(total),
+              static_cast<long long>(m.nonFiniteImage),
+              static_cast<long long>(m.nonFiniteReference));
+  if (!options.diff.empty()) std::printf("diff       %s\n", options.diff.c_str());
+}
+
+int runCompare(const CompareOptions& options) {
+  absl::StatusOr<Image> image = readImage(options.image);
+  if (!image.ok()) return reportError(image.status());
+  absl::StatusOr<Image> reference = readImage(options.reference);
+  if (!reference.ok()) return reportError(reference.status());
+
+  Image diff;
+  absl::StatusOr<ImageMetrics> metrics =
+      compareImages(*image, *reference, options.diff.empty() ? nullptr : &diff);
+  if (!metrics.ok()) {
+    return reportError(absl::Status(
+        metrics.status().code(),
+        absl::StrCat(options.image, " vs ", options.reference, ": ", metrics.status().message())));
+  }
+  if (!options.diff.empty()) {
+    diff.setMetadata("pbgi:diffImage", options.image);
+    diff.setMetadata("pbgi:diffReference", options.reference);
+    if (absl::Status s = writeExr(diff, options.diff); !s.ok()) return reportError(s);
+  }
+  if (options.json) {
+    std::printf("%s\n", toJson(options, *image, *metrics).c_str());
+  } else {
+    printTable(options, *image, *metrics);
+  }
+  return std::fflush(stdout) == 0 ? kExitOk : kExitFailed;
+}
+
+}  // namespace
+
+void registerCompareCommand(CLI::App& app, CommandAction& action) {
+  auto options = std::make_shared<CompareOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "compare",
+      "Print error metrics (per-channel means, RMSE, relMSE, PSNR) of IMAGE against REFERENCE");
+  cmd->add_option("IMAGE", options->image, "Image to measure (any format OIIO reads)")->required();
+  cmd->add_option("REFERENCE", options->reference, "Reference image of the same size")->required();
+  cmd->add_option("--diff", options->diff,
+                  "Write |IMAGE - REFERENCE| per pixel (R, G, B) to this OpenEXR file");
+  cmd->add_flag("--json", options->json,
+                "Print one line of JSON instead of the table (null for NaN or infinity)");
+  // `action` belongs to run() and outlives parsing, which is when this callback fires.
+  cmd->callback([options, &action] { action = [options] { return runCompare(*options); }; });
+}
+
 }  // namespace pbgi::cli

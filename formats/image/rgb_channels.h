@@ -1,0 +1,24 @@
+#pragma once
+// Private to formats/image: which channels of an image hold its colour. Shared by the EXR
+// reader, the preview writer and the comparison so that all three agree on it.
+
+#include <array>
+
+#include "core/render/image.h"
+
+namespace pbgi::detail {
+
+// R, G and B by name when the image has all three (EXR files may order channels in any
+// way); otherwise the first three channels; otherwise the first channel repeated, so that
+// grey and grey+alpha images read as grey. Requires at least one channel.
+inline std::array<int, 3> rgbChannelIndices(const Image& image) {
+  PBGI_CHECK_GT(image.channelCount(), 0);
+  const int r = image.channelIndex("R");
+  const int g = image.channelIndex("G");
+  const int b = image.channelIndex("B");
+  if (r >= 0 && g >= 0 && b >= 0) return {r, g, b};
+  if (image.channelCount() >= 3) return {0, 1, 2};
+  return {0, 0, 0};
+}
+
+}  // namespace pbgi::detail
