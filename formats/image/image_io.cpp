@@ -47,6 +47,8 @@ std::string oiioError(const std::string& message) {
   return m.empty() ? std::string("unknown OIIO error") : m;
 }
 
+// The code follows errno (ENOENT is NotFound, EACCES PermissionDenied, ...); absl appends
+// strerror to the message.
 absl::Status errnoStatus(int error, const std::string& message) {
   return absl::ErrnoToStatus(error, message);
 }
@@ -68,8 +70,8 @@ absl::Status writeAtomically(const std::string& path, const char* format,
     std::error_code ec;
     fs::create_directories(parent, ec);
     if (ec) {
-      return errnoStatus(ec.value(), absl::StrCat(path, ": cannot create folder ", parent.string(),
-                                                  ": ", ec.message()));
+      return errnoStatus(ec.value(),
+                         absl::StrCat(path, ": cannot create folder ", parent.string()));
     }
   }
   const std::string tmp = temporaryPathFor(path);
@@ -102,15 +104,14 @@ absl::Status writeAtomically(const std::string& path, const char* format,
   if (fd < 0 || ::fsync(fd) != 0) {
     const int error = errno;
     if (fd >= 0) ::close(fd);
-    return fail(errnoStatus(error, absl::StrCat(path, ": cannot flush ", tmp, ": ",
-                                                std::generic_category().message(error))));
+    return fail(errnoStatus(error, absl::StrCat(path, ": cannot flush ", tmp)));
   }
   ::close(fd);
   std::error_code ec;
   fs::rename(tmp, path, ec);
   if (ec) {
-    return fail(errnoStatus(
-        ec.value(), absl::StrCat(path, ": cannot rename ", tmp, " into place: ", ec.message())));
+    return fail(
+        errnoStatus(ec.value(), absl::StrCat(path, ": cannot rename ", tmp, " into place")));
   }
   return absl::OkStatus();
 }
@@ -147,8 +148,7 @@ absl::StatusOr<ReadResult> readWithOiio(const std::string& path) {
   }
   if (::access(path.c_str(), R_OK) != 0) {
     const int error = errno;
-    return errnoStatus(
-        error, absl::StrCat(path, ": cannot read: ", std::generic_category().message(error)));
+    return errnoStatus(error, absl::StrCat(path, ": cannot read"));
   }
 
   try {
