@@ -16,7 +16,7 @@ struct MeshData {
   // Per vertex, or empty (face normals are used). A zero vector marks a vertex without a
   // usable normal: the renderer then uses the face normal for triangles touching it.
   std::vector<Vec3f> normals;
-  std::vector<Vec2f> uvs;      // per vertex, or empty
+  std::vector<Vec2f> uvs;           // per vertex, or empty
   std::vector<uint32_t> indices;    // three per triangle
   std::vector<uint32_t> materials;  // one per triangle: index into the scene's material table
 
@@ -25,11 +25,11 @@ struct MeshData {
 
 // What cleaning a mesh removed or repaired, for the warning the loader prints.
 struct MeshCleanReport {
-  size_t nonFiniteTriangles = 0;  // a vertex with NaN or Inf (or edges that overflow float)
-  size_t degenerateTriangles = 0; // zero area, or collinear within float precision
-  size_t badIndices = 0;          // a vertex index past the end of `positions`
-  size_t badNormals = 0;          // non-finite or zero vertex normals (face normal used)
-  size_t badUvs = 0;              // non-finite texture coordinates (set to 0)
+  size_t nonFiniteTriangles = 0;   // a vertex with NaN or Inf (or edges that overflow float)
+  size_t degenerateTriangles = 0;  // zero area, or collinear within float precision
+  size_t badIndices = 0;           // a vertex index past the end of `positions`
+  size_t badNormals = 0;           // non-finite or zero vertex normals (face normal used)
+  size_t badUvs = 0;               // non-finite texture coordinates (set to 0)
   size_t droppedTriangles() const { return nonFiniteTriangles + degenerateTriangles + badIndices; }
   size_t total() const { return droppedTriangles() + badNormals + badUvs; }
   // "dropped 2 triangles with NaN/Inf vertices, 1 degenerate (zero-area) triangle; ...";

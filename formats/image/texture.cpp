@@ -3,6 +3,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <exception>
 #include <filesystem>
 #include <string>
@@ -42,8 +43,7 @@ float srgbToLinear(float c) {
   return c <= 0.04045f ? c * (1.0f / 12.92f) : std::pow((c + 0.055f) * (1.0f / 1.055f), 2.4f);
 }
 
-// 8-bit sources come back from OIIO as byte / 255, so a table decodes them exactly and
-// without a pow() per texel channel.
+// A table decodes 8-bit texels exactly and without a pow() per channel.
 const std::array<float, 256>& srgbTable() {
   static const std::array<float, 256> table = [] {
     std::array<float, 256> t{};
@@ -112,64 +112,78 @@ class ImageTexture final : public Texture {
     // OIIO's t runs from the top row down; our v from the bottom row up.
     const float s = std::isfinite(uv.x) ? uv.x : 0.0f;
     const float t = std::isfinite(uv.y) ? 1.0f - uv.y : 0.0f;
-    TextureOpt opt;
-    opt.swrap = opt.twrap = TextureOpt::WrapPeriodic;
-    opt.mipmode = TextureOpt::MipModeNoMIP;
-    if (colourSpace_.encoding == Encoding::kLinear) {
-      opt.interpmode = TextureOpt::InterpBilinear;
-      std::array<float, 3> c{};
-      if (!fetch(opt, s, t, c.data(), error)) return false;
-      *out = toRgb(c);
-      return true;
-    }
-    // Encoded texels must be decoded before they are blended, so this is bilinear filtering
-    // done here: four nearest-texel lookups at the texel centres around (s, t), where OIIO
-    // still does the wrapping and the tile caching.
-    opt.interpmode = TextureOpt::InterpClosest;
-    const float x = s * static_cast<float>(width_) - 0.5f;
-    const float y = t * static_cast<float>(height_) - 0.5f;
-    const float x0 = std::floor(x), y0 = std::floor(y);
-    const float fx = x - x0, fy = y - y0;
-    Rgb sum(0.0f);
-    for (int dy = 0; dy < 2; ++dy) {
-      const float wy = dy == 0 ? 1.0f - fy : fy;
-      if (wy == 0.0f) continue;
-      const float tc = (y0 + static_cast<float>(dy) + 0.5f) / static_cast<float>(height_);
-      for (int dx = 0; dx < 2; ++dx) {
-        const float wx = dx == 0 ? 1.0f - fx : fx;
-        if (wx == 0.0f) continue;
-        const float sc = (x0 + static_cast<float>(dx) + 0.5f) / static_cast<float>(width_);
-        std::array<float, 3> c{};
-        if (!fetch(opt, sc, tc, c.data(), error)) return false;
-        for (float& v : c) v = decode(v);
-        sum += toRgb(c) * (wx * wy);
+    // Bilinear filtering written out over the 2x2 texels around (s, t), read raw from OIIO's
+    // tile cache: encoded texels must be decoded before they are blended, which OIIO 2.4's
+    // own filtering cannot do, and one block read is faster than its bilinear lookup anyway.
+    const double x = static_cast<double>(s) * width_ - 0.5;
+    const double y = static_cast<double>(t) * height_ - 0.5;
+    const double xFloor = std::floor(x), yFloor = std::floor(y);
+    const float fx = static_cast<float>(x - xFloor), fy = static_cast<float>(y - yFloor);
+    const int x0 = wrapIndex(xFloor, width_), y0 = wrapIndex(yFloor, height_);
+    const int x1 = x0 + 1 == width_ ? 0 : x0 + 1;
+    const int y1 = y0 + 1 == height_ ? 0 : y0 + 1;
+    std::array<Rgb, 4> c;  // (x0, y0), (x1, y0), (x0, y1), (x1, y1)
+    if (x1 == x0 + 1 && y1 == y0 + 1) {
+      if (!texels(x0, y0, 2, 2, c.data(), error)) return false;
+    } else {  // across the wrap-around seam
+      const std::array<int, 4> xs{x0, x1, x0, x1}, ys{y0, y0, y1, y1};
+      for (size_t i = 0; i < 4; ++i) {
+        if (!texels(xs[i], ys[i], 1, 1, &c[i], error)) return false;
       }
     }
-    *out = sum;
+    *out = (c[0] * (1.0f - fx) + c[1] * fx) * (1.0f - fy) + (c[2] * (1.0f - fx) + c[3] * fx) * fy;
     return true;
   }
 
  private:
-  bool fetch(TextureOpt& opt, float s, float t, float* result, std::string* error) const {
+  static int wrapIndex(double i, int n) {
+    double m = std::fmod(i, static_cast<double>(n));
+    if (m < 0.0) m += n;
+    const int r = static_cast<int>(m);
+    return r >= n ? 0 : r;
+  }
+
+  // The nx by ny texels at (x, y), row by row, decoded to linear.
+  bool texels(int x, int y, int nx, int ny, Rgb* out, std::string* error) const {
     TextureSystem& ts = textureSystem();
-    if (ts.texture(handle_, /*thread_info=*/nullptr, opt, s, t, 0.0f, 0.0f, 0.0f, 0.0f,
-                   channels_, result)) {
-      return true;
+    TextureOpt opt;
+    const int count = nx * ny;
+    std::array<uint8_t, 12> bytes{};
+    std::array<float, 12> floats{};
+    const bool ok = eightBit_ ? ts.get_texels(handle_, nullptr, opt, 0, x, x + nx, y, y + ny, 0, 1,
+                                              0, channels_, OIIO::TypeDesc::UINT8, bytes.data())
+                              : ts.get_texels(handle_, nullptr, opt, 0, x, x + nx, y, y + ny, 0, 1,
+                                              0, channels_, OIIO::TypeDesc::FLOAT, floats.data());
+    if (!ok) {
+      *error = ts.geterror();
+      return false;
     }
-    // Taking the message also clears it, so that errors do not pile up per thread.
-    *error = ts.geterror();
-    return false;
+    for (int i = 0; i < count; ++i) {
+      std::array<float, 3> c{};
+      for (int ch = 0; ch < channels_; ++ch) {
+        const int k = i * channels_ + ch;
+        c[ch] = eightBit_ ? decode(bytes[k]) : decode(floats[k]);
+      }
+      out[i] = toRgb(c);
+    }
+    return true;
+  }
+
+  float decode(uint8_t v) const {
+    if (colourSpace_.encoding == Encoding::kSrgb) return srgbTable()[v];
+    return decode(static_cast<float>(v) / 255.0f);
   }
 
   float decode(float v) const {
-    if (colourSpace_.encoding == Encoding::kSrgb) {
-      if (eightBit_) {
-        const long i = std::lround(v * 255.0f);
-        if (i >= 0 && i <= 255) return srgbTable()[static_cast<size_t>(i)];
-      }
-      return srgbToLinear(v);
+    switch (colourSpace_.encoding) {
+      case Encoding::kLinear:
+        return v;
+      case Encoding::kSrgb:
+        return srgbToLinear(v);
+      case Encoding::kGamma:
+        return std::pow(std::max(v, 0.0f), colourSpace_.gamma);
     }
-    return std::pow(std::max(v, 0.0f), colourSpace_.gamma);
+    return v;
   }
 
   Rgb toRgb(const std::array<float, 3>& c) const {
@@ -206,9 +220,9 @@ absl::StatusOr<std::shared_ptr<const Texture>> openTexture(const std::string& pa
         fmt::format("cannot read texture '{}': {}", path, ts.geterror()));
   }
   if (spec.deep || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
-    return absl::InvalidArgumentError(fmt::format(
-        "texture '{}': expected a flat 2D image, found {}x{} with {} channels{}", path,
-        spec.width, spec.height, spec.nchannels, spec.deep ? " (deep)" : ""));
+    return absl::InvalidArgumentError(
+        fmt::format("texture '{}': expected a flat 2D image, found {}x{} with {} channels{}", path,
+                    spec.width, spec.height, spec.nchannels, spec.deep ? " (deep)" : ""));
   }
   const int channels = spec.nchannels >= 3 ? 3 : 1;
   const bool eightBit = spec.format.basetype == OIIO::TypeDesc::UINT8;

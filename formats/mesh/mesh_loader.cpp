@@ -15,11 +15,11 @@
 #include <vector>
 
 #include <assimp/GltfMaterial.h>
-#include <assimp/Importer.hpp>
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <fmt/format.h>
+#include <assimp/Importer.hpp>
 
 #include "formats/image/texture.h"
 
@@ -85,7 +85,8 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& folder, std::strin
     if (fs::is_regular_file(p, ec)) return p;
     const fs::path dir = p.parent_path().empty() ? fs::path(".") : p.parent_path();
     for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-      if (it->is_regular_file(ec) && iequals(it->path().filename().string(), p.filename().string())) {
+      if (it->is_regular_file(ec) &&
+          iequals(it->path().filename().string(), p.filename().string())) {
         return it->path();
       }
     }
@@ -219,12 +220,12 @@ class MaterialMapper {
     mat.Get(AI_MATKEY_COLOR_DIFFUSE, kd);
     // Assimp's own "DefaultMaterial" stands in for faces without any usemtl.
     if (desc->name != AI_DEFAULT_MATERIAL_NAME && !libraries_.defined.contains(desc->name)) {
-      notes_.push_back(fmt::format(
-          "not defined in any MTL file{}; using Assimp's default, diffuse albedo {}",
-          libraries_.missing.empty()
-              ? std::string()
-              : fmt::format(" (missing: {})", fmt::join(libraries_.missing, ", ")),
-          formatRgb(kd)));
+      notes_.push_back(
+          fmt::format("not defined in any MTL file{}; using Assimp's default, diffuse albedo {}",
+                      libraries_.missing.empty()
+                          ? std::string()
+                          : fmt::format(" (missing: {})", fmt::join(libraries_.missing, ", ")),
+                      formatRgb(kd)));
     }
     aiColor3D ke(0.0f, 0.0f, 0.0f);
     mat.Get(AI_MATKEY_COLOR_EMISSIVE, ke);
@@ -259,7 +260,8 @@ class MaterialMapper {
       ignored_.push_back(fmt::format("illum {} (ray-traced reflection/refraction)", illum));
     }
     float pbr = 0.0f;
-    if (mat.Get(AI_MATKEY_ROUGHNESS_FACTOR, pbr) == AI_SUCCESS) ignored_.push_back("Pr (roughness)");
+    if (mat.Get(AI_MATKEY_ROUGHNESS_FACTOR, pbr) == AI_SUCCESS)
+      ignored_.push_back("Pr (roughness)");
     if (mat.Get(AI_MATKEY_METALLIC_FACTOR, pbr) == AI_SUCCESS) ignored_.push_back("Pm (metallic)");
   }
 
@@ -285,7 +287,8 @@ class MaterialMapper {
     if (!isZero(emissive) && strength > 0.0f) {
       desc->type = MaterialType::kEmissive;
       desc->radiance = toRgb(emissive) * strength;
-      if (hasBaseTexture) ignored_.push_back("baseColorTexture (emissive materials reflect nothing)");
+      if (hasBaseTexture)
+        ignored_.push_back("baseColorTexture (emissive materials reflect nothing)");
     } else if (metallic >= 0.5f) {
       desc->type = MaterialType::kConductor;
       desc->specular = toRgb(baseRgb);
@@ -295,12 +298,12 @@ class MaterialMapper {
     } else {
       desc->type = MaterialType::kDiffuse;
       desc->albedo = toRgb(baseRgb);
-      if (hasBaseTexture &&
-          mapAlbedoTexture(mat, baseTextureType, "baseColorTexture", desc) &&
+      if (hasBaseTexture && mapAlbedoTexture(mat, baseTextureType, "baseColorTexture", desc) &&
           (base.r != 1.0f || base.g != 1.0f || base.b != 1.0f)) {
-        ignored_.push_back(fmt::format("baseColorFactor {} on top of baseColorTexture (the "
-                                       "texture alone is the albedo)",
-                                       formatRgb(baseRgb)));
+        ignored_.push_back(
+            fmt::format("baseColorFactor {} on top of baseColorTexture (the "
+                        "texture alone is the albedo)",
+                        formatRgb(baseRgb)));
       }
     }
     if (desc->type != MaterialType::kEmissive && metallic > 0.0f && metallic < 1.0f) {
@@ -330,8 +333,7 @@ class MaterialMapper {
       ignored_.push_back("KHR_materials_pbrSpecularGlossiness (read as metallic-roughness)");
     }
     int shading = 0;
-    if (mat.Get(AI_MATKEY_SHADING_MODEL, shading) == AI_SUCCESS &&
-        shading == aiShadingMode_Unlit) {
+    if (mat.Get(AI_MATKEY_SHADING_MODEL, shading) == AI_SUCCESS && shading == aiShadingMode_Unlit) {
       ignored_.push_back("KHR_materials_unlit");
     }
   }
@@ -345,11 +347,12 @@ class MaterialMapper {
     unsigned uvIndex = 0;
     if (mat.GetTexture(type, 0, &raw, nullptr, &uvIndex) != AI_SUCCESS) return false;
     const std::string spelled = raw.C_Str();
-    const std::string fallback = fmt::format("using the colour {} instead", formatRgb(aiColor3D(
-        desc->albedo->x, desc->albedo->y, desc->albedo->z)));
+    const std::string fallback =
+        fmt::format("using the colour {} instead",
+                    formatRgb(aiColor3D(desc->albedo->x, desc->albedo->y, desc->albedo->z)));
     if (uvIndex != 0) {
-      ignored_.push_back(fmt::format("{} on texture coordinate set {} (only set 0 is read)", what,
-                                     uvIndex));
+      ignored_.push_back(
+          fmt::format("{} on texture coordinate set {} (only set 0 is read)", what, uvIndex));
       return false;
     }
     if ((!spelled.empty() && spelled[0] == '*') || scene_.GetEmbeddedTexture(raw.C_Str())) {
@@ -401,7 +404,8 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
     return absl::NotFoundError(fmt::format("geometry file '{}' not found", path));
   }
   if (!fs::is_regular_file(path, ec)) {
-    return absl::InvalidArgumentError(fmt::format("geometry file '{}' is not a regular file", path));
+    return absl::InvalidArgumentError(
+        fmt::format("geometry file '{}' is not a regular file", path));
   }
   const std::string ext = lowerExtension(path);
   SourceFormat format;
@@ -474,8 +478,7 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
 
     const MeshCleanReport report = cleanMesh(mesh);
     if (report.total() > 0) {
-      out.warnings.push_back(
-          fmt::format("{}: mesh '{}': {}", path, mesh.name, report.toString()));
+      out.warnings.push_back(fmt::format("{}: mesh '{}': {}", path, mesh.name, report.toString()));
     }
     if (mesh.triangleCount() > 0) out.meshes.push_back(std::move(mesh));
   }
@@ -483,14 +486,17 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
     out.warnings.push_back(fmt::format("{}: material library '{}' not found", path, lib));
   }
   if (droppedPoints + droppedLines > 0) {
-    out.warnings.push_back(fmt::format("{}: dropped {} points and {} lines: only triangles render",
-                                       path, droppedPoints, droppedLines));
+    out.warnings.push_back(
+        fmt::format("{}: dropped {} point{} and {} line segment{}: only "
+                    "triangles render",
+                    path, droppedPoints, droppedPoints == 1 ? "" : "s", droppedLines,
+                    droppedLines == 1 ? "" : "s"));
   }
   if (out.meshes.empty()) {
-    return absl::InvalidArgumentError(fmt::format(
-        "geometry file '{}': no usable triangles{}", path,
-        out.warnings.empty() ? std::string()
-                             : fmt::format(" ({})", fmt::join(out.warnings, "; "))));
+    return absl::InvalidArgumentError(
+        fmt::format("geometry file '{}': no usable triangles{}", path,
+                    out.warnings.empty() ? std::string()
+                                         : fmt::format(" ({})", fmt::join(out.warnings, "; "))));
   }
   return out;
 }

@@ -65,13 +65,13 @@ TEST(CleanMesh, DropsNonFiniteTrianglesAndKeepsMaterialsInStep) {
 
 TEST(CleanMesh, DropsDegenerateTrianglesAtAnyScale) {
   MeshData mesh;
-  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0, 0, 0}, 0);              // repeated vertex
-  addTriangle(mesh, {0, 0, 0}, {1, 1, 1}, {2, 2, 2}, 1);              // exactly collinear
-  addTriangle(mesh, {1, 2, 3}, {1, 2, 3}, {1, 2, 3}, 2);              // a point
-  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0.5f, 1e-13f, 0}, 3);      // area 5e-14 of 1
-  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0.5f, 1e-3f, 0}, 4);       // a sliver, but real
-  addTriangle(mesh, {0, 0, 0}, {1e-15f, 0, 0}, {0, 1e-15f, 0}, 5);    // tiny, but real
-  addTriangle(mesh, {0, 0, 0}, {1e15f, 0, 0}, {0, 1e15f, 0}, 6);      // huge, but real
+  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0, 0, 0}, 0);            // repeated vertex
+  addTriangle(mesh, {0, 0, 0}, {1, 1, 1}, {2, 2, 2}, 1);            // exactly collinear
+  addTriangle(mesh, {1, 2, 3}, {1, 2, 3}, {1, 2, 3}, 2);            // a point
+  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0.5f, 1e-13f, 0}, 3);    // area 5e-14 of 1
+  addTriangle(mesh, {0, 0, 0}, {1, 0, 0}, {0.5f, 1e-3f, 0}, 4);     // a sliver, but real
+  addTriangle(mesh, {0, 0, 0}, {1e-15f, 0, 0}, {0, 1e-15f, 0}, 5);  // tiny, but real
+  addTriangle(mesh, {0, 0, 0}, {1e15f, 0, 0}, {0, 1e15f, 0}, 6);    // huge, but real
   const MeshCleanReport report = cleanMesh(mesh);
   EXPECT_EQ(report.degenerateTriangles, 4u);
   EXPECT_EQ(report.nonFiniteTriangles, 0u);

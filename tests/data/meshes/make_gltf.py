@@ -5,7 +5,9 @@ transformed.gltf: two triangles with normals and uvs, one under a node with tran
 scale (metallic material "gold"), one under a parent node rotated 90 degrees about +z
 (diffuse "paint" with an external base-colour texture and an emissive "glow" on a second
 primitive). embedded.gltf: one triangle whose base-colour texture is a data: URI, which
-Assimp turns into an embedded texture.
+Assimp turns into an embedded texture. embedded.glb: the same as binary glTF, the texture in
+a buffer view. unmappable.gltf: a material ("glass") with parts the loader cannot map:
+transmission, a normal map, alpha blending, and a metallicFactor between 0 and 1.
 """
 import base64
 import json
@@ -93,7 +95,49 @@ embedded = {
     "accessors": accessors,
 }
 
-for name, doc in (("transformed.gltf", transformed), ("embedded.gltf", embedded)):
+views, accessors = views_and_accessors()
+unmappable = {
+    "asset": {"version": "2.0", "generator": "pbgi tests/data/meshes/make_gltf.py"},
+    "extensionsUsed": ["KHR_materials_transmission"],
+    "scene": 0,
+    "scenes": [{"nodes": [0]}],
+    "nodes": [{"name": "node", "mesh": 0}],
+    "meshes": [{"name": "glass_mesh", "primitives": [prim(0)]}],
+    "materials": [{
+        "name": "glass",
+        "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.9, 0.9, 0.5],
+                                 "metallicFactor": 0.3, "roughnessFactor": 0.1},
+        "normalTexture": {"index": 0},
+        "alphaMode": "BLEND",
+        "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0}},
+    }],
+    "textures": [{"source": 0}],
+    "images": [{"uri": "../textures/checker.png"}],
+    "buffers": [{"byteLength": len(blob), "uri": buffer_uri(blob)}],
+    "bufferViews": views,
+    "accessors": accessors,
+}
+
+for name, doc in (("transformed.gltf", transformed), ("embedded.gltf", embedded),
+                  ("unmappable.gltf", unmappable)):
     with open(name, "w") as f:
         json.dump(doc, f, indent=1)
         f.write("\n")
+
+# Binary glTF: the geometry, then the PNG (4-byte aligned), in the one BIN chunk.
+padded_blob = blob + b"\0" * (-len(blob) % 4)
+bin_chunk = padded_blob + png + b"\0" * (-len(png) % 4)
+glb_views, glb_accessors = views_and_accessors()
+glb_views.append({"buffer": 0, "byteOffset": len(padded_blob), "byteLength": len(png)})
+glb = dict(embedded)
+glb["materials"] = [dict(embedded["materials"][0], name="packed_glb")]
+glb["images"] = [{"bufferView": len(glb_views) - 1, "mimeType": "image/png"}]
+glb["buffers"] = [{"byteLength": len(bin_chunk)}]
+glb["bufferViews"] = glb_views
+glb["accessors"] = glb_accessors
+json_chunk = json.dumps(glb).encode()
+json_chunk += b" " * (-len(json_chunk) % 4)
+body = (struct.pack("<II", len(json_chunk), 0x4E4F534A) + json_chunk +
+        struct.pack("<II", len(bin_chunk), 0x004E4942) + bin_chunk)
+with open("embedded.glb", "wb") as f:
+    f.write(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)

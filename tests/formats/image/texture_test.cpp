@@ -56,8 +56,7 @@ TEST(ImageTexture, InterpolatesBilinearlyInLinearSpace) {
   // A quarter of the way from blue towards grey.
   expectRgbNear(tex->evaluate({0.375f, 0.25f}), {0.25f * grey, 0.25f * grey, 0.75f + 0.25f * grey});
   // The centre blends all four equally.
-  expectRgbNear(tex->evaluate({0.5f, 0.5f}),
-                {(1 + grey) / 4, (1 + grey) / 4, (1 + grey) / 4});
+  expectRgbNear(tex->evaluate({0.5f, 0.5f}), {(1 + grey) / 4, (1 + grey) / 4, (1 + grey) / 4});
 }
 
 TEST(ImageTexture, WrapsPeriodically) {
@@ -94,10 +93,9 @@ TEST(ImageTexture, MatchesHandWrittenBilinearOnAnOddSizedImage) {
     Rgb want;
     for (int c = 0; c < 3; ++c) {
       const int ix = static_cast<int>(x0), iy = static_cast<int>(y0);
-      want[c] = static_cast<float>((1 - fx) * (1 - fy) * texel(ix, iy, c) +
-                                   fx * (1 - fy) * texel(ix + 1, iy, c) +
-                                   (1 - fx) * fy * texel(ix, iy + 1, c) +
-                                   fx * fy * texel(ix + 1, iy + 1, c));
+      want[c] = static_cast<float>(
+          (1 - fx) * (1 - fy) * texel(ix, iy, c) + fx * (1 - fy) * texel(ix + 1, iy, c) +
+          (1 - fx) * fy * texel(ix, iy + 1, c) + fx * fy * texel(ix + 1, iy + 1, c));
     }
     SCOPED_TRACE(::testing::Message() << "uv " << uv);
     expectRgbNear(tex->evaluate(uv), want, 2e-5f);

@@ -6,6 +6,7 @@
 #include <set>
 #include <string>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -20,9 +21,7 @@ namespace fs = std::filesystem;
 using ::pbgi::testing::makeTempDir;
 using ::pbgi::testing::testDataDir;
 
-std::string meshPath(const std::string& name) {
-  return (testDataDir() / "meshes" / name).string();
-}
+std::string meshPath(const std::string& name) { return (testDataDir() / "meshes" / name).string(); }
 
 const MaterialDesc* findMaterial(const LoadedGeometry& g, const std::string& name) {
   for (const MaterialDesc& m : g.materials) {
@@ -187,8 +186,8 @@ TEST(LoadGeometry, AppliesGltfNodeTransformsAndMapsMetallicRoughness) {
     const Vec3f& p = gold->positions[i];
     goldPositions.insert({p.x, p.y, p.z});
   }
-  EXPECT_EQ(goldPositions, (std::set<std::tuple<float, float, float>>{
-                               {10, 20, 30}, {12, 20, 30}, {10, 22, 30}}));
+  EXPECT_EQ(goldPositions,
+            (std::set<std::tuple<float, float, float>>{{10, 20, 30}, {12, 20, 30}, {10, 22, 30}}));
   const MaterialDesc& goldMat = g->materials[gold->materials[0]];
   EXPECT_EQ(goldMat.name, "gold");
   EXPECT_EQ(goldMat.type, MaterialType::kConductor);
@@ -233,16 +232,39 @@ TEST(LoadGeometry, AppliesGltfNodeTransformsAndMapsMetallicRoughness) {
 }
 
 TEST(LoadGeometry, EmbeddedTexturesWarnAndFallBackToTheFactor) {
-  const auto g = loadGeometry(meshPath("embedded.gltf"));
+  // A data: URI in .gltf, a buffer view in .glb: both are embedded textures to Assimp.
+  for (const auto& [file, material] :
+       {std::pair{"embedded.gltf", "packed"}, std::pair{"embedded.glb", "packed_glb"}}) {
+    SCOPED_TRACE(file);
+    const auto g = loadGeometry(meshPath(file));
+    ASSERT_TRUE(g.ok()) << g.status();
+    EXPECT_EQ(triangleCount(*g), 1u);
+    const MaterialDesc* packed = findMaterial(*g, material);
+    ASSERT_NE(packed, nullptr);
+    EXPECT_EQ(packed->type, MaterialType::kDiffuse);
+    EXPECT_FALSE(packed->albedoTexture.has_value());
+    expectRgb(packed->albedo, {0.5f, 0.5f, 0.5f});
+    const auto w = warningsWith(*g, fmt::format("material '{}'", material));
+    ASSERT_EQ(w.size(), 1u) << allWarnings(*g);
+    EXPECT_NE(w[0].find("embedded"), std::string::npos) << w[0];
+    EXPECT_EQ(g->warnings.size(), 1u) << allWarnings(*g);
+  }
+}
+
+TEST(LoadGeometry, GltfPartsThatCannotBeMappedAreOneWarningNamingTheMaterial) {
+  const auto g = loadGeometry(meshPath("unmappable.gltf"));
   ASSERT_TRUE(g.ok()) << g.status();
-  const MaterialDesc* packed = findMaterial(*g, "packed");
-  ASSERT_NE(packed, nullptr);
-  EXPECT_EQ(packed->type, MaterialType::kDiffuse);
-  EXPECT_FALSE(packed->albedoTexture.has_value());
-  expectRgb(packed->albedo, {0.5f, 0.5f, 0.5f});
-  const auto w = warningsWith(*g, "'packed'");
-  ASSERT_EQ(w.size(), 1u) << allWarnings(*g);
-  EXPECT_NE(w[0].find("embedded"), std::string::npos) << w[0];
+  const MaterialDesc* glass = findMaterial(*g, "glass");
+  ASSERT_NE(glass, nullptr);
+  EXPECT_EQ(glass->type, MaterialType::kDiffuse);  // metallicFactor 0.3 < 0.5
+  expectRgb(glass->albedo, {0.9f, 0.9f, 0.9f});
+  ASSERT_EQ(g->warnings.size(), 1u) << allWarnings(*g);
+  const std::string& w = g->warnings[0];
+  EXPECT_NE(w.find("material 'glass'"), std::string::npos) << w;
+  for (const char* part :
+       {"KHR_materials_transmission", "normalTexture", "alphaMode BLEND", "metallicFactor 0.3"}) {
+    EXPECT_NE(w.find(part), std::string::npos) << part << " in: " << w;
+  }
 }
 
 TEST(LoadGeometry, WarnsAboutMaterialsNoLibraryDefines) {
@@ -297,6 +319,8 @@ TEST(LoadGeometry, FileWithoutTrianglesIsInvalidArgument) {
   ASSERT_FALSE(g.ok());
   EXPECT_EQ(g.status().code(), absl::StatusCode::kInvalidArgument) << g.status();
   EXPECT_NE(g.status().message().find("no usable triangles"), std::string::npos) << g.status();
+  EXPECT_NE(g.status().message().find("dropped 1 point and 2 line segments"), std::string::npos)
+      << g.status();
 }
 
 TEST(LoadGeometry, RejectsOtherFormats) {
