@@ -37,6 +37,11 @@ TextureSystem& textureSystem() {
   return *ts;
 }
 
+// Limits on what a header may claim (see openTexture). 1 GiB is an untiled 16k x 16k RGBA
+// 8-bit image.
+constexpr int kMaxTextureSide = 65536;
+constexpr uint64_t kMaxTextureTileBytes = uint64_t{1} << 30;
+
 enum class Encoding { kLinear, kSrgb, kGamma };
 
 float srgbToLinear(float c) {
@@ -85,12 +90,14 @@ ColourSpace colourSpaceOf(const OIIO::ImageSpec& spec) {
 
 class ImageTexture final : public Texture {
  public:
-  ImageTexture(std::string path, TextureSystem::TextureHandle* handle, int width, int height,
+  ImageTexture(std::string path, TextureSystem::TextureHandle* handle, const OIIO::ImageSpec& spec,
                int channels, ColourSpace colourSpace, bool eightBit)
       : path_(std::move(path)),
         handle_(handle),
-        width_(width),
-        height_(height),
+        originX_(spec.x),
+        originY_(spec.y),
+        width_(spec.width),
+        height_(spec.height),
         channels_(channels),
         colourSpace_(colourSpace),
         eightBit_(eightBit) {}
@@ -148,6 +155,8 @@ class ImageTexture final : public Texture {
     TextureSystem& ts = textureSystem();
     TextureOpt opt;
     const int count = nx * ny;
+    x += originX_;
+    y += originY_;
     std::array<uint8_t, 12> bytes{};
     std::array<float, 12> floats{};
     const bool ok = eightBit_ ? ts.get_texels(handle_, nullptr, opt, 0, x, x + nx, y, y + ny, 0, 1,
@@ -192,6 +201,9 @@ class ImageTexture final : public Texture {
 
   std::string path_;
   TextureSystem::TextureHandle* handle_;  // owned by the TextureSystem, lives as long as it
+  // The data window: OpenEXR's may start anywhere, and OIIO addresses texels absolutely.
+  int originX_;
+  int originY_;
   int width_;
   int height_;
   int channels_;  // looked up: 1 (grey) or 3
@@ -224,10 +236,25 @@ absl::StatusOr<std::shared_ptr<const Texture>> openTexture(const std::string& pa
         fmt::format("texture '{}': expected a flat 2D image, found {}x{} with {} channels{}", path,
                     spec.width, spec.height, spec.nchannels, spec.deep ? " (deep)" : ""));
   }
+  // A hostile header can claim any size. OIIO's cache reads an untiled file as one tile of
+  // the whole image (the spec it returns says so) and counts a tile's bytes in an int, so an
+  // oversized one aborts the process before any allocation could fail.
+  const uint64_t tileWidth = spec.tile_width > 0 ? spec.tile_width : spec.width;
+  const uint64_t tileHeight = spec.tile_height > 0 ? spec.tile_height : spec.height;
+  const uint64_t tileBytes =
+      tileWidth * tileHeight * static_cast<uint64_t>(spec.nchannels) * spec.format.size();
+  if (spec.width > kMaxTextureSide || spec.height > kMaxTextureSide ||
+      tileBytes > kMaxTextureTileBytes) {
+    return absl::InvalidArgumentError(fmt::format(
+        "texture '{}': {}x{} with {} {} channels is too large: expected sides of at most {} and "
+        "at most {} bytes per tile (an untiled file is one tile), found {}",
+        path, spec.width, spec.height, spec.nchannels, spec.format.c_str(), kMaxTextureSide,
+        kMaxTextureTileBytes, tileBytes));
+  }
   const int channels = spec.nchannels >= 3 ? 3 : 1;
   const bool eightBit = spec.format.basetype == OIIO::TypeDesc::UINT8;
-  auto texture = std::make_shared<ImageTexture>(path, handle, spec.width, spec.height, channels,
-                                                colourSpaceOf(spec), eightBit);
+  auto texture =
+      std::make_shared<ImageTexture>(path, handle, spec, channels, colourSpaceOf(spec), eightBit);
   // Reading the first tile decodes the whole of an untiled PNG or JPEG: truncated pixel data
   // shows up here and not as black texels in the middle of a render.
   Rgb probe;

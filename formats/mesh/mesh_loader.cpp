@@ -66,10 +66,11 @@ bool iequals(std::string_view a, std::string_view b) {
 }
 
 // Files (textures, material libraries) as the geometry file spells them, made into an
-// existing path: relative to the geometry file's folder, with Windows separators, and
-// forgiving the letter case of the file name, which exporters on case-insensitive file
-// systems get wrong all the time.
-std::optional<fs::path> resolveReferencedFile(const fs::path& folder, std::string raw) {
+// existing path: relative to the geometry file's folder, with Windows separators, and with
+// `foldCase`, forgiving the letter case of the file name, which exporters on
+// case-insensitive file systems get wrong all the time.
+std::optional<fs::path> resolveReferencedFile(const fs::path& folder, std::string raw,
+                                              bool foldCase) {
   std::replace(raw.begin(), raw.end(), '\\', '/');
   const auto notSpace = [](unsigned char c) { return !std::isspace(c); };
   raw.erase(raw.begin(), std::find_if(raw.begin(), raw.end(), notSpace));
@@ -83,6 +84,7 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& folder, std::strin
     if (p.is_relative()) p = folder / p;
     p = p.lexically_normal();
     if (fs::is_regular_file(p, ec)) return p;
+    if (!foldCase) continue;
     const fs::path dir = p.parent_path().empty() ? fs::path(".") : p.parent_path();
     for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
       if (it->is_regular_file(ec) &&
@@ -94,21 +96,21 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& folder, std::strin
   return std::nullopt;
 }
 
-std::string trimmed(std::string_view s) {
-  const auto notSpace = [](unsigned char c) { return !std::isspace(c); };
-  const auto* b = std::find_if(s.begin(), s.end(), notSpace);
-  const auto* e = std::find_if(s.rbegin(), std::make_reverse_iterator(b), notSpace).base();
-  return std::string(b, e);
+std::string_view trimmed(std::string_view s) {
+  const auto isSpace = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
+  while (!s.empty() && isSpace(s.front())) s.remove_prefix(1);
+  while (!s.empty() && isSpace(s.back())) s.remove_suffix(1);
+  return s;
 }
 
 // The value of an OBJ/MTL statement `keyword value...`, or nullopt for another statement.
 std::optional<std::string> statement(std::string_view line, std::string_view keyword) {
-  const std::string t = trimmed(line);
-  if (t.size() <= keyword.size() || t.compare(0, keyword.size(), keyword) != 0 ||
+  const std::string_view t = trimmed(line);
+  if (t.size() <= keyword.size() || t.substr(0, keyword.size()) != keyword ||
       !std::isspace(static_cast<unsigned char>(t[keyword.size()]))) {
     return std::nullopt;
   }
-  return trimmed(std::string_view(t).substr(keyword.size()));
+  return std::string(trimmed(t.substr(keyword.size())));
 }
 
 // What the OBJ's material libraries define. Assimp quietly makes a default grey material for
@@ -123,19 +125,20 @@ MaterialLibraries scanMaterialLibraries(const fs::path& obj) {
   MaterialLibraries libs;
   std::ifstream in(obj);
   std::string line;
-  std::error_code ec;
   while (std::getline(in, line)) {
     const std::optional<std::string> value = statement(line, "mtllib");
     if (!value) continue;
     // One name with spaces, or several names separated by them.
     std::vector<std::string> names{*value};
-    if (!resolveReferencedFile(obj.parent_path(), *value)) {
+    // Assimp opens them by their exact names, so no case folding here.
+    if (!resolveReferencedFile(obj.parent_path(), *value, /*foldCase=*/false)) {
       names.clear();
       std::istringstream words(*value);
       for (std::string w; words >> w;) names.push_back(w);
     }
     for (const std::string& name : names) {
-      const std::optional<fs::path> mtl = resolveReferencedFile(obj.parent_path(), name);
+      const std::optional<fs::path> mtl =
+          resolveReferencedFile(obj.parent_path(), name, /*foldCase=*/false);
       if (!mtl) {
         libs.missing.push_back(name);
         continue;
@@ -360,7 +363,8 @@ class MaterialMapper {
                                    what, fallback));
       return false;
     }
-    const std::optional<fs::path> resolved = resolveReferencedFile(folder_, spelled);
+    const std::optional<fs::path> resolved =
+        resolveReferencedFile(folder_, spelled, /*foldCase=*/true);
     if (!resolved) {
       notes_.push_back(fmt::format("{} '{}' not found (looked in '{}'); {}", what, spelled,
                                    folder_.string(), fallback));

@@ -120,6 +120,23 @@ TEST(ImageTexture, FloatSourcesAreLinearAlready) {
   expectRgbNear(tex->evaluate({0.0f, 0.5f}), {0.625f, 0.75f, 1.5f});
 }
 
+TEST(ImageTexture, DataWindowNeedNotStartAtTheOrigin) {
+  const auto tex = load("offset_window.exr");  // linear.exr's texels, data window at (5, 7)
+  ASSERT_NE(tex, nullptr);
+  expectRgbNear(tex->evaluate({0.25f, 0.5f}), {0.25f, 0.5f, 2.0f});
+  expectRgbNear(tex->evaluate({0.75f, 0.5f}), {1.0f, 1.0f, 1.0f});
+}
+
+TEST(ImageTexture, HostileHeadersAreRejectedBeforeAnyPixelIsRead) {
+  // Shared with image_io_test: headers that claim 120 GB, 16 GiB and 30 GB of pixels.
+  for (const char* name : {"huge_header.exr", "too_many_floats.exr", "huge_header.png"}) {
+    const auto tex = loadImageTexture((testDataDir() / "images" / name).string());
+    ASSERT_FALSE(tex.ok()) << name;
+    EXPECT_EQ(tex.status().code(), absl::StatusCode::kInvalidArgument) << tex.status();
+    EXPECT_NE(tex.status().message().find("too large"), std::string::npos) << tex.status();
+  }
+}
+
 TEST(ImageTexture, ManyThreadsAgree) {
   const auto tex = load("pattern.png");
   ASSERT_NE(tex, nullptr);

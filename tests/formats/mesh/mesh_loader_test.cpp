@@ -85,7 +85,8 @@ TEST(LoadGeometry, MapsObjMaterials) {
   EXPECT_EQ(lamp->type, MaterialType::kEmissive);
   EXPECT_EQ(lamp->radiance, Rgb(10, 8, 6));
 
-  // map_Kd ..\textures\checker.png: backslashes, relative to the OBJ's folder.
+  // map_Kd ..\textures\Checker.PNG: backslashes, relative to the OBJ's folder, and the
+  // file name's case is forgiven.
   const MaterialDesc* textured = findMaterial(*g, "textured");
   ASSERT_NE(textured, nullptr);
   EXPECT_EQ(textured->type, MaterialType::kDiffuse);
