@@ -68,9 +68,9 @@ struct ColourSpace {
 };
 
 // What the texels' numbers mean. OIIO's readers put their best knowledge in
-// "oiio:ColorSpace" (PNG and JPEG say "sRGB" unless the file says otherwise, PNG with a gAMA
-// chunk says "GammaCorrected" or "GammaX.Y" with "oiio:Gamma"); without it, integer data is
-// display-referred by convention and float data scene-linear.
+// "oiio:ColorSpace": PNG and JPEG say "sRGB", unless a PNG's gAMA chunk makes it "linear" or
+// "Gamma2.2" (with "oiio:Gamma"). Without it, integer data is display-referred by
+// convention and float data scene-linear.
 ColourSpace colourSpaceOf(const OIIO::ImageSpec& spec) {
   const std::string cs = spec.get_string_attribute("oiio:ColorSpace");
   if (OIIO::Strutil::iequals(cs, "sRGB")) return {Encoding::kSrgb, 1.0f};

@@ -102,6 +102,18 @@ TEST(ImageTexture, MatchesHandWrittenBilinearOnAnOddSizedImage) {
   }
 }
 
+// checker.png with a gAMA chunk: OIIO calls gamma 1 "linear" and gamma 2 "Gamma2".
+TEST(ImageTexture, PngGammaChunksAreHonoured) {
+  const auto linear = load("checker_gamma1.png");
+  const auto gamma2 = load("checker_gamma2.png");
+  ASSERT_NE(linear, nullptr);
+  ASSERT_NE(gamma2, nullptr);
+  const float v = 128.0f / 255.0f;
+  expectRgbNear(linear->evaluate({0.75f, 0.25f}), {v, v, v});
+  expectRgbNear(gamma2->evaluate({0.75f, 0.25f}), {v * v, v * v, v * v});
+  expectRgbNear(gamma2->evaluate({0.25f, 0.75f}), {1, 0, 0});
+}
+
 TEST(ImageTexture, SingleChannelIsGrey) {
   const auto tex = load("gray.png");  // 2x1: 64, 200
   ASSERT_NE(tex, nullptr);
