@@ -140,12 +140,15 @@ TEST(ImageTexture, DataWindowNeedNotStartAtTheOrigin) {
 }
 
 TEST(ImageTexture, HostileHeadersAreRejectedBeforeAnyPixelIsRead) {
-  // Shared with image_io_test: headers that claim 120 GB, 16 GiB and 30 GB of pixels.
+  // Shared with image_io_test: headers that claim 120 GB, 16 GiB and 30 GB of pixels. OIIO's
+  // cache would abort the process on them; which check rejects the EXRs first depends on
+  // whether readImage's OpenEXR size limits are set in this process.
   for (const char* name : {"huge_header.exr", "too_many_floats.exr", "huge_header.png"}) {
-    const auto tex = loadImageTexture((testDataDir() / "images" / name).string());
+    const std::string path = (testDataDir() / "images" / name).string();
+    const auto tex = loadImageTexture(path);
     ASSERT_FALSE(tex.ok()) << name;
     EXPECT_EQ(tex.status().code(), absl::StatusCode::kInvalidArgument) << tex.status();
-    EXPECT_NE(tex.status().message().find("too large"), std::string::npos) << tex.status();
+    EXPECT_NE(tex.status().message().find(path), std::string::npos) << tex.status();
   }
 }
 
