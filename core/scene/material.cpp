@@ -39,7 +39,8 @@ float finiteOrZero(float pdf) { return std::isfinite(pdf) ? pdf : 0.0f; }
 Rgb conductorFresnel(const Material& m, float cosTheta) {
   Rgb fr;
   for (int c = 0; c < 3; ++c) {
-    fr[c] = m.complexIor ? frComplex(cosTheta, m.eta[c], m.k[c]) : frSchlick(cosTheta, m.specular[c]);
+    fr[c] =
+        m.complexIor ? frComplex(cosTheta, m.eta[c], m.k[c]) : frSchlick(cosTheta, m.specular[c]);
   }
   return fr * m.tint;
 }
@@ -200,7 +201,8 @@ std::optional<BsdfSample> dielectricSample(const Material& m, TransportMode mode
   const float denom = sqr(dot(s.wi, wm) + cosOm / etap);
   if (denom == 0.0f) return std::nullopt;
   s.pdf = visible * (absDot(s.wi, wm) / denom) * (1.0f - r);
-  float ft = dielectricTransmission(mf, dielectricTransmittance(eta, wo, s.wi, wm), wo, s.wi, wm, etap);
+  float ft =
+      dielectricTransmission(mf, dielectricTransmittance(eta, wo, s.wi, wm), wo, s.wi, wm, etap);
   if (mode == TransportMode::kRadiance) ft /= sqr(etap);
   s.f = Rgb(ft);
   s.transmission = true;

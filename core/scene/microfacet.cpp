@@ -67,7 +67,8 @@ Vec2f sampleBeckmannSlope11(float cosThetaI, const Vec2f& u) {
 }  // namespace
 
 Microfacet::Microfacet(MicrofacetDistribution type, float alpha)
-    : type_(type), alpha_(std::isfinite(alpha) ? std::clamp(alpha, kMinAlpha, kMaxAlpha) : kMaxAlpha) {}
+    : type_(type),
+      alpha_(std::isfinite(alpha) ? std::clamp(alpha, kMinAlpha, kMaxAlpha) : kMaxAlpha) {}
 
 float Microfacet::d(const Vec3f& wm) const {
   if (wm.z <= 0.0f) return 0.0f;
