@@ -4,7 +4,8 @@
 // shading frame (z = macro-surface normal) and is isotropic.
 //
 // Masking-shadowing is Smith's height-correlated form G2 = 1 / (1 + Lambda(wo) + Lambda(wi))
-// (Heitz 2014, eq. 99), used for reflection and, as pbrt-v4 does, for transmission too.
+// (Heitz 2014, "Understanding the Masking-Shadowing Function"), used for reflection and, as
+// pbrt-v4 does, for transmission too (where it slightly under-estimates G2).
 
 #include "core/math/vec.h"
 #include "core/scene/shot.h"
