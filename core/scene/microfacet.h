@@ -5,7 +5,7 @@
 //
 // Masking-shadowing is Smith's height-correlated form G2 = 1 / (1 + Lambda(wo) + Lambda(wi))
 // (Heitz 2014, "Understanding the Masking-Shadowing Function"), used for reflection and, as
-// pbrt-v4 does, for transmission too (where it slightly under-estimates G2).
+// pbrt-v4 does, for transmission too, where it is the usual approximation.
 
 #include "core/math/vec.h"
 #include "core/scene/shot.h"
