@@ -14,6 +14,21 @@ float areaToSolidAngle(float pdfArea, float dist2, float cosLight) {
   return pdfArea * dist2 / cosLight;
 }
 
+// A light sample at point q (normal n) of an emitter of the given area sampled uniformly,
+// seen from p. One-sided emitters shine along n only.
+std::optional<LightSample> areaSample(const Vec3f& p, const Vec3f& q, const Vec3f& n, float area,
+                                      bool twoSided, const Rgb& radiance) {
+  const Vec3f d = q - p;
+  const float dist2 = dot(d, d);
+  if (dist2 <= 0.0f) return std::nullopt;
+  const float dist = std::sqrt(dist2);
+  const Vec3f wi = d / dist;
+  const float cosLight = twoSided ? absDot(wi, n) : dot(-wi, n);
+  const float pdf = areaToSolidAngle(1.0f / area, dist2, cosLight);
+  if (pdf <= 0.0f || !std::isfinite(pdf)) return std::nullopt;
+  return LightSample{radiance, wi, dist, pdf, false};
+}
+
 class QuadLight final : public Light {
  public:
   QuadLight(const Vec3f& corner, const Vec3f& eu, const Vec3f& ev, const Rgb& radiance)
@@ -25,15 +40,7 @@ class QuadLight final : public Light {
   }
 
   std::optional<LightSample> sample(const Vec3f& p, const Vec2f& u) const override {
-    const Vec3f q = corner_ + eu_ * u.x + ev_ * u.y;
-    const Vec3f d = q - p;
-    const float dist2 = dot(d, d);
-    if (dist2 <= 0.0f) return std::nullopt;
-    const float dist = std::sqrt(dist2);
-    const Vec3f wi = d / dist;
-    const float pdf = areaToSolidAngle(1.0f / area_, dist2, dot(-wi, n_));
-    if (pdf <= 0.0f || !std::isfinite(pdf)) return std::nullopt;
-    return LightSample{radiance_, wi, dist, pdf, false};
+    return areaSample(p, corner_ + eu_ * u.x + ev_ * u.y, n_, area_, false, radiance_);
   }
   float pdf(const Vec3f& p, const Vec3f& wi, const Vec3f& hit, const Vec3f&) const override {
     const Vec3f d = hit - p;
@@ -63,14 +70,7 @@ class TriangleLight final : public Light {
     if (area_ <= 0.0f) return std::nullopt;
     const Vec2f b = sampleUniformTriangle(u);
     const Vec3f q = p0_ * b.x + p1_ * b.y + p2_ * (1.0f - b.x - b.y);
-    const Vec3f d = q - p;
-    const float dist2 = dot(d, d);
-    if (dist2 <= 0.0f) return std::nullopt;
-    const float dist = std::sqrt(dist2);
-    const Vec3f wi = d / dist;
-    const float pdf = areaToSolidAngle(1.0f / area_, dist2, absDot(wi, n_));
-    if (pdf <= 0.0f || !std::isfinite(pdf)) return std::nullopt;
-    return LightSample{radiance_, wi, dist, pdf, false};
+    return areaSample(p, q, n_, area_, true, radiance_);
   }
   float pdf(const Vec3f& p, const Vec3f& wi, const Vec3f& hit, const Vec3f&) const override {
     if (area_ <= 0.0f) return 0.0f;
@@ -100,15 +100,7 @@ class SphereLight final : public Light {
     if (dc2 <= r2 * 1.0001f) {
       // Inside (or on) the sphere: sample its area uniformly.
       const Vec3f n = sampleUniformSphere(u);
-      const Vec3f q = center_ + n * radius_;
-      const Vec3f d = q - p;
-      const float dist2 = dot(d, d);
-      if (dist2 <= 0.0f) return std::nullopt;
-      const float dist = std::sqrt(dist2);
-      const Vec3f wi = d / dist;
-      const float pdf = areaToSolidAngle(1.0f / (4.0f * kPi * r2), dist2, dot(-wi, n));
-      if (pdf <= 0.0f || !std::isfinite(pdf)) return std::nullopt;
-      return LightSample{radiance_, wi, dist, pdf, false};
+      return areaSample(p, center_ + n * radius_, n, 4.0f * kPi * r2, false, radiance_);
     }
     // Outside: sample the cone the sphere subtends (pbrt-v4's formulation, accurate for
     // small cones where 1 - cos(theta_max) cancels).

@@ -22,6 +22,15 @@ Rgb meanRgb(const Image& image) {
   return Rgb(static_cast<float>(s[0] / n), static_cast<float>(s[1] / n), static_cast<float>(s[2] / n));
 }
 
+// Looks into makeBoxScene()'s open side.
+Camera boxCamera(int width, int height) {
+  CameraParams cp;
+  cp.position = {0.5f, 0.5f, -1.4f};
+  cp.lookAt = {0.5f, 0.5f, 0.0f};
+  cp.fovYDeg = 40.0f;
+  return Camera(cp, width, height);
+}
+
 // A closed sphere whose inside both emits Le and reflects diffusely with albedo rho: the
 // radiance everywhere inside is Le / (1 - rho), whatever the geometry.
 TEST(PathTracerTest, WhiteFurnaceClosedEmissiveSphere) {
@@ -72,11 +81,7 @@ TEST(PathTracerTest, TileAndThreadInvarianceBitForBit) {
   auto scene = makeBoxScene();
   ASSERT_NE(scene, nullptr);
   const PathIntegrator integrator(*scene, PathTracerSettings{});
-  CameraParams cp;
-  cp.position = {0.5f, 0.5f, -1.4f};
-  cp.lookAt = {0.5f, 0.5f, 0.0f};
-  cp.fovYDeg = 40.0f;
-  const Camera camera(cp, 72, 56);
+  const Camera camera = boxCamera(72, 56);
   RenderSettings settings;
   settings.spp = 8;
   settings.filter = FilterType::kGaussian;
@@ -101,11 +106,7 @@ TEST(PathTracerTest, TileAndThreadInvarianceBitForBit) {
 TEST(PathTracerTest, DirectPlusIndirectIsTotalAndMaxDepthOneHasNoIndirect) {
   auto scene = makeBoxScene();
   ASSERT_NE(scene, nullptr);
-  CameraParams cp;
-  cp.position = {0.5f, 0.5f, -1.4f};
-  cp.lookAt = {0.5f, 0.5f, 0.0f};
-  cp.fovYDeg = 40.0f;
-  const Camera camera(cp, 24, 24);
+  const Camera camera = boxCamera(24, 24);
   RenderSettings settings;
   settings.spp = 16;
   const PathIntegrator full(*scene, PathTracerSettings{64, 3});
