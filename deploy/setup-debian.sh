@@ -10,7 +10,7 @@ libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
 libsqlite3-dev libpqxx-dev libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
-libcpp-httplib-dev
+libcpp-httplib-dev libxxhash-dev
 "
 
 missing=""

@@ -17,17 +17,35 @@ Frame shadingFrame(const SurfaceHit& hit) { return Frame(hit.ns); }
 
 }  // namespace
 
-Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
-                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng) {
-  // Consume a fixed number of random numbers whatever happens, so that later decisions of
-  // the same path use the same numbers whichever branch this one took.
+std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f& p,
+                                                 const Vec3f& ng, Rng& rng, float* selectPdf) {
+  // A fixed count of random numbers whatever happens, so that later decisions of the same
+  // path use the same numbers whichever branch this one took.
   const float uLight = rng.uniform();
   const Vec2f u = next2(rng);
+  const Light* light = scene.sampleLight(uLight, selectPdf);
+  if (light == nullptr || *selectPdf <= 0.0f) return std::nullopt;
+  std::optional<LightSample> ls = light->sample(p, u);
+  if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return std::nullopt;
+  if (scene.occluded(scene.spawnShadowRay(p, ng, ls->wi, ls->distance))) return std::nullopt;
+  return ls;
+}
+
+Rgb sampleIrradiance(const Scene& scene, const Vec3f& p, const Vec3f& n, const Vec3f& ng,
+                     Rng& rng) {
   float selectPdf = 0.0f;
-  const Light* light = scene.sampleLight(uLight, &selectPdf);
-  if (light == nullptr || selectPdf <= 0.0f) return Rgb(0.0f);
-  const std::optional<LightSample> ls = light->sample(hit.p, u);
-  if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return Rgb(0.0f);
+  const std::optional<LightSample> ls = sampleUnoccludedLight(scene, p, dot(ng, n) >= 0.0f ? ng : -ng, rng, &selectPdf);
+  if (!ls) return Rgb(0.0f);
+  const float cosTheta = dot(ls->wi, n);
+  if (cosTheta <= 0.0f) return Rgb(0.0f);
+  return ls->radiance * (cosTheta / (ls->pdf * selectPdf));
+}
+
+Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng) {
+  float selectPdf = 0.0f;
+  const std::optional<LightSample> ls = sampleUnoccludedLight(scene, hit.p, hit.ng, rng, &selectPdf);
+  if (!ls) return Rgb(0.0f);
   const Vec3f wiLocal = frame.toLocal(ls->wi);
   // Reflection or transmission must agree between the shading and geometric normals, or
   // light leaks through the surface.
@@ -38,9 +56,6 @@ Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& fr
   if (reflectGeo != reflectShading) return Rgb(0.0f);
   const Rgb f = bsdf.f(woLocal, wiLocal);
   if (isBlack(f)) return Rgb(0.0f);
-  if (scene.occluded(scene.spawnShadowRay(hit.p, hit.ng, ls->wi, ls->distance))) {
-    return Rgb(0.0f);
-  }
   const float lightPdf = ls->pdf * selectPdf;
   const float weight = ls->delta ? 1.0f : powerHeuristic(lightPdf, bsdf.pdf(woLocal, wiLocal));
   return f * ls->radiance * (std::abs(wiLocal.z) * weight / lightPdf);

@@ -26,6 +26,17 @@ struct PathSample {
   Rgb radiance() const { return direct + indirect; }
 };
 
+// One light sample towards surface point p (geometric normal ng) that nothing occludes, with
+// the probability of having picked its light; nullopt when it is blocked or carries nothing.
+// Draws exactly three random numbers whatever happens.
+std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f& p,
+                                                 const Vec3f& ng, Rng& rng, float* selectPdf);
+
+// Irradiance at p on the side of unit normal n from one light sample (light sampling alone:
+// every light of the scene can be sampled). The surfel baker's estimator.
+Rgb sampleIrradiance(const Scene& scene, const Vec3f& p, const Vec3f& n, const Vec3f& ng,
+                     Rng& rng);
+
 // Direct light arriving at a surface point from one light sample, MIS-weighted against
 // BSDF sampling. Shared with the PBGI integrators and the surfel baker, so that they differ
 // from the path tracer only in indirect light.

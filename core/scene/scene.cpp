@@ -34,6 +34,7 @@ struct Scene::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   std::vector<MeshData> meshes;
+  std::vector<uint64_t> triangleBase;  // per mesh: global id of its first triangle
   std::vector<std::vector<int>> triangleLights;  // per mesh: light per triangle, or empty
   std::vector<GeometryInfo> geometries;          // by Embree geometry id
 
@@ -44,6 +45,9 @@ struct Scene::Impl {
 };
 
 Scene::~Scene() = default;
+
+const std::vector<MeshData>& Scene::meshes() const { return impl_->meshes; }
+uint64_t Scene::triangleIdBase(size_t mesh) const { return impl_->triangleBase[mesh]; }
 
 float Scene::offsetScale(const Vec3f& p) const {
   const float sceneScale = maxAbsComponent(bounds_.diagonal()) * 1e-3f;
@@ -274,6 +278,7 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
     info.mesh = meshIndex;
     attach(geom, info);
 
+    impl.triangleBase.push_back(scene->stats_.triangles);
     scene->stats_.triangles += mesh.triangleCount();
     ++scene->stats_.meshes;
     impl.meshes.push_back(std::move(mesh));

@@ -67,6 +67,11 @@ class Scene {
   // Albedo of a material at a hit (texture looked up).
   Rgb albedoAt(const SurfaceHit& hit) const;
 
+  // The scene's triangle meshes (cleaned), in a fixed order. Global triangle ids count
+  // triangles across them in that order.
+  const std::vector<MeshData>& meshes() const;
+  uint64_t triangleIdBase(size_t mesh) const;
+
   const Bounds3f& bounds() const { return bounds_; }
   const SceneStats& stats() const { return stats_; }
 

@@ -169,3 +169,32 @@ TEST(PathTracerTest, HostileGeometryRendersWithoutNaN) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+// Irradiance on an open plane under a uniform sky L is pi L; under a sun it is E cos.
+TEST(PathTracerTest, SampleIrradianceMatchesAnalytic) {
+  SceneBuilder b;
+  Material m;
+  b.addMesh(testing::makeQuadMesh({-1, 0, -1}, {0, 0, 2}, {2, 0, 0}, b.addMaterial(m)));
+  b.addLight(makeUniformEnvironmentLight(Rgb(0.5f)));
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok());
+  Rng rng(4);
+  const Vec3f n(0.0f, 1.0f, 0.0f);
+  double sum = 0.0;
+  const int count = 200000;
+  for (int i = 0; i < count; ++i) sum += sampleIrradiance(**scene, Vec3f(0.0f), n, n, rng).x;
+  EXPECT_NEAR(sum / count, kPi * 0.5, 0.01 * kPi * 0.5);
+  // Inside a closed sphere nothing of the sky arrives.
+  SceneBuilder closed;
+  closed.addMesh(testing::makeSphereMesh(2.0f, closed.addMaterial(m), 2));
+  closed.addLight(makeUniformEnvironmentLight(Rgb(0.5f)));
+  auto inside = closed.build();
+  ASSERT_TRUE(inside.ok());
+  for (int i = 0; i < 1000; ++i) ASSERT_EQ(sampleIrradiance(**inside, Vec3f(0.0f), n, n, rng).x, 0.0f);
+}
+
+}  // namespace
+}  // namespace pbgi
