@@ -1,0 +1,814 @@
+#include "core/pbgi/external_sort.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <cerrno>
+#include <limits>
+#include <vector>
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+#include <tbb/task_arena.h>
+
+#include "core/util/check.h"
+#include "core/util/status.h"
+
+namespace pbgi {
+namespace {
+
+// ---- Record layout ------------------------------------------------------------------------
+
+void putU32(uint8_t* p, uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
+}
+void putU64(uint8_t* p, uint64_t v) {
+  for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
+}
+void putF32(uint8_t* p, float v) { putU32(p, std::bit_cast<uint32_t>(v)); }
+uint32_t getU32(const uint8_t* p) {
+  uint32_t v = 0;
+  for (int i = 0; i < 4; ++i) v |= static_cast<uint32_t>(p[i]) << (8 * i);
+  return v;
+}
+uint64_t getU64(const uint8_t* p) {
+  uint64_t v = 0;
+  for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(p[i]) << (8 * i);
+  return v;
+}
+float getF32(const uint8_t* p) { return std::bit_cast<float>(getU32(p)); }
+
+void putVec3(uint8_t* p, const Vec3f& v) {
+  putF32(p, v.x);
+  putF32(p + 4, v.y);
+  putF32(p + 8, v.z);
+}
+Vec3f getVec3(const uint8_t* p) { return {getF32(p), getF32(p + 4), getF32(p + 8)}; }
+
+// Byte offsets of the fields; the last one is the record size.
+constexpr size_t kOffKey = 0, kOffSequence = 8, kOffPosition = 16, kOffNormal = 28, kOffRadius = 40,
+                 kOffAlbedo = 44, kOffRadiance = 56, kOffMaterial = 68, kOffTriangle = 69,
+                 kOffBarycentric = 73, kOffEnd = 81;
+static_assert(kOffEnd == kSurfelRecordBytes);
+
+// ---- Memory accounting --------------------------------------------------------------------
+
+// Bytes held for records and I/O buffers; every allocation the budget covers goes through here.
+class MemoryMeter {
+ public:
+  void acquire(uint64_t bytes) {
+    held_ += bytes;
+    peak_ = std::max(peak_, held_);
+  }
+  void release(uint64_t bytes) {
+    PBGI_CHECK_LE(bytes, held_);
+    held_ -= bytes;
+  }
+  uint64_t held() const { return held_; }
+  uint64_t peak() const { return peak_; }
+
+ private:
+  uint64_t held_ = 0;
+  uint64_t peak_ = 0;
+};
+
+// A charge against the meter, given back on destruction.
+class MeterCharge {
+ public:
+  MeterCharge() = default;
+  MeterCharge(uint64_t bytes, MemoryMeter* meter) : bytes_(bytes), meter_(meter) {
+    meter_->acquire(bytes_);
+  }
+  MeterCharge(MeterCharge&& o) noexcept { *this = std::move(o); }
+  MeterCharge& operator=(MeterCharge&& o) noexcept {
+    reset();
+    bytes_ = std::exchange(o.bytes_, 0);
+    meter_ = std::exchange(o.meter_, nullptr);
+    return *this;
+  }
+  ~MeterCharge() { reset(); }
+  void reset() {
+    if (meter_ != nullptr) meter_->release(bytes_);
+    bytes_ = 0;
+    meter_ = nullptr;
+  }
+
+ private:
+  uint64_t bytes_ = 0;
+  MemoryMeter* meter_ = nullptr;
+};
+
+// A buffer the meter accounts for. Not zero-filled: every byte read from it was first
+// written.
+class MeteredBuffer {
+ public:
+  MeteredBuffer() = default;
+  MeteredBuffer(size_t bytes, MemoryMeter* meter)
+      : data_(new uint8_t[bytes]), bytes_(bytes), charge_(bytes, meter) {}
+  void reset() {
+    data_.reset();
+    bytes_ = 0;
+    charge_.reset();
+  }
+  uint8_t* data() { return data_.get(); }
+  size_t size() const { return bytes_; }
+
+ private:
+  std::unique_ptr<uint8_t[]> data_;
+  size_t bytes_ = 0;
+  MeterCharge charge_;
+};
+
+// ---- Run files ----------------------------------------------------------------------------
+
+struct Run {
+  std::string path;
+  uint64_t records = 0;
+  uint64_t id = 0;  // creation order; breaks ties when choosing runs to merge
+};
+
+absl::Status errnoStatus(int error, const std::string& what, const std::string& path) {
+  return absl::ErrnoToStatus(error, fmt::format("{} {}", what, path));
+}
+
+class RunWriter {
+ public:
+  RunWriter(std::string path, size_t bufferBytes, MemoryMeter* meter, uint64_t* bytesWritten)
+      : path_(std::move(path)),
+        buffer_(bufferBytes / kSurfelRecordBytes * kSurfelRecordBytes, meter),
+        bytesWritten_(bytesWritten) {
+    PBGI_CHECK_GE(buffer_.size(), kSurfelRecordBytes);
+  }
+  ~RunWriter() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+
+  absl::Status open() {
+    // O_EXCL: never write into a file some other sorter or process owns.
+    fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    if (fd_ < 0) return errnoStatus(errno, "creating sort run file", path_);
+    return absl::OkStatus();
+  }
+
+  size_t bufferRecords() const { return buffer_.size() / kSurfelRecordBytes; }
+
+  // Room for n records (n <= bufferRecords()) at the end of the buffer, flushing it first if
+  // needed; the caller encodes into it.
+  absl::StatusOr<uint8_t*> appendSlots(size_t n) {
+    PBGI_CHECK_LE(n, bufferRecords());
+    if (used_ + n * kSurfelRecordBytes > buffer_.size()) {
+      if (absl::Status s = flush(); !s.ok()) return s;
+    }
+    uint8_t* slots = buffer_.data() + used_;
+    used_ += n * kSurfelRecordBytes;
+    records_ += n;
+    return slots;
+  }
+
+  absl::Status append(const SortedSurfel& record) {
+    absl::StatusOr<uint8_t*> slot = appendSlots(1);
+    if (!slot.ok()) return slot.status();
+    encodeSurfelRecord(record, *slot);
+    return absl::OkStatus();
+  }
+
+  // Flushes and closes; the run is complete only when this succeeds.
+  absl::StatusOr<uint64_t> close() {
+    if (absl::Status s = flush(); !s.ok()) return s;
+    const int fd = std::exchange(fd_, -1);
+    // close() reports delayed write errors (NFS, full disks); they make the run unusable.
+    if (::close(fd) != 0) return errnoStatus(errno, "closing sort run file", path_);
+    buffer_.reset();
+    return records_;
+  }
+
+ private:
+  absl::Status flush() {
+    const uint8_t* p = buffer_.data();
+    size_t left = used_;
+    while (left > 0) {
+      const ssize_t n = ::write(fd_, p, left);
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        return errnoStatus(errno, "writing sort run file", path_);
+      }
+      p += n;
+      left -= static_cast<size_t>(n);
+    }
+    *bytesWritten_ += used_;
+    used_ = 0;
+    return absl::OkStatus();
+  }
+
+  std::string path_;
+  int fd_ = -1;
+  MeteredBuffer buffer_;
+  size_t used_ = 0;
+  uint64_t records_ = 0;
+  uint64_t* bytesWritten_;
+};
+
+// Reads a run back one record at a time through a bounded buffer, and checks what it reads:
+// the record count the writer reported, the layout, and strictly increasing (key, sequence).
+// A run file damaged on disk is an error naming it, never a silently misordered stream.
+class RunReader {
+ public:
+  RunReader(Run run, size_t bufferBytes, MemoryMeter* meter, uint64_t* bytesRead)
+      : run_(std::move(run)),
+        buffer_(bufferBytes / kSurfelRecordBytes * kSurfelRecordBytes, meter),
+        bytesRead_(bytesRead) {
+    PBGI_CHECK_GE(buffer_.size(), kSurfelRecordBytes);
+  }
+  ~RunReader() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+
+  // Opens the file and loads the first record.
+  absl::Status open() {
+    fd_ = ::open(run_.path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd_ < 0) return errnoStatus(errno, "opening sort run file", run_.path);
+#ifdef POSIX_FADV_SEQUENTIAL
+    ::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);
+#endif
+    return advance();
+  }
+
+  bool valid() const { return valid_; }
+  const SortedSurfel& current() const { return current_; }
+
+  absl::Status advance() {
+    if (delivered_ == run_.records) {
+      valid_ = false;
+      return checkAtEnd();
+    }
+    if (pos_ == filled_) {
+      if (absl::Status s = refill(); !s.ok()) return s;
+    }
+    SortedSurfel next;
+    if (absl::Status s = decodeSurfelRecord(buffer_.data() + pos_, &next); !s.ok()) {
+      return absl::DataLossError(
+          fmt::format("sort run file {}: record {}: {}", run_.path, delivered_, s.message()));
+    }
+    if (delivered_ > 0 && !(next.key > current_.key ||
+                            (next.key == current_.key && next.sequence > current_.sequence))) {
+      return absl::DataLossError(fmt::format(
+          "sort run file {}: record {} (key {}, sequence {}) does not follow (key {}, sequence "
+          "{}): the file is damaged",
+          run_.path, delivered_, next.key, next.sequence, current_.key, current_.sequence));
+    }
+    current_ = next;
+    valid_ = true;
+    pos_ += kSurfelRecordBytes;
+    ++delivered_;
+    return absl::OkStatus();
+  }
+
+  const std::string& path() const { return run_.path; }
+
+ private:
+  absl::Status refill() {
+    const uint64_t wantRecords =
+        std::min<uint64_t>(buffer_.size() / kSurfelRecordBytes, run_.records - delivered_);
+    const size_t want = wantRecords * kSurfelRecordBytes;
+    size_t got = 0;
+    while (got < want) {
+      const ssize_t n = ::read(fd_, buffer_.data() + got, want - got);
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        return errnoStatus(errno, "reading sort run file", run_.path);
+      }
+      if (n == 0) {
+        return absl::DataLossError(fmt::format(
+            "sort run file {} is truncated: expected {} records ({} bytes), it ends at byte {}",
+            run_.path, run_.records, run_.records * kSurfelRecordBytes,
+            delivered_ * kSurfelRecordBytes + got));
+      }
+      got += static_cast<size_t>(n);
+    }
+    *bytesRead_ += got;
+    pos_ = 0;
+    filled_ = got;
+    return absl::OkStatus();
+  }
+
+  absl::Status checkAtEnd() {
+    uint8_t extra;
+    ssize_t n;
+    do {
+      n = ::read(fd_, &extra, 1);
+    } while (n < 0 && errno == EINTR);
+    if (n < 0) return errnoStatus(errno, "reading sort run file", run_.path);
+    if (n > 0) {
+      return absl::DataLossError(
+          fmt::format("sort run file {} is longer than the {} records ({} bytes) written to it",
+                      run_.path, run_.records, run_.records * kSurfelRecordBytes));
+    }
+    return absl::OkStatus();
+  }
+
+  Run run_;
+  int fd_ = -1;
+  MeteredBuffer buffer_;
+  size_t pos_ = 0;
+  size_t filled_ = 0;
+  uint64_t delivered_ = 0;
+  SortedSurfel current_;
+  bool valid_ = false;
+  uint64_t* bytesRead_;
+};
+
+// Bookkeeping per merged run besides its read buffer: its reader (with the current record)
+// and its heap entry. Counted against the budget so that the budget holds exactly.
+struct HeapItem {
+  uint64_t key;
+  uint64_t sequence;
+  uint32_t run;
+};
+constexpr size_t kMergeOverheadPerRun =
+    sizeof(RunReader) + sizeof(std::unique_ptr<RunReader>) + sizeof(HeapItem);
+// The minimum budget must allow a two-way merge with minimum buffers.
+static_assert((ExternalSurfelSorter::kMinMemoryBudgetBytes -
+               ExternalSurfelSorter::kMinMergeBufferBytes) /
+                  (ExternalSurfelSorter::kMinMergeBufferBytes + kMergeOverheadPerRun) >=
+              2);
+
+// Later in (key, sequence, run) order: the heap's comparator, so its top is the smallest.
+bool heapAfter(const HeapItem& a, const HeapItem& b) {
+  if (a.key != b.key) return a.key > b.key;
+  if (a.sequence != b.sequence) return a.sequence > b.sequence;
+  return a.run > b.run;
+}
+
+// k-way merge of runs through a binary heap of their current records.
+class RunMerger {
+ public:
+  // Read buffers of bufferBytes each, plus the bookkeeping, all charged to meter.
+  absl::Status open(const std::vector<Run>& runs, size_t bufferBytes, MemoryMeter* meter,
+                    uint64_t* bytesRead) {
+    overhead_ = MeterCharge(runs.size() * kMergeOverheadPerRun, meter);
+    readers_.reserve(runs.size());
+    heap_.reserve(runs.size());
+    for (const Run& run : runs) {
+      readers_.push_back(std::make_unique<RunReader>(run, bufferBytes, meter, bytesRead));
+      RunReader& reader = *readers_.back();
+      if (absl::Status s = reader.open(); !s.ok()) return s;
+      if (reader.valid()) {
+        heap_.push_back({reader.current().key, reader.current().sequence,
+                         static_cast<uint32_t>(readers_.size() - 1)});
+      }
+    }
+    std::make_heap(heap_.begin(), heap_.end(), heapAfter);
+    return absl::OkStatus();
+  }
+
+  absl::StatusOr<bool> next(SortedSurfel* out) {
+    if (heap_.empty()) return false;
+    std::pop_heap(heap_.begin(), heap_.end(), heapAfter);
+    RunReader& reader = *readers_[heap_.back().run];
+    *out = reader.current();
+    if (absl::Status s = reader.advance(); !s.ok()) return s;
+    if (reader.valid()) {
+      heap_.back().key = reader.current().key;
+      heap_.back().sequence = reader.current().sequence;
+      std::push_heap(heap_.begin(), heap_.end(), heapAfter);
+    } else {
+      heap_.pop_back();
+    }
+    return true;
+  }
+
+  // Closes the files and gives the buffers back.
+  void close() {
+    readers_.clear();
+    heap_.clear();
+    overhead_.reset();
+  }
+
+ private:
+  std::vector<std::unique_ptr<RunReader>> readers_;
+  std::vector<HeapItem> heap_;
+  MeterCharge overhead_;  // readers_ and heap_
+};
+
+std::atomic<uint64_t> gSorterCounter{0};
+
+// The sort index: the key copied next to the buffer slot so that sorting touches 16 bytes
+// per surfel instead of the whole surfel.
+struct SortEntry {
+  uint64_t key;
+  uint32_t slot;  // add order within the buffer, so (key, slot) orders like (key, sequence)
+};
+static_assert(sizeof(SortEntry) == 16);
+static_assert(ExternalSurfelSorter::kBufferedRecordBytes ==
+              sizeof(Surfel) + sizeof(uint64_t) + sizeof(SortEntry));
+
+bool entryBefore(const SortEntry& a, const SortEntry& b) {
+  return a.key != b.key ? a.key < b.key : a.slot < b.slot;
+}
+
+// Add-buffer chunks: the buffer grows chunk by chunk up to its capacity, so a small sort
+// never holds the whole budget and growing never copies (a doubling vector would hold three
+// times its contents while it moves them).
+constexpr size_t kChunkRecords = 16384;
+
+}  // namespace
+
+// ---- Record encoding ----------------------------------------------------------------------
+
+void encodeSurfelRecord(const SortedSurfel& r, uint8_t* out) {
+  const Surfel& s = r.surfel;
+  putU64(out + kOffKey, r.key);
+  putU64(out + kOffSequence, r.sequence);
+  putVec3(out + kOffPosition, s.position);
+  putVec3(out + kOffNormal, s.normal);
+  putF32(out + kOffRadius, s.radius);
+  putVec3(out + kOffAlbedo, s.albedo);
+  putVec3(out + kOffRadiance, s.radiance);
+  out[kOffMaterial] = static_cast<uint8_t>(s.materialClass);
+  putU32(out + kOffTriangle, s.triangle);
+  putF32(out + kOffBarycentric, s.barycentric.x);
+  putF32(out + kOffBarycentric + 4, s.barycentric.y);
+}
+
+absl::Status decodeSurfelRecord(const uint8_t* in, SortedSurfel* out) {
+  const uint8_t material = in[kOffMaterial];
+  if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {
+    return absl::InvalidArgumentError(
+        fmt::format("material class byte {} names no material class (0 to {})", material,
+                    static_cast<int>(MaterialClass::kEmissive)));
+  }
+  out->key = getU64(in + kOffKey);
+  out->sequence = getU64(in + kOffSequence);
+  Surfel& s = out->surfel;
+  s.position = getVec3(in + kOffPosition);
+  s.normal = getVec3(in + kOffNormal);
+  s.radius = getF32(in + kOffRadius);
+  s.albedo = getVec3(in + kOffAlbedo);
+  s.radiance = getVec3(in + kOffRadiance);
+  s.materialClass = static_cast<MaterialClass>(material);
+  s.triangle = getU32(in + kOffTriangle);
+  s.barycentric = Vec2f(getF32(in + kOffBarycentric), getF32(in + kOffBarycentric + 4));
+  return absl::OkStatus();
+}
+
+std::string SortStats::toString() const {
+  return fmt::format(
+      "records={} buffer_capacity={} runs_spilled={} intermediate_merges={} final_fan_in={} "
+      "bytes_written={} bytes_read={} peak_buffered_bytes={}",
+      records, bufferCapacityRecords, runsSpilled, intermediateMerges, finalMergeFanIn,
+      bytesWritten, bytesRead, peakBufferedBytes);
+}
+
+// ---- The sorter ---------------------------------------------------------------------------
+
+class ExternalSurfelSorter::Impl {
+ public:
+  explicit Impl(ExternalSortOptions options)
+      : options_(std::move(options)),
+        status_(validateOptions(options_)),
+        sorterId_(gSorterCounter.fetch_add(1)),
+        arena_(options_.threads > 0 ? options_.threads : tbb::task_arena::automatic) {
+    if (!status_.ok()) return;
+    const size_t budget = options_.memoryBudgetBytes;
+    // The spill write buffer: large enough for efficient writes, small against the budget.
+    spillBufferBytes_ =
+        std::min<size_t>(size_t{1} << 20, budget / 8) / kSurfelRecordBytes * kSurfelRecordBytes;
+    capacity_ = std::min<size_t>((budget - spillBufferBytes_) / kBufferedRecordBytes,
+                                 std::numeric_limits<uint32_t>::max());
+    PBGI_CHECK_GT(capacity_, 0u);
+    // The largest merge fan-in whose read buffers stay at kMinMergeBufferBytes or more, with
+    // one more buffer's worth for the output of an intermediate merge.
+    maxFanIn_ = (budget - kMinMergeBufferBytes) / (kMinMergeBufferBytes + kMergeOverheadPerRun);
+    PBGI_CHECK_GE(maxFanIn_, 2u);
+  }
+
+  ~Impl() { removeAllFiles(); }
+
+  absl::Status add(uint64_t key, const Surfel& surfel) {
+    PBGI_CHECK(phase_ == Phase::kAdding);
+    if (!status_.ok()) return status_;
+    if (buffered_ == capacity_) {
+      if (absl::Status s = spill(); !s.ok()) return fail(s);
+    }
+    const size_t chunk = buffered_ / kChunkRecords;
+    if (chunk == surfelChunks_.size()) {
+      const size_t n = std::min(kChunkRecords, capacity_ - buffered_);
+      surfelChunks_.push_back(std::make_unique<Surfel[]>(n));
+      keyChunks_.push_back(std::make_unique<uint64_t[]>(n));
+      chunkSizes_.push_back(n);
+      meter_.acquire(n * (sizeof(Surfel) + sizeof(uint64_t)));
+    }
+    const size_t slot = buffered_ % kChunkRecords;
+    surfelChunks_[chunk][slot] = surfel;
+    keyChunks_[chunk][slot] = key;
+    ++buffered_;
+    ++records_;
+    return absl::OkStatus();
+  }
+
+  absl::Status finish() {
+    PBGI_CHECK(phase_ == Phase::kAdding);
+    if (!status_.ok()) return status_;
+    if (runs_.empty()) {
+      // Everything fit: sort in memory and stream from the buffer; no file is written.
+      sortBuffer();
+      phase_ = Phase::kInCore;
+      return absl::OkStatus();
+    }
+    if (buffered_ > 0) {
+      if (absl::Status s = spill(); !s.ok()) return fail(s);
+    }
+    releaseAddBuffer();
+    while (runs_.size() > maxFanIn_) {
+      if (absl::Status s = mergeSmallestRuns(); !s.ok()) return fail(s);
+    }
+    finalFanIn_ = runs_.size();
+    if (absl::Status s = merger_.open(runs_, mergeBufferBytes(runs_.size()), &meter_, &bytesRead_);
+        !s.ok()) {
+      return fail(s);
+    }
+    phase_ = Phase::kMerging;
+    return absl::OkStatus();
+  }
+
+  absl::StatusOr<bool> next(SortedSurfel* out) {
+    PBGI_CHECK(phase_ != Phase::kAdding);
+    if (!status_.ok()) return status_;
+    if (phase_ == Phase::kInCore) {
+      if (streamed_ == entries_.size()) return endStream();
+      const SortEntry& e = entries_[streamed_++];
+      out->key = e.key;
+      out->sequence = bufferBaseSequence_ + e.slot;
+      out->surfel = surfelChunks_[e.slot / kChunkRecords][e.slot % kChunkRecords];
+      return true;
+    }
+    if (phase_ == Phase::kMerging) {
+      absl::StatusOr<bool> more = merger_.next(out);
+      if (!more.ok()) return fail(more.status());
+      if (*more) {
+        ++streamed_;
+        return true;
+      }
+      if (streamed_ != records_) {
+        return fail(absl::DataLossError(fmt::format(
+            "external sort: {} records were added but the merge yielded {}", records_, streamed_)));
+      }
+      return endStream();
+    }
+    return false;
+  }
+
+  SortStats stats() const {
+    SortStats s;
+    s.records = records_;
+    s.bufferCapacityRecords = capacity_;
+    s.runsSpilled = runsSpilled_;
+    s.intermediateMerges = intermediateMerges_;
+    s.finalMergeFanIn = finalFanIn_;
+    s.bytesWritten = bytesWritten_;
+    s.bytesRead = bytesRead_;
+    s.peakBufferedBytes = meter_.peak();
+    return s;
+  }
+
+  size_t bufferCapacityRecords() const { return capacity_; }
+
+ private:
+  enum class Phase { kAdding, kInCore, kMerging, kDone };
+
+  absl::Status fail(absl::Status s) {
+    status_ = s;
+    // Nothing more will be read; the files go now rather than at destruction.
+    removeAllFiles();
+    return s;
+  }
+
+  bool endStream() {
+    removeAllFiles();
+    releaseAddBuffer();
+    phase_ = Phase::kDone;
+    return false;
+  }
+
+  void removeFile(const std::string& path) {
+    std::error_code ec;
+    std::filesystem::remove(path, ec);  // best effort: an error path must not throw
+    std::erase(files_, path);
+  }
+
+  void removeAllFiles() {
+    merger_.close();
+    runs_.clear();
+    for (const std::string& path : std::exchange(files_, {})) {
+      std::error_code ec;
+      std::filesystem::remove(path, ec);
+    }
+  }
+
+  // A new run's id and file name, unique in the machine (pid), the process (sorter id) and
+  // the sorter (run id). The file is removed by this sorter whatever happens from here on.
+  Run newRun(uint64_t records) {
+    std::filesystem::path dir = options_.tempDir;
+    if (dir.empty()) {
+      std::error_code ec;
+      dir = std::filesystem::temp_directory_path(ec);
+      if (ec) dir = "/tmp";
+    }
+    const uint64_t id = nextRunId_++;
+    Run run{(dir / fmt::format("pbgi-sort-{}-{}-{}.run", ::getpid(), sorterId_, id)).string(),
+            records, id};
+    files_.push_back(run.path);
+    return run;
+  }
+
+  void sortBuffer() {
+    if (entries_.capacity() < buffered_) {
+      meter_.release(entries_.capacity() * sizeof(SortEntry));
+      std::vector<SortEntry>().swap(entries_);
+      entries_.reserve(buffered_);
+      meter_.acquire(entries_.capacity() * sizeof(SortEntry));
+    }
+    entries_.resize(buffered_);
+    for (size_t i = 0; i < buffered_; ++i) {
+      entries_[i] = {keyChunks_[i / kChunkRecords][i % kChunkRecords], static_cast<uint32_t>(i)};
+    }
+    // (key, slot) pairs are unique, so every sort algorithm, serial or parallel, gives the
+    // same order: this is what makes the output independent of the thread count.
+    if (options_.threads == 1) {
+      std::sort(entries_.begin(), entries_.end(), entryBefore);
+    } else {
+      arena_.execute([&] { tbb::parallel_sort(entries_.begin(), entries_.end(), entryBefore); });
+    }
+  }
+
+  // Sorts the buffer and writes it as a run; the buffer is then empty.
+  absl::Status spill() {
+    sortBuffer();
+    Run run = newRun(buffered_);
+    RunWriter writer(run.path, spillBufferBytes_, &meter_, &bytesWritten_);
+    if (absl::Status s = writer.open(); !s.ok()) return s;
+    const size_t block = writer.bufferRecords();
+    for (size_t begin = 0; begin < buffered_; begin += block) {
+      const size_t n = std::min(block, buffered_ - begin);
+      absl::StatusOr<uint8_t*> slots = writer.appendSlots(n);
+      if (!slots.ok()) return slots.status();
+      auto encode = [&](size_t from, size_t to) {
+        for (size_t i = from; i < to; ++i) {
+          const SortEntry& e = entries_[begin + i];
+          encodeSurfelRecord({e.key, bufferBaseSequence_ + e.slot,
+                              surfelChunks_[e.slot / kChunkRecords][e.slot % kChunkRecords]},
+                             *slots + i * kSurfelRecordBytes);
+        }
+      };
+      // Gathering surfels in key order is cache-missy, so it is worth threads; every thread
+      // writes its own byte range, so the bytes do not depend on how the range is split.
+      if (options_.threads == 1) {
+        encode(0, n);
+      } else {
+        arena_.execute([&] {
+          tbb::parallel_for(
+              tbb::blocked_range<size_t>(0, n, 1024),
+              [&](const tbb::blocked_range<size_t>& r) { encode(r.begin(), r.end()); });
+        });
+      }
+    }
+    absl::StatusOr<uint64_t> written = writer.close();
+    if (!written.ok()) return written.status();
+    PBGI_CHECK_EQ(*written, run.records);
+    runs_.push_back(std::move(run));
+    ++runsSpilled_;
+    bufferBaseSequence_ += buffered_;
+    buffered_ = 0;
+    return absl::OkStatus();
+  }
+
+  void releaseAddBuffer() {
+    for (size_t n : chunkSizes_) meter_.release(n * (sizeof(Surfel) + sizeof(uint64_t)));
+    surfelChunks_.clear();
+    keyChunks_.clear();
+    chunkSizes_.clear();
+    meter_.release(entries_.capacity() * sizeof(SortEntry));
+    std::vector<SortEntry>().swap(entries_);
+    buffered_ = 0;
+  }
+
+  // Read (and write) buffer size for a merge of k runs: the budget split k + 1 ways after
+  // the bookkeeping. maxFanIn_ guarantees at least kMinMergeBufferBytes.
+  size_t mergeBufferBytes(size_t k) const {
+    const size_t bytes = (options_.memoryBudgetBytes - k * kMergeOverheadPerRun) / (k + 1);
+    PBGI_CHECK_GE(bytes, kMinMergeBufferBytes);
+    return bytes;
+  }
+
+  // One intermediate merge, smallest runs first (an F-ary Huffman merge): the first merge
+  // takes just enough runs that every later merge, the final one included, is full, which
+  // rereads the fewest bytes. Any grouping gives the same final stream, since the order of
+  // (key, sequence) is total.
+  absl::Status mergeSmallestRuns() {
+    const size_t f = maxFanIn_;
+    const size_t k = intermediateMerges_ == 0 ? (runs_.size() - 2) % (f - 1) + 2 : f;
+    std::sort(runs_.begin(), runs_.end(), [](const Run& a, const Run& b) {
+      return a.records != b.records ? a.records < b.records : a.id < b.id;
+    });
+    std::vector<Run> inputs(runs_.begin(), runs_.begin() + k);
+    runs_.erase(runs_.begin(), runs_.begin() + k);
+
+    const size_t bufferBytes = mergeBufferBytes(k);
+    RunMerger merger;
+    if (absl::Status s = merger.open(inputs, bufferBytes, &meter_, &bytesRead_); !s.ok()) {
+      return s;
+    }
+    uint64_t total = 0;
+    for (const Run& r : inputs) total += r.records;
+    Run out = newRun(total);
+    RunWriter writer(out.path, bufferBytes, &meter_, &bytesWritten_);
+    if (absl::Status s = writer.open(); !s.ok()) return s;
+    SortedSurfel record;
+    while (true) {
+      absl::StatusOr<bool> more = merger.next(&record);
+      if (!more.ok()) return more.status();
+      if (!*more) break;
+      if (absl::Status s = writer.append(record); !s.ok()) return s;
+    }
+    merger.close();
+    absl::StatusOr<uint64_t> written = writer.close();
+    if (!written.ok()) return written.status();
+    if (*written != total) {
+      return absl::DataLossError(fmt::format(
+          "merging sort runs into {}: read {} records, {} expected", out.path, *written, total));
+    }
+    for (const Run& r : inputs) removeFile(r.path);
+    runs_.push_back(std::move(out));
+    ++intermediateMerges_;
+    return absl::OkStatus();
+  }
+
+  ExternalSortOptions options_;
+  absl::Status status_;  // the first error; every later call returns it
+  uint64_t sorterId_;
+  tbb::task_arena arena_;
+  Phase phase_ = Phase::kAdding;
+
+  size_t spillBufferBytes_ = 0;
+  size_t capacity_ = 0;
+  size_t maxFanIn_ = 0;
+  MemoryMeter meter_;
+
+  // The add buffer.
+  std::vector<std::unique_ptr<Surfel[]>> surfelChunks_;
+  std::vector<std::unique_ptr<uint64_t[]>> keyChunks_;
+  std::vector<size_t> chunkSizes_;
+  std::vector<SortEntry> entries_;
+  size_t buffered_ = 0;
+  uint64_t bufferBaseSequence_ = 0;  // sequence of slot 0
+
+  // Complete runs not yet merged, and every file this sorter created and has not removed
+  // (complete or not), so that none outlives it.
+  std::vector<Run> runs_;
+  std::vector<std::string> files_;
+  uint64_t nextRunId_ = 0;
+  RunMerger merger_;
+
+  uint64_t records_ = 0;
+  uint64_t streamed_ = 0;
+  uint64_t runsSpilled_ = 0;
+  uint64_t intermediateMerges_ = 0;
+  uint64_t finalFanIn_ = 0;
+  uint64_t bytesWritten_ = 0;
+  uint64_t bytesRead_ = 0;
+};
+
+absl::Status ExternalSurfelSorter::validateOptions(const ExternalSortOptions& options) {
+  if (options.memoryBudgetBytes < kMinMemoryBudgetBytes) {
+    return absl::InvalidArgumentError(
+        fmt::format("external sort: a memory budget of {} bytes is below the minimum of {} "
+                    "bytes (a two-way merge with its minimum buffers)",
+                    options.memoryBudgetBytes, kMinMemoryBudgetBytes));
+  }
+  if (options.threads < 0) {
+    return absl::InvalidArgumentError(
+        fmt::format("external sort: threads must be 0 (all) or more, got {}", options.threads));
+  }
+  return absl::OkStatus();
+}
+
+ExternalSurfelSorter::ExternalSurfelSorter(ExternalSortOptions options)
+    : impl_(std::make_unique<Impl>(std::move(options))) {}
+ExternalSurfelSorter::~ExternalSurfelSorter() = default;
+
+absl::Status ExternalSurfelSorter::add(uint64_t key, const Surfel& surfel) {
+  return impl_->add(key, surfel);
+}
+absl::Status ExternalSurfelSorter::finish() { return impl_->finish(); }
+absl::StatusOr<bool> ExternalSurfelSorter::next(SortedSurfel* out) { return impl_->next(out); }
+SortStats ExternalSurfelSorter::stats() const { return impl_->stats(); }
+size_t ExternalSurfelSorter::bufferCapacityRecords() const {
+  return impl_->bufferCapacityRecords();
+}
+
+}  // namespace pbgi
