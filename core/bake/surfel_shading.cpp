@@ -1,0 +1,78 @@
+#include "core/bake/surfel_shading.h"
+
+#include <algorithm>
+#include <atomic>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "core/render/path_tracer.h"
+#include "core/sampling/rng.h"
+#include "core/util/check.h"
+
+namespace pbgi {
+
+namespace {
+
+// Keeps the surfels' light samples apart from every other stream keyed (seed, frame, n).
+constexpr uint64_t kSurfelDirectLightDomain = 0x5355524644495245ull;
+
+}  // namespace
+
+SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surfels,
+                                      uint64_t firstSurfelIndex,
+                                      const SurfelShadingOptions& options) {
+  PBGI_CHECK_GT(options.lightSamples, 0);
+  const std::vector<MeshData>& meshes = scene.meshes();
+  std::vector<uint64_t> bases(meshes.size());
+  for (size_t m = 0; m < meshes.size(); ++m) bases[m] = scene.triangleIdBase(m);
+  const float invSamples = 1.0f / static_cast<float>(options.lightSamples);
+
+  std::atomic<uint64_t> emissive{0}, discarded{0};
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, surfels.size(), 256),
+                    [&](const tbb::blocked_range<size_t>& range) {
+    uint64_t localEmissive = 0, localDiscarded = 0;
+    for (size_t i = range.begin(); i != range.end(); ++i) {
+      Surfel& surfel = surfels[i];
+      const auto it = std::upper_bound(bases.begin(), bases.end(), uint64_t{surfel.triangle});
+      PBGI_CHECK(it != bases.begin());
+      const size_t m = static_cast<size_t>(it - bases.begin()) - 1;
+      const uint64_t local = surfel.triangle - bases[m];
+      PBGI_CHECK_LT(local, meshes[m].triangleCount());
+      const Material& material = scene.material(meshes[m].materials[local]);
+
+      Rgb radiance(0.0f);
+      if (!isBlack(material.radiance) && isFinite(material.radiance)) {
+        radiance += material.radiance;
+        ++localEmissive;
+      }
+      const Rgb diffuse = material.type == MaterialType::kDiffuse ? surfel.albedo : Rgb(0.0f);
+      if (!isBlack(diffuse)) {
+        Rng rng = Rng::forKeys(options.seed, options.frame, firstSurfelIndex + i,
+                               kSurfelDirectLightDomain);
+        Rgb irradiance(0.0f);
+        for (int s = 0; s < options.lightSamples; ++s) {
+          const Rgb e = sampleIrradiance(scene, surfel.position, surfel.normal, surfel.normal, rng);
+          if (isFinite(e)) {
+            irradiance += e;
+          } else {
+            ++localDiscarded;
+          }
+        }
+        radiance += diffuse * (irradiance * (invSamples * kInvPi));
+      }
+      surfel.radiance = radiance;
+    }
+    emissive.fetch_add(localEmissive, std::memory_order_relaxed);
+    discarded.fetch_add(localDiscarded, std::memory_order_relaxed);
+  });
+
+  SurfelShadingStats stats;
+  stats.surfels = surfels.size();
+  stats.emissive = emissive.load();
+  stats.discardedSamples = discarded.load();
+  return stats;
+}
+
+}  // namespace pbgi

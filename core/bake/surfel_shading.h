@@ -1,0 +1,42 @@
+#pragma once
+// Direct lighting of surfels: the outgoing diffuse radiance that the PBGI tree aggregates.
+//
+// radiance = emitted + diffuseAlbedo / pi * E, where E is the irradiance on the surfel's front
+// side estimated with the path tracer's own light sampling (sampleIrradiance: every light
+// type, Embree shadow rays), so that the PBGI integrators differ from the reference only in
+// how they gather indirect light.
+//
+// Only the Lambertian part of a material reflects into this radiance. Conductors and
+// dielectrics have no Lambertian lobe, so glossy and transmissive surfels reflect nothing
+// here (they still occlude, and emit if their material emits); their view-dependent radiance
+// belongs to the wavelet stage, which only scenes with such materials pay for.
+
+#include <cstdint>
+#include <span>
+
+#include "core/pbgi/surfel.h"
+#include "core/scene/scene.h"
+
+namespace pbgi {
+
+struct SurfelShadingOptions {
+  int lightSamples = 16;  // light samples per surfel
+  uint64_t seed = 0;
+  int frame = 0;
+};
+
+struct SurfelShadingStats {
+  uint64_t surfels = 0;
+  uint64_t emissive = 0;          // surfels whose material emits
+  uint64_t discardedSamples = 0;  // light samples that came back NaN or infinite (dropped)
+};
+
+// Sets `radiance` of each surfel; surfels[i] is surfel number firstSurfelIndex + i of the
+// sampler's stream, the key of its random numbers (seed, frame, surfel), so a surfel's
+// radiance does not depend on how the stream was cut into chunks or on the thread count.
+// Runs in parallel (TBB). Surfels must come from sampleSurfels on the same scene.
+SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surfels,
+                                      uint64_t firstSurfelIndex,
+                                      const SurfelShadingOptions& options);
+
+}  // namespace pbgi
