@@ -338,11 +338,14 @@ static_assert((ExternalSurfelSorter::kMinMemoryBudgetBytes -
               2);
 
 // Later in (key, sequence, run) order: the heap's comparator, so its top is the smallest.
-bool heapAfter(const HeapItem& a, const HeapItem& b) {
-  if (a.key != b.key) return a.key > b.key;
-  if (a.sequence != b.sequence) return a.sequence > b.sequence;
-  return a.run > b.run;
-}
+// A function object so that the heap operations inline it.
+struct HeapAfter {
+  bool operator()(const HeapItem& a, const HeapItem& b) const {
+    if (a.key != b.key) return a.key > b.key;
+    if (a.sequence != b.sequence) return a.sequence > b.sequence;
+    return a.run > b.run;
+  }
+};
 
 // k-way merge of runs through a binary heap of their current records.
 class RunMerger {
@@ -362,20 +365,20 @@ class RunMerger {
                          static_cast<uint32_t>(readers_.size() - 1)});
       }
     }
-    std::make_heap(heap_.begin(), heap_.end(), heapAfter);
+    std::make_heap(heap_.begin(), heap_.end(), HeapAfter());
     return absl::OkStatus();
   }
 
   absl::StatusOr<bool> next(SortedSurfel* out) {
     if (heap_.empty()) return false;
-    std::pop_heap(heap_.begin(), heap_.end(), heapAfter);
+    std::pop_heap(heap_.begin(), heap_.end(), HeapAfter());
     RunReader& reader = *readers_[heap_.back().run];
     *out = reader.current();
     if (absl::Status s = reader.advance(); !s.ok()) return s;
     if (reader.valid()) {
       heap_.back().key = reader.current().key;
       heap_.back().sequence = reader.current().sequence;
-      std::push_heap(heap_.begin(), heap_.end(), heapAfter);
+      std::push_heap(heap_.begin(), heap_.end(), HeapAfter());
     } else {
       heap_.pop_back();
     }
@@ -407,9 +410,16 @@ static_assert(sizeof(SortEntry) == 16);
 static_assert(ExternalSurfelSorter::kBufferedRecordBytes ==
               sizeof(Surfel) + sizeof(uint64_t) + sizeof(SortEntry));
 
-bool entryBefore(const SortEntry& a, const SortEntry& b) {
-  return a.key != b.key ? a.key < b.key : a.slot < b.slot;
-}
+// A function object rather than a function pointer, so that the sorts inline it.
+struct EntryBefore {
+  bool operator()(const SortEntry& a, const SortEntry& b) const {
+    return a.key != b.key ? a.key < b.key : a.slot < b.slot;
+  }
+};
+
+// How many entries ahead of the one being copied to prefetch its surfel: the copy in key
+// order is a random gather over the whole buffer, bound by cache misses otherwise.
+constexpr size_t kPrefetchDistance = 16;
 
 // Add-buffer chunks: the buffer grows chunk by chunk up to its capacity, so a small sort
 // never holds the whole budget and growing never copies (a doubling vector would hold three
@@ -541,10 +551,13 @@ class ExternalSurfelSorter::Impl {
     if (!status_.ok()) return status_;
     if (phase_ == Phase::kInCore) {
       if (streamed_ == entries_.size()) return endStream();
+      if (streamed_ + kPrefetchDistance < entries_.size()) {
+        __builtin_prefetch(&bufferedSurfel(entries_[streamed_ + kPrefetchDistance].slot));
+      }
       const SortEntry& e = entries_[streamed_++];
       out->key = e.key;
       out->sequence = bufferBaseSequence_ + e.slot;
-      out->surfel = surfelChunks_[e.slot / kChunkRecords][e.slot % kChunkRecords];
+      out->surfel = bufferedSurfel(e.slot);
       return true;
     }
     if (phase_ == Phase::kMerging) {
@@ -640,9 +653,9 @@ class ExternalSurfelSorter::Impl {
     // (key, slot) pairs are unique, so every sort algorithm, serial or parallel, gives the
     // same order: this is what makes the output independent of the thread count.
     if (options_.threads == 1) {
-      std::sort(entries_.begin(), entries_.end(), entryBefore);
+      std::sort(entries_.begin(), entries_.end(), EntryBefore());
     } else {
-      arena_.execute([&] { tbb::parallel_sort(entries_.begin(), entries_.end(), entryBefore); });
+      arena_.execute([&] { tbb::parallel_sort(entries_.begin(), entries_.end(), EntryBefore()); });
     }
   }
 
@@ -659,9 +672,11 @@ class ExternalSurfelSorter::Impl {
       if (!slots.ok()) return slots.status();
       auto encode = [&](size_t from, size_t to) {
         for (size_t i = from; i < to; ++i) {
+          if (begin + i + kPrefetchDistance < buffered_) {
+            __builtin_prefetch(&bufferedSurfel(entries_[begin + i + kPrefetchDistance].slot));
+          }
           const SortEntry& e = entries_[begin + i];
-          encodeSurfelRecord({e.key, bufferBaseSequence_ + e.slot,
-                              surfelChunks_[e.slot / kChunkRecords][e.slot % kChunkRecords]},
+          encodeSurfelRecord({e.key, bufferBaseSequence_ + e.slot, bufferedSurfel(e.slot)},
                              *slots + i * kSurfelRecordBytes);
         }
       };
@@ -685,6 +700,10 @@ class ExternalSurfelSorter::Impl {
     bufferBaseSequence_ += buffered_;
     buffered_ = 0;
     return absl::OkStatus();
+  }
+
+  const Surfel& bufferedSurfel(size_t slot) const {
+    return surfelChunks_[slot / kChunkRecords][slot % kChunkRecords];
   }
 
   void releaseAddBuffer() {
