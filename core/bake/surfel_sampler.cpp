@@ -12,8 +12,8 @@ namespace pbgi {
 namespace {
 
 // Keys that keep these streams apart from every other user of (seed, frame, ...).
-constexpr uint64_t kSurfelOffsetDomain = 0x5355524f46465345ull;    // the systematic offset u
-constexpr uint64_t kSurfelTriangleDomain = 0x53555254524953ull;    // a triangle's rotation
+constexpr uint64_t kSurfelOffsetDomain = 0x5355524f46465345ull;  // the systematic offset u
+constexpr uint64_t kSurfelTriangleDomain = 0x53555254524953ull;  // a triangle's rotation
 
 // More surfels than this is a typo in a shot, not a bake (1.7e9 was the largest published).
 constexpr double kMaxSurfels = 1e12;
@@ -97,9 +97,9 @@ absl::Status planSurfels(const Scene& scene, const SurfelSamplingOptions& option
     ++plan->triangles;
   });
   if (!(plan->totalArea > 0.0) || !std::isfinite(plan->totalArea)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "the scene has no surface to place surfels on ({} triangles, total area {})",
-        plan->triangles, plan->totalArea));
+    return absl::InvalidArgumentError(
+        fmt::format("the scene has no surface to place surfels on ({} triangles, total area {})",
+                    plan->triangles, plan->totalArea));
   }
   double count = static_cast<double>(options.targetCount);
   if (byRadius) {
@@ -139,8 +139,8 @@ absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& opti
   uint64_t triangleIndex = 0;
   uint64_t first = 0;
   absl::Status status;
-  forEachTriangle(scene, [&](size_t m, size_t t, const Vec3f& p0, const Vec3f& p1,
-                             const Vec3f& p2, double area) {
+  forEachTriangle(scene, [&](size_t m, size_t t, const Vec3f& p0, const Vec3f& p1, const Vec3f& p2,
+                             double area) {
     if (!status.ok()) return;
     cumulative += area;
     ++triangleIndex;

@@ -29,49 +29,58 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
   for (size_t m = 0; m < meshes.size(); ++m) bases[m] = scene.triangleIdBase(m);
   const float invSamples = 1.0f / static_cast<float>(options.lightSamples);
 
-  std::atomic<uint64_t> emissive{0}, discarded{0};
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, surfels.size(), 256),
-                    [&](const tbb::blocked_range<size_t>& range) {
-    uint64_t localEmissive = 0, localDiscarded = 0;
-    for (size_t i = range.begin(); i != range.end(); ++i) {
-      Surfel& surfel = surfels[i];
-      const auto it = std::upper_bound(bases.begin(), bases.end(), uint64_t{surfel.triangle});
-      PBGI_CHECK(it != bases.begin());
-      const size_t m = static_cast<size_t>(it - bases.begin()) - 1;
-      const uint64_t local = surfel.triangle - bases[m];
-      PBGI_CHECK_LT(local, meshes[m].triangleCount());
-      const Material& material = scene.material(meshes[m].materials[local]);
+  std::atomic<uint64_t> emissive{0}, discarded{0}, nonFinite{0};
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, surfels.size(), 256),
+      [&](const tbb::blocked_range<size_t>& range) {
+        uint64_t localEmissive = 0, localDiscarded = 0, localNonFinite = 0;
+        for (size_t i = range.begin(); i != range.end(); ++i) {
+          Surfel& surfel = surfels[i];
+          const auto it = std::upper_bound(bases.begin(), bases.end(), uint64_t{surfel.triangle});
+          PBGI_CHECK(it != bases.begin());
+          const size_t m = static_cast<size_t>(it - bases.begin()) - 1;
+          const uint64_t local = surfel.triangle - bases[m];
+          PBGI_CHECK_LT(local, meshes[m].triangleCount());
+          const Material& material = scene.material(meshes[m].materials[local]);
 
-      Rgb radiance(0.0f);
-      if (!isBlack(material.radiance) && isFinite(material.radiance)) {
-        radiance += material.radiance;
-        ++localEmissive;
-      }
-      const Rgb diffuse = material.type == MaterialType::kDiffuse ? surfel.albedo : Rgb(0.0f);
-      if (!isBlack(diffuse)) {
-        Rng rng = Rng::forKeys(options.seed, options.frame, firstSurfelIndex + i,
-                               kSurfelDirectLightDomain);
-        Rgb irradiance(0.0f);
-        for (int s = 0; s < options.lightSamples; ++s) {
-          const Rgb e = sampleIrradiance(scene, surfel.position, surfel.normal, surfel.normal, rng);
-          if (isFinite(e)) {
-            irradiance += e;
-          } else {
-            ++localDiscarded;
+          Rgb radiance(0.0f);
+          if (!isBlack(material.radiance) && isFinite(material.radiance)) {
+            radiance += material.radiance;
+            ++localEmissive;
           }
+          const Rgb diffuse = material.type == MaterialType::kDiffuse ? surfel.albedo : Rgb(0.0f);
+          if (!isBlack(diffuse)) {
+            Rng rng = Rng::forKeys(options.seed, options.frame, firstSurfelIndex + i,
+                                   kSurfelDirectLightDomain);
+            Rgb irradiance(0.0f);
+            for (int s = 0; s < options.lightSamples; ++s) {
+              const Rgb e =
+                  sampleIrradiance(scene, surfel.position, surfel.normal, surfel.normal, rng);
+              if (isFinite(e)) {
+                irradiance += e;
+              } else {
+                ++localDiscarded;
+              }
+            }
+            radiance += diffuse * (irradiance * (invSamples * kInvPi));
+          }
+          // A NaN albedo (a broken texture) must not reach the tree's sums.
+          if (!isFinite(radiance)) {
+            radiance = Rgb(0.0f);
+            ++localNonFinite;
+          }
+          surfel.radiance = radiance;
         }
-        radiance += diffuse * (irradiance * (invSamples * kInvPi));
-      }
-      surfel.radiance = radiance;
-    }
-    emissive.fetch_add(localEmissive, std::memory_order_relaxed);
-    discarded.fetch_add(localDiscarded, std::memory_order_relaxed);
-  });
+        emissive.fetch_add(localEmissive, std::memory_order_relaxed);
+        discarded.fetch_add(localDiscarded, std::memory_order_relaxed);
+        nonFinite.fetch_add(localNonFinite, std::memory_order_relaxed);
+      });
 
   SurfelShadingStats stats;
   stats.surfels = surfels.size();
   stats.emissive = emissive.load();
   stats.discardedSamples = discarded.load();
+  stats.nonFiniteSurfels = nonFinite.load();
   return stats;
 }
 

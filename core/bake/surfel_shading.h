@@ -29,6 +29,7 @@ struct SurfelShadingStats {
   uint64_t surfels = 0;
   uint64_t emissive = 0;          // surfels whose material emits
   uint64_t discardedSamples = 0;  // light samples that came back NaN or infinite (dropped)
+  uint64_t nonFiniteSurfels = 0;  // radiance NaN or infinite (bad albedo or emission): set black
 };
 
 // Sets `radiance` of each surfel; surfels[i] is surfel number firstSurfelIndex + i of the

@@ -14,7 +14,7 @@ namespace pbgi {
 
 namespace {
 
-constexpr uint64_t kSampleDomain = 0x4b4d53414d504c45ull;  // the training sample's offset
+constexpr uint64_t kSampleDomain = 0x4b4d53414d504c45ull;   // the training sample's offset
 constexpr uint64_t kSeedingDomain = 0x4b4d2b2b53454544ull;  // k-means++ draws
 
 // Lloyd's sums are split into at most this many blocks, a number fixed by the sample size
@@ -66,6 +66,13 @@ bool isZero(const float* v, int dim) {
   return true;
 }
 
+bool isFiniteVector(const float* v, int dim) {
+  for (int i = 0; i < dim; ++i) {
+    if (!std::isfinite(v[i])) return false;
+  }
+  return true;
+}
+
 struct Blocks {
   size_t size = 0;   // points per block
   size_t count = 0;  // blocks
@@ -105,12 +112,13 @@ std::vector<float> seedCentres(const std::vector<float>& points, size_t m, int d
   centres.insert(centres.end(), points.begin() + first * dim, points.begin() + (first + 1) * dim);
   std::vector<float> d2(m);
   auto update = [&](const float* centre) {
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 1024), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t i = r.begin(); i != r.end(); ++i) {
-        const float d = distance2(points.data() + i * dim, centre, dim);
-        d2[i] = centres.size() == static_cast<size_t>(dim) ? d : std::min(d2[i], d);
-      }
-    });
+    tbb::parallel_for(
+        tbb::blocked_range<size_t>(0, m, 1024), [&](const tbb::blocked_range<size_t>& r) {
+          for (size_t i = r.begin(); i != r.end(); ++i) {
+            const float d = distance2(points.data() + i * dim, centre, dim);
+            d2[i] = centres.size() == static_cast<size_t>(dim) ? d : std::min(d2[i], d);
+          }
+        });
   };
   update(centres.data());
   while (centres.size() < static_cast<size_t>(k) * dim) {
@@ -160,11 +168,11 @@ Codebook trainCodebook(std::span<const float> vectors, int dim, const KMeansOpti
   points.reserve(s * dim);
   for (size_t i = 0; i < s; ++i) {
     const double jitter = sampleRng.uniform();
-    const size_t index = std::min(
-        n - 1, static_cast<size_t>((static_cast<double>(i) + jitter) * static_cast<double>(n) /
-                                   static_cast<double>(s)));
+    const size_t index =
+        std::min(n - 1, static_cast<size_t>((static_cast<double>(i) + jitter) *
+                                            static_cast<double>(n) / static_cast<double>(s)));
     const float* v = vectors.data() + index * dim;
-    if (isZero(v, dim)) continue;
+    if (isZero(v, dim) || !isFiniteVector(v, dim)) continue;
     points.insert(points.end(), v, v + dim);
   }
   const size_t m = points.size() / dim;
@@ -209,14 +217,16 @@ Codebook trainCodebook(std::span<const float> vectors, int dim, const KMeansOpti
       if (totalCount[c] == 0) {
         // An empty cluster takes the worst-served point (lowest index on a tie), which then
         // counts as served.
-        const size_t worst = static_cast<size_t>(std::max_element(d2.begin(), d2.end()) - d2.begin());
-        std::copy_n(points.data() + worst * dim, dim, centres.data() + static_cast<size_t>(c) * dim);
+        const size_t worst =
+            static_cast<size_t>(std::max_element(d2.begin(), d2.end()) - d2.begin());
+        std::copy_n(points.data() + worst * dim, dim,
+                    centres.data() + static_cast<size_t>(c) * dim);
         d2[worst] = 0.0f;
         continue;
       }
       for (int j = 0; j < dim; ++j) {
-        centres[static_cast<size_t>(c) * dim + j] =
-            static_cast<float>(total[static_cast<size_t>(c) * dim + j] / static_cast<double>(totalCount[c]));
+        centres[static_cast<size_t>(c) * dim + j] = static_cast<float>(
+            total[static_cast<size_t>(c) * dim + j] / static_cast<double>(totalCount[c]));
       }
     }
   }
@@ -239,6 +249,7 @@ QuantizationError measureError(const Codebook& codebook, std::span<const float> 
     double error2 = 0.0;
     double norm2 = 0.0;
     double maxRelative = 0.0;
+    size_t nonFinite = 0;
   };
   const Blocks blocks = blocksFor(n);
   std::vector<Partial> partial(blocks.count);
@@ -247,6 +258,10 @@ QuantizationError measureError(const Codebook& codebook, std::span<const float> 
     const size_t end = std::min(n, (b + 1) * blocks.size);
     for (size_t i = b * blocks.size; i < end; ++i) {
       const float* v = vectors.data() + i * dim;
+      if (!isFiniteVector(v, dim)) {
+        ++p.nonFinite;
+        continue;
+      }
       const uint32_t e = nearestEntry(codebook, std::span<const float>(v, dim));
       const float* q = codebook.entries.data() + static_cast<size_t>(e) * dim;
       double err = 0.0, norm = 0.0;
@@ -265,11 +280,13 @@ QuantizationError measureError(const Codebook& codebook, std::span<const float> 
     all.error2 += p.error2;
     all.norm2 += p.norm2;
     all.maxRelative = std::max(all.maxRelative, p.maxRelative);
+    all.nonFinite += p.nonFinite;
   }
   QuantizationError result;
-  result.count = n;
-  if (n == 0) return result;
-  result.rms = std::sqrt(all.error2 / static_cast<double>(n));
+  result.nonFinite = all.nonFinite;
+  result.count = n - all.nonFinite;
+  if (result.count == 0) return result;
+  result.rms = std::sqrt(all.error2 / static_cast<double>(result.count));
   result.relativeRms = all.norm2 > 0.0 ? std::sqrt(all.error2 / all.norm2) : 0.0;
   result.maxRelative = all.maxRelative;
   return result;

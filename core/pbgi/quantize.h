@@ -36,20 +36,23 @@ struct KMeansOptions {
 };
 
 struct QuantizationError {
-  size_t count = 0;
+  size_t count = 0;          // finite vectors measured
+  size_t nonFinite = 0;      // vectors with a NaN or infinity, left out of the measures
   double rms = 0.0;          // sqrt(mean |v - q|^2)
   double relativeRms = 0.0;  // sqrt(sum |v - q|^2 / sum |v|^2); 0 when every v is zero
   double maxRelative = 0.0;  // max |v - q| / |v| over the non-zero v
 };
 
 // Trains a codebook on `vectors` (n x dim floats, row-major). All-zero vectors are left out
-// of training (entry 0 serves them). The codebook has 1 + min(centres, distinct non-zero
-// vectors in the sample) entries: with fewer distinct vectors than centres each becomes an
-// entry of its own, and empty input gives the black entry alone. Finite input is a
-// precondition (the caller counts and rejects NaNs before it gets here).
+// of training (entry 0 serves them), and so are vectors with a NaN or infinity, which the
+// caller is expected to have counted and reported: one of them must not drag a centre to NaN.
+// The codebook has 1 + min(centres, distinct non-zero vectors in the sample) entries: with
+// fewer distinct vectors than centres each becomes an entry of its own, and empty input gives
+// the black entry alone.
 Codebook trainCodebook(std::span<const float> vectors, int dim, const KMeansOptions& options);
 
-// The index of the entry nearest to v in Euclidean distance (the lowest index on a tie).
+// The index of the entry nearest to v in Euclidean distance (the lowest index on a tie);
+// 0 (black) for a vector with a NaN.
 uint32_t nearestEntry(const Codebook& codebook, std::span<const float> v);
 
 // Quantizes every vector of `vectors` (n x codebook.dimension) and measures the error.

@@ -92,15 +92,9 @@ Rgb evaluate(const Sh9Rgb& sh, const Vec3f& dir) {
 
 Sh9 projectClampedCosine(const Vec3f& normal) {
   // A_l per band (see the header); index i belongs to band 0, 1, 1, 1, 2, 2, 2, 2, 2.
-  constexpr float kBand[kShCoefficients] = {kPi,
-                                            2.0f * kPi / 3.0f,
-                                            2.0f * kPi / 3.0f,
-                                            2.0f * kPi / 3.0f,
-                                            kPi / 4.0f,
-                                            kPi / 4.0f,
-                                            kPi / 4.0f,
-                                            kPi / 4.0f,
-                                            kPi / 4.0f};
+  constexpr float kBand[kShCoefficients] = {
+      kPi,        2.0f * kPi / 3.0f, 2.0f * kPi / 3.0f, 2.0f * kPi / 3.0f, kPi / 4.0f,
+      kPi / 4.0f, kPi / 4.0f,        kPi / 4.0f,        kPi / 4.0f};
   float y[kShCoefficients];
   evalShBasis(normal, y);
   Sh9 sh;

@@ -155,13 +155,16 @@ TEST(SurfelSamplerTest, SurfelsLieOnTheirTrianglesWithGeometricNormals) {
     ASSERT_GE(b1, 0.0f);
     ASSERT_GE(b2, 0.0f);
     ASSERT_LE(b1 + b2, 1.0f + 1e-6f);
-    const Vec3f p = md.positions[i0] * (1.0f - b1 - b2) + md.positions[i1] * b1 + md.positions[i2] * b2;
+    const Vec3f p =
+        md.positions[i0] * (1.0f - b1 - b2) + md.positions[i1] * b1 + md.positions[i2] * b2;
     EXPECT_LT(length(p - s.position), 1e-5f);
-    const Vec3f ng = normalize(cross(md.positions[i1] - md.positions[i0], md.positions[i2] - md.positions[i0]));
+    const Vec3f ng =
+        normalize(cross(md.positions[i1] - md.positions[i0], md.positions[i2] - md.positions[i0]));
     EXPECT_LT(length(ng - s.normal), 1e-6f);
     EXPECT_NEAR(s.radius, stats.radius, 0.0f);
     if (!md.normals.empty()) {
-      const Vec3f ns = normalize(md.normals[i0] * (1.0f - b1 - b2) + md.normals[i1] * b1 + md.normals[i2] * b2);
+      const Vec3f ns =
+          normalize(md.normals[i0] * (1.0f - b1 - b2) + md.normals[i1] * b1 + md.normals[i2] * b2);
       largestShadingTilt = std::max(largestShadingTilt, length(ns - s.normal));
     }
   }
@@ -243,7 +246,8 @@ TEST(SurfelSamplerTest, MaterialClasses) {
   const uint32_t ids[5] = {b.addMaterial(diffuse), b.addMaterial(conductor),
                            b.addMaterial(dielectric), b.addMaterial(emissive),
                            b.addMaterial(glowing)};
-  for (int i = 0; i < 5; ++i) b.addMesh(makeQuadMesh({0, 0, float(i)}, {1, 0, 0}, {0, 1, 0}, ids[i]));
+  for (int i = 0; i < 5; ++i)
+    b.addMesh(makeQuadMesh({0, 0, float(i)}, {1, 0, 0}, {0, 1, 0}, ids[i]));
   auto scene = buildScene(b);
   ASSERT_NE(scene, nullptr);
   const MaterialClass expected[5] = {MaterialClass::kDiffuse, MaterialClass::kGlossy,

@@ -73,8 +73,8 @@ TEST(SurfelShadingTest, SunlitAndShadowedSurfels) {
   Material m;
   m.albedo = Rgb(0.6f, 0.3f, 0.9f);
   const uint32_t id = b.addMaterial(m);
-  b.addMesh(makeQuadMesh({0, 0, 0}, {0, 0, 1}, {1, 0, 0}, id));          // floor, faces +y
-  b.addMesh(makeQuadMesh({-2, 0.5f, -2}, {0, 0, 5}, {5, 0, 0}, id));     // blocker above it
+  b.addMesh(makeQuadMesh({0, 0, 0}, {0, 0, 1}, {1, 0, 0}, id));       // floor, faces +y
+  b.addMesh(makeQuadMesh({-2, 0.5f, -2}, {0, 0, 5}, {5, 0, 0}, id));  // blocker above it
   const Vec3f toSun = normalize(Vec3f(0.3f, 1.0f, 0.2f));
   const Rgb sunIrradiance(3.0f, 2.0f, 1.0f);
   b.addLight(makeDirectionalLight(-toSun, sunIrradiance));
@@ -150,6 +150,40 @@ TEST(SurfelShadingTest, GlossyAndTransmissiveSurfelsStoreOnlyTheirDiffusePart) {
     EXPECT_FALSE(isBlack(s.albedo));  // the material's reflectance is still recorded
     EXPECT_EQ(s.radiance, Rgb(0.0f));
   }
+}
+
+class NanTexture final : public Texture {
+ public:
+  Rgb evaluate(const Vec2f& uv) const override {
+    return Rgb(uv.x < 0.5f ? std::numeric_limits<float>::quiet_NaN() : 0.5f);
+  }
+};
+
+// A texture that returns NaN on half the quad: those surfels come out black and counted.
+TEST(SurfelShadingTest, NonFiniteRadianceIsCountedAndBlack) {
+  SceneBuilder b;
+  Material m;
+  m.albedoTexture = std::make_shared<NanTexture>();
+  MeshData quad = makeQuadMesh({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, b.addMaterial(m));
+  quad.uvs = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  b.addMesh(std::move(quad));
+  b.addLight(makeDirectionalLight(Vec3f(0, 0, -1), Rgb(1.0f)));
+  auto scene = buildScene(b);
+  ASSERT_NE(scene, nullptr);
+  std::vector<Surfel> surfels = sample(*scene, 1000);
+  const SurfelShadingStats stats = shadeSurfelsDirect(*scene, surfels, 0, SurfelShadingOptions{});
+  uint64_t bad = 0;
+  for (const Surfel& s : surfels) {
+    ASSERT_TRUE(isFinite(s.radiance));
+    if (s.position.x < 0.5f) {
+      ++bad;
+      EXPECT_EQ(s.radiance, Rgb(0.0f));
+    } else {
+      EXPECT_NEAR(s.radiance.x, 0.5f / kPi, 1e-6f);
+    }
+  }
+  EXPECT_EQ(stats.nonFiniteSurfels, bad);
+  EXPECT_GT(bad, 400u);
 }
 
 // A surfel's radiance depends on its index in the stream, not on the chunk it was shaded in

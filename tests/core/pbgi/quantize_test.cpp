@@ -20,14 +20,16 @@ constexpr int kDim = Sh9Rgb::kFloats;
 
 // `clusters` well-separated centres in 27-D (coordinates in [-100, 100]), `perCluster`
 // points each, jittered by at most `noise`, interleaved so that any sample sees them all.
-std::vector<float> clusteredData(int clusters, int perCluster, float noise, std::vector<float>* truth) {
+std::vector<float> clusteredData(int clusters, int perCluster, float noise,
+                                 std::vector<float>* truth) {
   Rng rng(5);
   truth->resize(static_cast<size_t>(clusters) * kDim);
   for (float& x : *truth) x = 200.0f * rng.uniform() - 100.0f;
   std::vector<float> data;
   for (int p = 0; p < perCluster; ++p) {
     for (int c = 0; c < clusters; ++c) {
-      for (int j = 0; j < kDim; ++j) data.push_back((*truth)[c * kDim + j] + noise * (2.0f * rng.uniform() - 1.0f));
+      for (int j = 0; j < kDim; ++j)
+        data.push_back((*truth)[c * kDim + j] + noise * (2.0f * rng.uniform() - 1.0f));
     }
   }
   return data;
@@ -70,7 +72,8 @@ TEST(QuantizeTest, RecoversIdenticalClustersExactly) {
     const std::span<const float> t(truth.data() + c * kDim, kDim);
     const uint32_t e = nearestEntry(book, t);
     used.insert(e);
-    EXPECT_TRUE(std::equal(t.begin(), t.end(), book.entry(static_cast<int>(e)).begin())) << "cluster " << c;
+    EXPECT_TRUE(std::equal(t.begin(), t.end(), book.entry(static_cast<int>(e)).begin()))
+        << "cluster " << c;
   }
   EXPECT_EQ(used.size(), 7u);
   const QuantizationError err = measureError(book, data);
@@ -150,6 +153,25 @@ TEST(QuantizeTest, EmptyAndTinyInputs) {
   EXPECT_EQ(err.maxRelative, 0.0);
 }
 
+// A NaN in one node must neither poison the codebook nor the error measures.
+TEST(QuantizeTest, NonFiniteVectorsStayOutOfTrainingAndMeasures) {
+  std::vector<float> data = lobeData(3000);
+  for (size_t i = 0; i < 3000; i += 3) data[i * kDim + 5] = std::numeric_limits<float>::quiet_NaN();
+  data[7 * kDim] = std::numeric_limits<float>::infinity();
+  KMeansOptions o;
+  o.centres = 10;
+  const Codebook book = trainCodebook(data, kDim, o);
+  ASSERT_EQ(book.size(), 11);
+  for (float x : book.entries) ASSERT_TRUE(std::isfinite(x));
+  EXPECT_EQ(nearestEntry(book, row(data, 0)), 0u);
+  const QuantizationError err = measureError(book, data);
+  EXPECT_EQ(err.nonFinite, 1001u);
+  EXPECT_EQ(err.count, 1999u);
+  EXPECT_TRUE(std::isfinite(err.rms));
+  EXPECT_TRUE(std::isfinite(err.relativeRms));
+  EXPECT_GT(err.rms, 0.0);
+}
+
 TEST(QuantizeTest, NearestEntryAndErrorByHand) {
   Codebook book;
   book.dimension = 2;
@@ -176,7 +198,8 @@ TEST(QuantizeTest, IdenticalWithOneAndTwoThreads) {
   tbb::task_arena(2).execute([&] { two = trainCodebook(data, kDim, o); });
   ASSERT_EQ(one.size(), 51);
   ASSERT_EQ(one.entries.size(), two.entries.size());
-  EXPECT_EQ(std::memcmp(one.entries.data(), two.entries.data(), one.entries.size() * sizeof(float)), 0);
+  EXPECT_EQ(std::memcmp(one.entries.data(), two.entries.data(), one.entries.size() * sizeof(float)),
+            0);
   QuantizationError e1, e2;
   tbb::task_arena(1).execute([&] { e1 = measureError(one, data); });
   tbb::task_arena(2).execute([&] { e2 = measureError(one, data); });

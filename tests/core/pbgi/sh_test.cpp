@@ -96,7 +96,8 @@ TEST(ShTest, ProjectThenEvaluateReproducesBandLimitedFunction) {
   // One node too few in phi aliases the m = +-2 terms: the test would notice a wrong rule.
   const Sh9 aliased = projectNumerically(f, 3, 2);
   float worst = 0.0f;
-  for (int i = 0; i < kShCoefficients; ++i) worst = std::max(worst, std::abs(aliased.c[i] - truth.c[i]));
+  for (int i = 0; i < kShCoefficients; ++i)
+    worst = std::max(worst, std::abs(aliased.c[i] - truth.c[i]));
   EXPECT_GT(worst, 1e-2f);
 }
 
