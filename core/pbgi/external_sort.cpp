@@ -1,6 +1,7 @@
 #include "core/pbgi/external_sort.h"
 
 #include <fcntl.h>
+#include <stdlib.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -148,12 +149,18 @@ class RunWriter {
     if (fd_ >= 0) ::close(fd_);
   }
 
+  // Creates the file from the path given, a template ending in "XXXXXX.run": mkostemps
+  // creates it exclusively under a name no other file has, so neither another sorter nor a
+  // file a crashed process left behind with a recycled pid is ever written into.
   absl::Status open() {
-    // O_EXCL: never write into a file some other sorter or process owns.
-    fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    std::string path = path_;
+    fd_ = ::mkostemps(path.data(), 4, O_CLOEXEC);
     if (fd_ < 0) return errnoStatus(errno, "creating sort run file", path_);
+    path_ = std::move(path);
     return absl::OkStatus();
   }
+
+  const std::string& path() const { return path_; }
 
   size_t bufferRecords() const { return buffer_.size() / kSurfelRecordBytes; }
 
@@ -623,8 +630,8 @@ class ExternalSurfelSorter::Impl {
     }
   }
 
-  // A new run's id and file name, unique in the machine (pid), the process (sorter id) and
-  // the sorter (run id). The file is removed by this sorter whatever happens from here on.
+  // A new run's id and file name template: pid, sorter and run id say who made it, the
+  // XXXXXX that RunWriter::open() fills in makes it unique.
   Run newRun(uint64_t records) {
     std::filesystem::path dir = options_.tempDir;
     if (dir.empty()) {
@@ -633,10 +640,17 @@ class ExternalSurfelSorter::Impl {
       if (ec) dir = "/tmp";
     }
     const uint64_t id = nextRunId_++;
-    Run run{(dir / fmt::format("pbgi-sort-{}-{}-{}.run", ::getpid(), sorterId_, id)).string(),
-            records, id};
-    files_.push_back(run.path);
-    return run;
+    return Run{
+        (dir / fmt::format("pbgi-sort-{}-{}-{}-XXXXXX.run", ::getpid(), sorterId_, id)).string(),
+        records, id};
+  }
+
+  // Creates the run's file; from here on this sorter removes it whatever happens.
+  absl::Status createRunFile(RunWriter* writer, Run* run) {
+    if (absl::Status s = writer->open(); !s.ok()) return s;
+    run->path = writer->path();
+    files_.push_back(run->path);
+    return absl::OkStatus();
   }
 
   void sortBuffer() {
@@ -664,7 +678,7 @@ class ExternalSurfelSorter::Impl {
     sortBuffer();
     Run run = newRun(buffered_);
     RunWriter writer(run.path, spillBufferBytes_, &meter_, &bytesWritten_);
-    if (absl::Status s = writer.open(); !s.ok()) return s;
+    if (absl::Status s = createRunFile(&writer, &run); !s.ok()) return s;
     const size_t block = writer.bufferRecords();
     for (size_t begin = 0; begin < buffered_; begin += block) {
       const size_t n = std::min(block, buffered_ - begin);
@@ -746,7 +760,7 @@ class ExternalSurfelSorter::Impl {
     for (const Run& r : inputs) total += r.records;
     Run out = newRun(total);
     RunWriter writer(out.path, bufferBytes, &meter_, &bytesWritten_);
-    if (absl::Status s = writer.open(); !s.ok()) return s;
+    if (absl::Status s = createRunFile(&writer, &out); !s.ok()) return s;
     SortedSurfel record;
     while (true) {
       absl::StatusOr<bool> more = merger.next(&record);

@@ -260,6 +260,32 @@ TEST(ExternalSurfelSorter, ThreadCountDoesNotChangeTheStream) {
   fs::remove_all(dir);
 }
 
+// Two sorters spilling into one folder at the same time keep to their own files.
+TEST(ExternalSurfelSorter, SortersSharingATempDirDoNotMix) {
+  const Input a = makeInput(60000, 6), b = makeInput(60000, 7);
+  const fs::path dir = testing::makeTempDir("sort");
+  ExternalSortOptions options;
+  options.memoryBudgetBytes = 1 << 20;
+  options.tempDir = dir.string();
+  ExternalSurfelSorter sa(options), sb(options);
+  for (size_t i = 0; i < a.keys.size(); ++i) {
+    ASSERT_TRUE(sa.add(a.keys[i], a.surfels[i]).ok());
+    ASSERT_TRUE(sb.add(b.keys[i], b.surfels[i]).ok());
+  }
+  ASSERT_TRUE(sa.finish().ok());
+  ASSERT_TRUE(sb.finish().ok());
+  EXPECT_EQ(filesIn(dir).size(), sa.stats().finalMergeFanIn + sb.stats().finalMergeFanIn);
+  std::vector<SortedSurfel> outA, outB;
+  SortedSurfel r;
+  for (absl::StatusOr<bool> more; (more = sa.next(&r)).ok() && *more;) outA.push_back(r);
+  EXPECT_EQ(filesIn(dir).size(), sb.stats().finalMergeFanIn);  // a's files went at its end
+  for (absl::StatusOr<bool> more; (more = sb.next(&r)).ok() && *more;) outB.push_back(r);
+  ASSERT_NO_FATAL_FAILURE(expectMatchesReference(a, outA));
+  ASSERT_NO_FATAL_FAILURE(expectMatchesReference(b, outB));
+  EXPECT_TRUE(filesIn(dir).empty());
+  fs::remove_all(dir);
+}
+
 TEST(ExternalSurfelSorter, EmptyAndSingleInput) {
   const fs::path dir = testing::makeTempDir("sort");
   ExternalSurfelSorter empty(ExternalSortOptions{.tempDir = dir.string()});
