@@ -96,6 +96,15 @@ std::vector<std::string> filesIn(const fs::path& dir) {
   return names;
 }
 
+// A fresh folder, removed with everything in it when the test ends, failed or not.
+struct ScratchDir {
+  fs::path path = testing::makeTempDir("sort");
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
 struct SortResult {
   std::vector<SortedSurfel> out;
   SortStats stats;
@@ -204,7 +213,8 @@ TEST(SurfelRecord, DecodeRejectsUnknownMaterialClass) {
 // (key, sequence) order of the input; the budget holds; no file outlives the stream.
 TEST(ExternalSurfelSorter, SameStreamForEveryBudget) {
   const Input in = makeInput(200000, 1);
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   const SortResult inCore = sortAll(in, size_t{1} << 30, 0, dir);
   ASSERT_NO_FATAL_FAILURE(expectMatchesReference(in, inCore.out));
   EXPECT_EQ(inCore.stats.records, 200000u);
@@ -241,12 +251,12 @@ TEST(ExternalSurfelSorter, SameStreamForEveryBudget) {
     EXPECT_EQ(st.bytesRead, st.bytesWritten);  // every byte spilled is read back once
     EXPECT_TRUE(filesIn(dir).empty());
   }
-  fs::remove_all(dir);
 }
 
 TEST(ExternalSurfelSorter, ThreadCountDoesNotChangeTheStream) {
   const Input in = makeInput(100000, 2);
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   for (size_t budget : {size_t{1} << 30, size_t{1} << 20}) {
     SCOPED_TRACE(budget);
     const SortResult one = sortAll(in, budget, 1, dir);
@@ -257,13 +267,13 @@ TEST(ExternalSurfelSorter, ThreadCountDoesNotChangeTheStream) {
     EXPECT_EQ(one.stats.bytesWritten, two.stats.bytesWritten);
   }
   EXPECT_TRUE(filesIn(dir).empty());
-  fs::remove_all(dir);
 }
 
 // Two sorters spilling into one folder at the same time keep to their own files.
 TEST(ExternalSurfelSorter, SortersSharingATempDirDoNotMix) {
   const Input a = makeInput(60000, 6), b = makeInput(60000, 7);
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   ExternalSortOptions options;
   options.memoryBudgetBytes = 1 << 20;
   options.tempDir = dir.string();
@@ -283,11 +293,11 @@ TEST(ExternalSurfelSorter, SortersSharingATempDirDoNotMix) {
   ASSERT_NO_FATAL_FAILURE(expectMatchesReference(a, outA));
   ASSERT_NO_FATAL_FAILURE(expectMatchesReference(b, outB));
   EXPECT_TRUE(filesIn(dir).empty());
-  fs::remove_all(dir);
 }
 
 TEST(ExternalSurfelSorter, EmptyAndSingleInput) {
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   ExternalSurfelSorter empty(ExternalSortOptions{.tempDir = dir.string()});
   ASSERT_TRUE(empty.finish().ok());
   SortedSurfel r;
@@ -311,7 +321,6 @@ TEST(ExternalSurfelSorter, EmptyAndSingleInput) {
   more = one.next(&r);  // stays at the end
   ASSERT_TRUE(more.ok());
   EXPECT_FALSE(*more);
-  fs::remove_all(dir);
 }
 
 TEST(ExternalSurfelSorter, BudgetBelowMinimumIsRejected) {
@@ -331,7 +340,8 @@ TEST(ExternalSurfelSorter, BudgetBelowMinimumIsRejected) {
 }
 
 TEST(ExternalSurfelSorter, MissingTempDirIsAnErrorNamingTheFile) {
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   const fs::path missing = dir / "missing";
   ExternalSortOptions options;
   options.memoryBudgetBytes = ExternalSurfelSorter::kMinMemoryBudgetBytes;
@@ -345,13 +355,13 @@ TEST(ExternalSurfelSorter, MissingTempDirIsAnErrorNamingTheFile) {
   // The error sticks.
   EXPECT_EQ(sorter.add(0, Surfel()), s);
   EXPECT_EQ(sorter.finish(), s);
-  fs::remove_all(dir);
 }
 
 // Spill files are removed when the sorter goes, whether or not the stream was read.
 TEST(ExternalSurfelSorter, DestroyingMidwayRemovesSpillFiles) {
   const Input in = makeInput(50000, 4);
-  const fs::path dir = testing::makeTempDir("sort");
+  const ScratchDir scratch;
+  const fs::path& dir = scratch.path;
   ExternalSortOptions options;
   options.memoryBudgetBytes = 1 << 20;
   options.tempDir = dir.string();
@@ -372,7 +382,6 @@ TEST(ExternalSurfelSorter, DestroyingMidwayRemovesSpillFiles) {
     EXPECT_GT(filesIn(dir).size(), 1u);
   }
   EXPECT_TRUE(filesIn(dir).empty());
-  fs::remove_all(dir);
 }
 
 // Damage to a spill file between writing and reading is an error naming the file, never a
@@ -383,7 +392,7 @@ class DamagedRunTest : public ::testing::Test {
   // ~8k records), calls damage() on one run file after finish(), then reads to the end.
   absl::Status sortWithDamage(const std::function<void(const fs::path&)>& damage) {
     const Input in = makeInput(200000, 5);
-    dir_ = testing::makeTempDir("sort");
+    dir_ = scratch_.path;
     ExternalSortOptions options;
     options.memoryBudgetBytes = 4 << 20;
     options.tempDir = dir_.string();
@@ -407,7 +416,6 @@ class DamagedRunTest : public ::testing::Test {
     EXPECT_EQ(sorter.next(&r).status(), more.status());  // the error sticks
     return more.status();
   }
-  void TearDown() override { fs::remove_all(dir_); }
 
   // Overwrites the file's bytes at offset with data.
   static void patch(const fs::path& path, off_t offset, const uint8_t* data, size_t n) {
@@ -425,6 +433,7 @@ class DamagedRunTest : public ::testing::Test {
     return data;
   }
 
+  ScratchDir scratch_;
   fs::path dir_;
   fs::path damaged_;
 };
