@@ -4,7 +4,7 @@
 set -eu
 
 PACKAGES="
-build-essential cmake ninja-build git ccache pkg-config
+build-essential cmake ninja-build git ccache pkg-config clang libclang-rt-14-dev
 libembree-dev libopenexr-dev libimath-dev libopenimageio-dev libopenvdb-dev
 libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
