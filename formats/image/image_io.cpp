@@ -1,4 +1,5 @@
 #include "formats/image/image_io.h"
+#include "formats/util/atomic_file.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -53,33 +54,13 @@ absl::Status errnoStatus(int error, const std::string& message) {
   return absl::ErrnoToStatus(error, message);
 }
 
-// A name beside `path` that no other writer (another process, another thread) picks.
-std::string temporaryPathFor(const std::string& path) {
-  thread_local std::mt19937_64 rng{std::random_device{}()};
-  return absl::StrFormat("%s.tmp-%d-%016x", path, ::getpid(), rng());
-}
-
-// Writes pixels through an OIIO writer to a temporary file beside `path`, flushes it to disk
-// and renames it over `path`: a reader sees the old file or the whole new one, and a crash
-// never leaves a truncated image under the final name.
 absl::Status writeAtomically(const std::string& path, const char* format,
                              const OIIO::ImageSpec& spec, OIIO::TypeDesc pixelType,
                              const void* pixels) {
-  const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty()) {
-    std::error_code ec;
-    fs::create_directories(parent, ec);
-    if (ec) {
-      return errnoStatus(ec.value(),
-                         absl::StrCat(path, ": cannot create folder ", parent.string()));
-    }
-  }
-  const std::string tmp = temporaryPathFor(path);
-  auto fail = [&](absl::Status status) {
-    std::error_code ignored;
-    fs::remove(tmp, ignored);
-    return status;
-  };
+  auto file = AtomicFile::begin(path);
+  if (!file.ok()) return file.status();
+  const std::string& tmp = file->tempPath();
+  // On every early return the temporary goes with `file`.
   try {
     std::unique_ptr<OIIO::ImageOutput> out = OIIO::ImageOutput::create(format);
     if (!out) {
@@ -87,33 +68,19 @@ absl::Status writeAtomically(const std::string& path, const char* format,
           absl::StrCat(path, ": OIIO has no ", format, " writer: ", oiioError(OIIO::geterror())));
     }
     if (!out->open(tmp, spec)) {
-      return fail(absl::UnavailableError(
-          absl::StrCat(path, ": cannot open ", tmp, " for writing: ", oiioError(out->geterror()))));
+      return absl::UnavailableError(
+          absl::StrCat(path, ": cannot open ", tmp, " for writing: ", oiioError(out->geterror())));
     }
     const bool wrote = out->write_image(pixelType, pixels);
     const bool closed = out->close();
     if (!wrote || !closed) {
-      return fail(absl::UnavailableError(
-          absl::StrCat(path, ": writing ", format, " failed: ", oiioError(out->geterror()))));
+      return absl::UnavailableError(
+          absl::StrCat(path, ": writing ", format, " failed: ", oiioError(out->geterror())));
     }
   } catch (const std::exception& e) {
-    return fail(absl::InternalError(absl::StrCat(path, ": writing ", format, ": ", e.what())));
+    return absl::InternalError(absl::StrCat(path, ": writing ", format, ": ", e.what()));
   }
-
-  const int fd = ::open(tmp.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0 || ::fsync(fd) != 0) {
-    const int error = errno;
-    if (fd >= 0) ::close(fd);
-    return fail(errnoStatus(error, absl::StrCat(path, ": cannot flush ", tmp)));
-  }
-  ::close(fd);
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) {
-    return fail(
-        errnoStatus(ec.value(), absl::StrCat(path, ": cannot rename ", tmp, " into place")));
-  }
-  return absl::OkStatus();
+  return file->commit();
 }
 
 // Attributes that say how the file was encoded, not what the image is: they stop being true

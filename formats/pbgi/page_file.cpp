@@ -1,4 +1,5 @@
 #include "formats/pbgi/page_file.h"
+#include "formats/util/atomic_file.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -7,6 +8,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <filesystem>
+#include <optional>
 #include <random>
 #include <set>
 #include <system_error>
@@ -59,12 +61,6 @@ absl::Status pwriteAll(int fd, const uint8_t* data, size_t size, uint64_t offset
   return absl::OkStatus();
 }
 
-// A name beside `path` that no other writer (another process, another thread) picks.
-std::string temporaryPathFor(const std::string& path) {
-  thread_local std::mt19937_64 rng{std::random_device{}()};
-  return fmt::format("{}.tmp-{}-{:016x}", path, ::getpid(), rng());
-}
-
 std::vector<uint8_t> encodeSections(const std::vector<PageFileSection>& sections) {
   std::vector<uint8_t> out;
   appendU32(out, static_cast<uint32_t>(sections.size()));
@@ -85,6 +81,7 @@ std::vector<uint8_t> encodeSections(const std::vector<PageFileSection>& sections
 struct PageFileWriter::State {
   std::string path;
   std::string tmpPath;
+  std::optional<AtomicFile> file;  // the temporary at tmpPath, until it becomes `path`
   PageFileWriterOptions options;
   int fd = -1;
   uint64_t offset = kPageFileHeaderSize;  // where the next page goes
@@ -93,7 +90,6 @@ struct PageFileWriter::State {
   std::unique_ptr<ZSTD_CCtx, ZstdCCtxDeleter> cctx;
   absl::Status failure;  // sticky: set by an I/O failure
   bool done = false;     // finish() was called
-  bool committed = false;
 
   ~State() { discard(); }
 
@@ -101,7 +97,7 @@ struct PageFileWriter::State {
   void discard() {
     if (fd >= 0) ::close(fd);
     fd = -1;
-    if (!committed && !tmpPath.empty()) ::unlink(tmpPath.c_str());
+    file.reset();
     tmpPath.clear();
   }
 
@@ -138,15 +134,8 @@ absl::StatusOr<PageFileWriter> PageFileWriter::create(const std::string& path,
                                                   options.zstdLevel, ZSTD_minCLevel(),
                                                   ZSTD_maxCLevel()));
   }
-  const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty()) {
-    std::error_code ec;
-    fs::create_directories(parent, ec);
-    if (ec) {
-      return absl::ErrnoToStatus(ec.value(),
-                                 fmt::format("{}: cannot create folder {}", path, parent.string()));
-    }
-  }
+  auto file = AtomicFile::begin(path);
+  if (!file.ok()) return file.status();
   auto state = std::make_unique<State>();
   state->path = path;
   state->options = options;
@@ -162,12 +151,13 @@ absl::StatusOr<PageFileWriter> PageFileWriter::create(const std::string& path,
     }
   }
   state->scratch.resize(ZSTD_compressBound(options.pageSize));
-  const std::string tmp = temporaryPathFor(path);
+  const std::string tmp = file->tempPath();
   state->fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (state->fd < 0) {
     return absl::ErrnoToStatus(errno, fmt::format("{}: cannot create {}", path, tmp));
   }
   state->tmpPath = tmp;
+  state->file = std::move(*file);
   // The header's place, until finish() writes it.
   const std::vector<uint8_t> zeros(kPageFileHeaderSize, 0);
   if (absl::Status s = pwriteAll(state->fd, zeros.data(), zeros.size(), 0); !s.ok()) {
@@ -309,35 +299,17 @@ absl::Status PageFileWriter::finish(const PageFileMetadata& m) {
     return s.fail(withContext(w, s.tmpPath));
   }
 
-  if (::fsync(s.fd) != 0) {
-    return s.fail(absl::ErrnoToStatus(errno, fmt::format("cannot flush {}", s.tmpPath)));
-  }
   if (::close(s.fd) != 0) {
     s.fd = -1;
     return s.fail(absl::ErrnoToStatus(errno, fmt::format("cannot close {}", s.tmpPath)));
   }
   s.fd = -1;
-  if (::rename(s.tmpPath.c_str(), s.path.c_str()) != 0) {
-    return s.fail(
-        absl::ErrnoToStatus(errno, fmt::format("cannot rename {} into place", s.tmpPath)));
-  }
-  s.committed = true;
+  // Flushes, renames into place and flushes the folder; a failure before the rename removes
+  // the temporary, and one after it says the file is in place.
+  const absl::Status committed = s.file->commit();
   s.discard();
-  // Without this the rename itself may not survive a crash. The file is complete and in place
-  // by now, so a failure here says so rather than pretending nothing was written.
-  const fs::path parent = fs::path(s.path).parent_path();
-  const std::string folder = parent.empty() ? std::string(".") : parent.string();
-  const int dirFd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dirFd < 0 || ::fsync(dirFd) != 0) {
-    const int error = errno;
-    if (dirFd >= 0) ::close(dirFd);
-    return absl::ErrnoToStatus(
-        error, fmt::format("{}: written and renamed into place, but flushing the folder {} "
-                           "failed, so the rename may not survive a crash",
-                           s.path, folder));
-  }
-  ::close(dirFd);
-  return absl::OkStatus();
+  if (!committed.ok()) s.failure = committed;
+  return committed;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -1,4 +1,5 @@
 #include "formats/vdb/surfel_vdb.h"
+#include "formats/util/atomic_file.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -476,12 +477,6 @@ std::string surfelChecksum(const std::vector<Surfel>& surfels, const SurfelVdbMe
 
 // ---- Files -----------------------------------------------------------------------------
 
-// A name beside `path` that no other writer (another process, another thread) picks.
-std::string temporaryPathFor(const std::string& path) {
-  thread_local std::mt19937_64 rng{std::random_device{}()};
-  return absl::StrFormat("%s.tmp-%d-%016x", path, ::getpid(), rng());
-}
-
 // OpenVDB's header (format 218 and later): magic number (8 bytes), format version (4),
 // library major and minor version (4 + 4), has-grid-offsets (1), then the file's UUID as 36
 // characters.
@@ -537,21 +532,9 @@ absl::Status writeContentUuid(const std::string& tmp, const std::string& written
 }
 
 absl::Status writeGridAtomically(const std::string& path, const vdbp::PointDataGrid::Ptr& grid) {
-  const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty()) {
-    std::error_code ec;
-    fs::create_directories(parent, ec);
-    if (ec) {
-      return absl::ErrnoToStatus(ec.value(),
-                                 absl::StrCat(path, ": cannot create folder ", parent.string()));
-    }
-  }
-  const std::string tmp = temporaryPathFor(path);
-  auto fail = [&](const absl::Status& status) {
-    std::error_code ignored;
-    fs::remove(tmp, ignored);
-    return status;
-  };
+  auto atomic = AtomicFile::begin(path);
+  if (!atomic.ok()) return atomic.status();
+  const std::string& tmp = atomic->tempPath();
   std::string uuid;
   try {
     openvdb::io::File file(tmp);
@@ -562,25 +545,10 @@ absl::Status writeGridAtomically(const std::string& path, const vdbp::PointDataG
     uuid = file.getUniqueTag();
     file.close();
   } catch (const std::exception& e) {
-    return fail(absl::UnavailableError(absl::StrCat(path, ": writing ", tmp, ": ", e.what())));
+    return absl::UnavailableError(absl::StrCat(path, ": writing ", tmp, ": ", e.what()));
   }
-  if (absl::Status s = writeContentUuid(tmp, uuid); !s.ok()) {
-    return fail(withContext(s, path));
-  }
-  const int fd = ::open(tmp.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0 || ::fsync(fd) != 0) {
-    const int error = errno;
-    if (fd >= 0) ::close(fd);
-    return fail(absl::ErrnoToStatus(error, absl::StrCat(path, ": cannot flush ", tmp)));
-  }
-  ::close(fd);
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) {
-    return fail(absl::ErrnoToStatus(ec.value(),
-                                    absl::StrCat(path, ": cannot rename ", tmp, " into place")));
-  }
-  return absl::OkStatus();
+  if (absl::Status s = writeContentUuid(tmp, uuid); !s.ok()) return withContext(s, path);
+  return atomic->commit();
 }
 
 struct LoadedGrid {
