@@ -198,4 +198,19 @@ absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& opti
   return absl::OkStatus();
 }
 
+absl::StatusOr<std::vector<Surfel>> collectSurfels(const Scene& scene,
+                                                   const SurfelSamplingOptions& options,
+                                                   SurfelSamplingStats* stats) {
+  std::vector<Surfel> out;
+  const absl::Status s = sampleSurfels(
+      scene, options,
+      [&](const Surfel& surfel) {
+        out.push_back(surfel);
+        return absl::OkStatus();
+      },
+      stats);
+  if (!s.ok()) return s;
+  return out;
+}
+
 }  // namespace pbgi

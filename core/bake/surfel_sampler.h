@@ -26,6 +26,7 @@
 #include <functional>
 
 #include <absl/status/status.h>
+#include <absl/status/statusor.h>
 
 #include "core/pbgi/surfel.h"
 #include "core/scene/scene.h"
@@ -66,5 +67,10 @@ absl::Status planSurfels(const Scene& scene, const SurfelSamplingOptions& option
 absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& options,
                            const std::function<absl::Status(const Surfel&)>& sink,
                            SurfelSamplingStats* stats);
+
+// sampleSurfels into memory, for clouds known to be small (tests, previews); a bake streams.
+absl::StatusOr<std::vector<Surfel>> collectSurfels(const Scene& scene,
+                                                   const SurfelSamplingOptions& options,
+                                                   SurfelSamplingStats* stats = nullptr);
 
 }  // namespace pbgi

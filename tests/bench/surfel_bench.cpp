@@ -17,6 +17,7 @@
 #include "formats/scene/frame_scene.h"
 #include "formats/shot/shot_file.h"
 #include "tests/support/test_paths.h"
+#include "tests/support/sh_lobes.h"
 
 namespace pbgi {
 namespace {
@@ -92,28 +93,10 @@ void shading(benchmark::State& state, const std::string& name) {
       benchmark::Counter(static_cast<double>(shaded), benchmark::Counter::kIsRate);
 }
 
-// Sums of one to three Lambertian lobes, the kind of vectors a tree's nodes hold.
-std::vector<float> lobeVectors(size_t count) {
-  Rng rng(9);
-  std::vector<float> data(count * Sh9Rgb::kFloats);
-  for (size_t i = 0; i < count; ++i) {
-    Sh9Rgb sum;
-    const int lobes = 1 + static_cast<int>(rng.uniform() * 3.0f);
-    for (int l = 0; l < lobes; ++l) {
-      const float u0 = rng.uniform();
-      const Vec3f n = sampleUniformSphere(Vec2f(u0, rng.uniform()));
-      const float r = rng.uniform(), g = rng.uniform(), b = rng.uniform();
-      sum += lambertianIntensitySh(n, 0.5f + rng.uniform(), Rgb(r, g, b));
-    }
-    sum.toFloats(data.data() + i * Sh9Rgb::kFloats);
-  }
-  return data;
-}
-
 // state.range(1) != 0: each vector scaled to unit length first, the shape-only codebook a
 // tree would pair with a per-node scale (nodes' powers span orders of magnitude).
 void codebookTraining(benchmark::State& state) {
-  std::vector<float> data = lobeVectors(static_cast<size_t>(state.range(0)));
+  std::vector<float> data = testing::lambertianLobeVectors(static_cast<size_t>(state.range(0)));
   if (state.range(1) != 0) {
     for (size_t i = 0; i < data.size(); i += Sh9Rgb::kFloats) {
       double norm2 = 0.0;

@@ -2,7 +2,9 @@
 // Where tests find their inputs: the repo's tests/data, the build tree, and the shared test
 // scenes beside the checkout (../shared/scenes), which may be absent.
 
+#include <algorithm>
 #include <cstdlib>
+#include <vector>
 #include <unistd.h>
 #include <filesystem>
 #include <optional>
@@ -31,6 +33,17 @@ inline std::filesystem::path makeTempDir(const std::string& tag) {
   char* made = mkdtemp(templ.data());
   if (made == nullptr) std::abort();
   return std::filesystem::path(made);
+}
+
+// Names of the regular files below dir, relative to it, sorted: what a test compares to say
+// "no temporary was left behind".
+inline std::vector<std::string> filesIn(const std::filesystem::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir)) {
+    if (e.is_regular_file()) names.push_back(std::filesystem::relative(e.path(), dir).string());
+  }
+  std::sort(names.begin(), names.end());
+  return names;
 }
 
 }  // namespace pbgi::testing

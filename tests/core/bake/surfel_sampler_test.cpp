@@ -23,16 +23,9 @@ std::unique_ptr<Scene> buildScene(SceneBuilder& b) {
 
 std::vector<Surfel> collect(const Scene& scene, const SurfelSamplingOptions& options,
                             SurfelSamplingStats* stats = nullptr) {
-  std::vector<Surfel> out;
-  const absl::Status s = sampleSurfels(
-      scene, options,
-      [&](const Surfel& surfel) {
-        out.push_back(surfel);
-        return absl::OkStatus();
-      },
-      stats);
-  EXPECT_TRUE(s.ok()) << s;
-  return out;
+  auto out = collectSurfels(scene, options, stats);
+  EXPECT_TRUE(out.ok()) << out.status();
+  return out.ok() ? std::move(*out) : std::vector<Surfel>{};
 }
 
 SurfelSamplingOptions byCount(uint64_t n, uint64_t seed = 1, int frame = 0) {

@@ -25,16 +25,9 @@ std::vector<Surfel> sample(const Scene& scene, uint64_t n, uint64_t seed = 1) {
   SurfelSamplingOptions o;
   o.targetCount = n;
   o.seed = seed;
-  std::vector<Surfel> out;
-  const absl::Status s = sampleSurfels(
-      scene, o,
-      [&](const Surfel& surfel) {
-        out.push_back(surfel);
-        return absl::OkStatus();
-      },
-      nullptr);
-  EXPECT_TRUE(s.ok()) << s;
-  return out;
+  auto out = collectSurfels(scene, o);
+  EXPECT_TRUE(out.ok()) << out.status();
+  return out.ok() ? std::move(*out) : std::vector<Surfel>{};
 }
 
 // A floor (facing +y) of albedo 0.5 under a uniform sky L: E = pi L, so the outgoing

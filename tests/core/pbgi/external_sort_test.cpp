@@ -21,6 +21,8 @@
 namespace pbgi {
 namespace {
 
+using testing::filesIn;
+
 namespace fs = std::filesystem;
 
 struct Input {
@@ -88,12 +90,6 @@ bool sameSurfelBits(const Surfel& a, const Surfel& b) {
          same3(a.radiance, b.radiance) && a.materialClass == b.materialClass &&
          a.triangle == b.triangle && bits(a.barycentric.x) == bits(b.barycentric.x) &&
          bits(a.barycentric.y) == bits(b.barycentric.y);
-}
-
-std::vector<std::string> filesIn(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
-  return names;
 }
 
 // A fresh folder, removed with everything in it when the test ends, failed or not.

@@ -12,6 +12,7 @@
 #include "core/pbgi/sh.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
+#include "tests/support/sh_lobes.h"
 
 namespace pbgi {
 namespace {
@@ -31,25 +32,6 @@ std::vector<float> clusteredData(int clusters, int perCluster, float noise,
       for (int j = 0; j < kDim; ++j)
         data.push_back((*truth)[c * kDim + j] + noise * (2.0f * rng.uniform() - 1.0f));
     }
-  }
-  return data;
-}
-
-// Spherical functions as the tree holds them: sums of a few Lambertian lobes of random
-// normals, colours and areas.
-std::vector<float> lobeData(size_t count) {
-  Rng rng(9);
-  std::vector<float> data(count * kDim);
-  for (size_t i = 0; i < count; ++i) {
-    Sh9Rgb sum;
-    const int lobes = 1 + static_cast<int>(rng.uniform() * 3.0f);
-    for (int l = 0; l < lobes; ++l) {
-      const float u0 = rng.uniform();
-      const Vec3f n = sampleUniformSphere(Vec2f(u0, rng.uniform()));
-      const float r = rng.uniform(), g = rng.uniform(), b = rng.uniform();
-      sum += lambertianIntensitySh(n, 0.5f + rng.uniform(), Rgb(r, g, b));
-    }
-    sum.toFloats(data.data() + i * kDim);
   }
   return data;
 }
@@ -109,7 +91,7 @@ TEST(QuantizeTest, RecoversJitteredClusters) {
 }
 
 TEST(QuantizeTest, BlackMapsToEntryZeroAndIsNotTrained) {
-  std::vector<float> data = lobeData(2000);
+  std::vector<float> data = testing::lambertianLobeVectors(2000);
   // Half the nodes are dark: they must not pull centres towards zero.
   data.resize(data.size() * 2, 0.0f);
   KMeansOptions o;
@@ -155,7 +137,7 @@ TEST(QuantizeTest, EmptyAndTinyInputs) {
 
 // A NaN in one node must neither poison the codebook nor the error measures.
 TEST(QuantizeTest, NonFiniteVectorsStayOutOfTrainingAndMeasures) {
-  std::vector<float> data = lobeData(3000);
+  std::vector<float> data = testing::lambertianLobeVectors(3000);
   for (size_t i = 0; i < 3000; i += 3) data[i * kDim + 5] = std::numeric_limits<float>::quiet_NaN();
   data[7 * kDim] = std::numeric_limits<float>::infinity();
   KMeansOptions o;
@@ -188,7 +170,7 @@ TEST(QuantizeTest, NearestEntryAndErrorByHand) {
 }
 
 TEST(QuantizeTest, IdenticalWithOneAndTwoThreads) {
-  const std::vector<float> data = lobeData(60000);
+  const std::vector<float> data = testing::lambertianLobeVectors(60000);
   KMeansOptions o;
   o.centres = 50;
   o.seed = 21;
@@ -212,7 +194,7 @@ TEST(QuantizeTest, IdenticalWithOneAndTwoThreads) {
 }
 
 TEST(QuantizeTest, ErrorFallsWithMoreCentres) {
-  const std::vector<float> data = lobeData(20000);
+  const std::vector<float> data = testing::lambertianLobeVectors(20000);
   double previous = std::numeric_limits<double>::infinity();
   for (const int centres : {4, 16, 64, 128}) {
     KMeansOptions o;

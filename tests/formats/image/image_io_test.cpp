@@ -22,20 +22,13 @@
 namespace pbgi {
 namespace {
 
+using testing::filesIn;
+
 namespace fs = std::filesystem;
 namespace OCIO = OCIO_NAMESPACE;
 
 fs::path shippedOcioConfig() { return testing::sourceDir() / "config" / "ocio" / "config.ocio"; }
 fs::path hostile(const std::string& name) { return testing::testDataDir() / "images" / name; }
-
-std::vector<std::string> filesIn(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.is_regular_file()) names.push_back(fs::relative(e.path(), dir).string());
-  }
-  std::sort(names.begin(), names.end());
-  return names;
-}
 
 // The attributes of a single-part scanline OpenEXR header, parsed by hand so that the test
 // checks the file itself rather than what OIIO makes of it.

@@ -29,6 +29,8 @@
 namespace pbgi {
 namespace {
 
+using testing::filesIn;
+
 namespace fs = std::filesystem;
 
 std::vector<uint8_t> readFile(const fs::path& path) {
@@ -41,13 +43,6 @@ void writeFile(const fs::path& path, std::span<const uint8_t> bytes) {
   out.write(reinterpret_cast<const char*>(bytes.data()),
             static_cast<std::streamsize>(bytes.size()));
   ASSERT_TRUE(out.good()) << path;
-}
-
-std::vector<std::string> filesIn(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
-  return names;
 }
 
 // The generator's reproducible incompressible bytes (tests/data/pbgi/make_pbgi_files.py).
@@ -500,8 +495,10 @@ TEST_F(PageFileTest, FailedRenameLeavesNothingBehind) {
   const absl::Status status = writeSample(path, makeTinySample(), smallPages());
   EXPECT_FALSE(status.ok());
   EXPECT_TRUE(absl::StrContains(status.message(), "cannot rename")) << status;
-  EXPECT_EQ(filesIn(dir_), std::vector<std::string>{"frame.pbgi"});
+  // No file anywhere (filesIn lists regular files): the folder stands alone, untouched.
+  EXPECT_TRUE(filesIn(dir_).empty());
   EXPECT_TRUE(fs::is_directory(path));
+  EXPECT_TRUE(fs::is_empty(path));
 }
 
 TEST_F(PageFileTest, WriteFailureIsStickyAndLeavesNothing) {

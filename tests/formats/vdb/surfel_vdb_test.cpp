@@ -21,6 +21,8 @@
 namespace pbgi {
 namespace {
 
+using testing::filesIn;
+
 namespace fs = std::filesystem;
 
 // A temporary folder that goes away with the test.
@@ -40,15 +42,6 @@ class TempDir {
 
 std::string hostile(const std::string& name) {
   return (testing::testDataDir() / "vdb" / name).string();
-}
-
-std::vector<std::string> filesIn(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.is_regular_file()) names.push_back(fs::relative(e.path(), dir).string());
-  }
-  std::sort(names.begin(), names.end());
-  return names;
 }
 
 std::string readBytes(const std::string& path) {
