@@ -93,7 +93,6 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       out.hit = true;
       out.depth = hit.t;
       out.normal = hit.ns;
-      out.albedo = scene.albedoAt(hit);
     }
     const Vec3f wo = -ray.dir;
     if (hit.light >= 0) {
@@ -109,9 +108,13 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
         *sink += beta * Le * weight;
       }
     }
-    if (hit.material == kNoMaterial || bounce >= settings.maxDepth) break;
+    // One texture lookup serves the albedo AOV and the BSDF.
+    const bool scatter = hit.material != kNoMaterial && bounce < settings.maxDepth;
+    const Rgb albedo = scatter || bounce == 0 ? scene.albedoAt(hit) : Rgb(0.0f);
+    if (bounce == 0) out.albedo = albedo;
+    if (!scatter) break;
     const Material& material = scene.material(hit.material);
-    const Bsdf bsdf(material, scene.albedoAt(hit));
+    const Bsdf bsdf(material, albedo);
     if (bsdf.isBlack()) break;
 
     const Frame frame = shadingFrame(hit);
