@@ -75,6 +75,7 @@ struct Bounds3f {
   Vec3f max{-std::numeric_limits<float>::infinity()};
 
   bool empty() const { return min.x > max.x || min.y > max.y || min.z > max.z; }
+  bool operator==(const Bounds3f& o) const { return min == o.min && max == o.max; }
   void extend(const Vec3f& p) {
     min = vmin(min, p);
     max = vmax(max, p);
