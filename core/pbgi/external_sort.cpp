@@ -17,6 +17,7 @@
 #include <tbb/parallel_sort.h>
 #include <tbb/task_arena.h>
 
+#include "core/util/bytes.h"
 #include "core/util/check.h"
 #include "core/util/status.h"
 
@@ -25,31 +26,12 @@ namespace {
 
 // ---- Record layout ------------------------------------------------------------------------
 
-void putU32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
-}
-void putU64(uint8_t* p, uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
-}
-void putF32(uint8_t* p, float v) { putU32(p, std::bit_cast<uint32_t>(v)); }
-uint32_t getU32(const uint8_t* p) {
-  uint32_t v = 0;
-  for (int i = 0; i < 4; ++i) v |= static_cast<uint32_t>(p[i]) << (8 * i);
-  return v;
-}
-uint64_t getU64(const uint8_t* p) {
-  uint64_t v = 0;
-  for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(p[i]) << (8 * i);
-  return v;
-}
-float getF32(const uint8_t* p) { return std::bit_cast<float>(getU32(p)); }
-
 void putVec3(uint8_t* p, const Vec3f& v) {
-  putF32(p, v.x);
-  putF32(p + 4, v.y);
-  putF32(p + 8, v.z);
+  storeF32(p, v.x);
+  storeF32(p + 4, v.y);
+  storeF32(p + 8, v.z);
 }
-Vec3f getVec3(const uint8_t* p) { return {getF32(p), getF32(p + 4), getF32(p + 8)}; }
+Vec3f getVec3(const uint8_t* p) { return {loadF32(p), loadF32(p + 4), loadF32(p + 8)}; }
 
 // Byte offsets of the fields; the last one is the record size.
 constexpr size_t kOffKey = 0, kOffSequence = 8, kOffPosition = 16, kOffNormal = 28, kOffRadius = 40,
@@ -439,17 +421,17 @@ constexpr size_t kChunkRecords = 16384;
 
 void encodeSurfelRecord(const SortedSurfel& r, uint8_t* out) {
   const Surfel& s = r.surfel;
-  putU64(out + kOffKey, r.key);
-  putU64(out + kOffSequence, r.sequence);
+  storeU64(out + kOffKey, r.key);
+  storeU64(out + kOffSequence, r.sequence);
   putVec3(out + kOffPosition, s.position);
   putVec3(out + kOffNormal, s.normal);
-  putF32(out + kOffRadius, s.radius);
+  storeF32(out + kOffRadius, s.radius);
   putVec3(out + kOffAlbedo, s.albedo);
   putVec3(out + kOffRadiance, s.radiance);
   out[kOffMaterial] = static_cast<uint8_t>(s.materialClass);
-  putU32(out + kOffTriangle, s.triangle);
-  putF32(out + kOffBarycentric, s.barycentric.x);
-  putF32(out + kOffBarycentric + 4, s.barycentric.y);
+  storeU32(out + kOffTriangle, s.triangle);
+  storeF32(out + kOffBarycentric, s.barycentric.x);
+  storeF32(out + kOffBarycentric + 4, s.barycentric.y);
 }
 
 absl::Status decodeSurfelRecord(const uint8_t* in, SortedSurfel* out) {
@@ -459,17 +441,17 @@ absl::Status decodeSurfelRecord(const uint8_t* in, SortedSurfel* out) {
         fmt::format("material class byte {} names no material class (0 to {})", material,
                     static_cast<int>(MaterialClass::kEmissive)));
   }
-  out->key = getU64(in + kOffKey);
-  out->sequence = getU64(in + kOffSequence);
+  out->key = loadU64(in + kOffKey);
+  out->sequence = loadU64(in + kOffSequence);
   Surfel& s = out->surfel;
   s.position = getVec3(in + kOffPosition);
   s.normal = getVec3(in + kOffNormal);
-  s.radius = getF32(in + kOffRadius);
+  s.radius = loadF32(in + kOffRadius);
   s.albedo = getVec3(in + kOffAlbedo);
   s.radiance = getVec3(in + kOffRadiance);
   s.materialClass = static_cast<MaterialClass>(material);
-  s.triangle = getU32(in + kOffTriangle);
-  s.barycentric = Vec2f(getF32(in + kOffBarycentric), getF32(in + kOffBarycentric + 4));
+  s.triangle = loadU32(in + kOffTriangle);
+  s.barycentric = Vec2f(loadF32(in + kOffBarycentric), loadF32(in + kOffBarycentric + 4));
   return absl::OkStatus();
 }
 

@@ -108,6 +108,103 @@ Sh9Rgb lambertianIntensitySh(const Vec3f& normal, float area, const Rgb& radianc
   return Sh9Rgb(projectedAreaSh(normal, area), radiance);
 }
 
+namespace {
+
+// Directions, weights and basis values of the rotation quadrature, computed once.
+struct RotationQuadrature {
+  static constexpr int kZ = 3, kPhi = 5, kCount = kZ * kPhi;
+  Vec3f dirs[kCount];
+  float weights[kCount];
+  float basis[kCount][kShCoefficients];
+
+  RotationQuadrature() {
+    std::vector<double> zs, ws;
+    gaussLegendre(kZ, &zs, &ws);
+    const double phiWeight = 2.0 * std::numbers::pi / kPhi;
+    for (int i = 0; i < kZ; ++i) {
+      const double r = std::sqrt(std::max(0.0, 1.0 - zs[i] * zs[i]));
+      for (int j = 0; j < kPhi; ++j) {
+        const double phi = phiWeight * (j + 0.5);
+        const int n = i * kPhi + j;
+        dirs[n] = Vec3f(static_cast<float>(r * std::cos(phi)), static_cast<float>(r * std::sin(phi)),
+                        static_cast<float>(zs[i]));
+        weights[n] = static_cast<float>(ws[i] * phiWeight);
+        evalShBasis(dirs[n], basis[n]);
+      }
+    }
+  }
+};
+
+const RotationQuadrature& rotationQuadrature() {
+  static const RotationQuadrature q;
+  return q;
+}
+
+}  // namespace
+
+ShRotation ShRotation::toLocal(const Frame& frame) {
+  const RotationQuadrature& q = rotationQuadrature();
+  ShRotation r;
+  for (int n = 0; n < RotationQuadrature::kCount; ++n) {
+    float world[kShCoefficients];
+    evalShBasis(frame.toWorld(q.dirs[n]), world);
+    for (int i = 0; i < kShCoefficients; ++i) {
+      const float wy = q.weights[n] * q.basis[n][i];
+      for (int k = 0; k < kShCoefficients; ++k) r.m[i][k] += wy * world[k];
+    }
+  }
+  // Rotations never mix bands: what the quadrature leaves between them is rounding, and
+  // clearing it keeps band 0 (a cluster's total) exactly as it was.
+  auto band = [](int i) { return i == 0 ? 0 : i < 4 ? 1 : 2; };
+  for (int i = 0; i < kShCoefficients; ++i) {
+    for (int k = 0; k < kShCoefficients; ++k) {
+      if (band(i) != band(k)) r.m[i][k] = 0.0f;
+    }
+  }
+  r.m[0][0] = 1.0f;
+  return r;
+}
+
+Sh9 ShRotation::apply(const Sh9& sh) const {
+  Sh9 out;
+  for (int i = 0; i < kShCoefficients; ++i) {
+    float v = 0.0f;
+    for (int k = 0; k < kShCoefficients; ++k) v += m[i][k] * sh.c[k];
+    out.c[i] = v;
+  }
+  return out;
+}
+
+Sh9 ShRotation::applyInverse(const Sh9& sh) const {
+  Sh9 out;
+  for (int k = 0; k < kShCoefficients; ++k) {
+    float v = 0.0f;
+    for (int i = 0; i < kShCoefficients; ++i) v += m[i][k] * sh.c[i];
+    out.c[k] = v;
+  }
+  return out;
+}
+
+Sh9Rgb ShRotation::apply(const Sh9Rgb& sh) const {
+  Sh9Rgb out;
+  for (int i = 0; i < kShCoefficients; ++i) {
+    Rgb v(0.0f);
+    for (int k = 0; k < kShCoefficients; ++k) v += m[i][k] * sh.c[k];
+    out.c[i] = v;
+  }
+  return out;
+}
+
+Sh9Rgb ShRotation::applyInverse(const Sh9Rgb& sh) const {
+  Sh9Rgb out;
+  for (int k = 0; k < kShCoefficients; ++k) {
+    Rgb v(0.0f);
+    for (int i = 0; i < kShCoefficients; ++i) v += m[i][k] * sh.c[i];
+    out.c[k] = v;
+  }
+  return out;
+}
+
 Sh9 projectNumerically(const std::function<float(const Vec3f&)>& f, int zNodes, int phiNodes) {
   PBGI_CHECK_GT(zNodes, 0);
   PBGI_CHECK_GT(phiNodes, 0);

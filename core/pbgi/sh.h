@@ -93,6 +93,21 @@ Sh9 projectedAreaSh(const Vec3f& normal, float area);
 // mean radiance seen from w.
 Sh9Rgb lambertianIntensitySh(const Vec3f& normal, float area, const Rgb& radiance);
 
+// The rotation of spherical functions into a local frame: local(d) = world(frame.toWorld(d)).
+// Rotations keep each band to itself and are orthogonal in this orthonormal basis, so the way
+// back is the transpose. The matrix is found by a quadrature exact for products of band-2
+// functions (3 Gauss-Legendre nodes in z, 5 in phi), not by Wigner recurrences: 15 basis
+// evaluations per rotation.
+struct ShRotation {
+  float m[kShCoefficients][kShCoefficients] = {};
+
+  static ShRotation toLocal(const Frame& frame);
+  Sh9 apply(const Sh9& sh) const;
+  Sh9 applyInverse(const Sh9& sh) const;
+  Sh9Rgb apply(const Sh9Rgb& sh) const;
+  Sh9Rgb applyInverse(const Sh9Rgb& sh) const;
+};
+
 // Projects any scalar function by quadrature: Gauss-Legendre in cos(theta) (`zNodes` nodes)
 // times the trapezoid rule in phi (`phiNodes` nodes). Exact for band-limited functions of
 // band <= 2 once zNodes >= 3 and phiNodes >= 5; converges like the function's smoothness

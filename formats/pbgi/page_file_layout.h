@@ -13,6 +13,7 @@
 
 #include <absl/status/status.h>
 
+#include "core/util/bytes.h"
 #include "core/util/status.h"
 #include "formats/pbgi/page_file.h"
 
@@ -45,21 +46,12 @@ inline constexpr uint64_t kMinSectionsSize = 4;
 inline constexpr uint64_t kMinSectionSize = 1 + 1 + 4;
 inline constexpr uint32_t kMaxPageCount = UINT32_MAX;
 
-inline uint32_t loadU32(const uint8_t* p) {
-  return uint32_t{p[0]} | uint32_t{p[1]} << 8 | uint32_t{p[2]} << 16 | uint32_t{p[3]} << 24;
-}
-inline uint64_t loadU64(const uint8_t* p) {
-  return uint64_t{loadU32(p)} | uint64_t{loadU32(p + 4)} << 32;
-}
-inline float loadF32(const uint8_t* p) { return std::bit_cast<float>(loadU32(p)); }
-
-inline void storeU32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
-}
-inline void storeU64(uint8_t* p, uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
-}
-inline void storeF32(uint8_t* p, float v) { storeU32(p, std::bit_cast<uint32_t>(v)); }
+using ::pbgi::loadF32;
+using ::pbgi::loadU32;
+using ::pbgi::loadU64;
+using ::pbgi::storeF32;
+using ::pbgi::storeU32;
+using ::pbgi::storeU64;
 
 inline void appendU32(std::vector<uint8_t>& out, uint32_t v) {
   const size_t at = out.size();

@@ -146,3 +146,24 @@ TEST(ShTest, ArithmeticAndFlatLayout) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+TEST(ShRotation, RotatesAClampedCosineOntoItsAxisAndBack) {
+  const Vec3f n = normalize(Vec3f(0.3f, -0.8f, 0.5f));
+  const Frame frame(n);
+  const ShRotation r = ShRotation::toLocal(frame);
+  const Sh9 world = projectClampedCosine(n);
+  const Sh9 local = r.apply(world);
+  const Sh9 expected = projectClampedCosine(Vec3f(0, 0, 1));
+  for (int i = 0; i < kShCoefficients; ++i) EXPECT_NEAR(local.c[i], expected.c[i], 1e-5f) << i;
+  const Sh9 back = r.applyInverse(local);
+  for (int i = 0; i < kShCoefficients; ++i) EXPECT_NEAR(back.c[i], world.c[i], 1e-5f) << i;
+  // A function evaluates the same in either frame.
+  const Vec3f d = normalize(Vec3f(-0.2f, 0.4f, 0.9f));
+  EXPECT_NEAR(evaluate(world, frame.toWorld(d)), evaluate(local, d), 1e-5f);
+}
+
+}  // namespace
+}  // namespace pbgi

@@ -7,39 +7,12 @@
 
 #include "core/pbgi/morton.h"
 #include "core/sampling/rng.h"
+#include "tests/support/surfel_clouds.h"
 
 namespace pbgi {
 namespace {
 
-// Surfels on a few planes and a sphere, sorted by key, numbered in input order.
-std::vector<SortedSurfel> makeSorted(size_t n, uint64_t seed, bool allSamePosition = false) {
-  Rng rng = Rng::forKeys(seed);
-  std::vector<SortedSurfel> points(n);
-  Bounds3f bounds;
-  bounds.extend(Vec3f(-1.0f));
-  bounds.extend(Vec3f(1.0f));
-  for (size_t i = 0; i < n; ++i) {
-    Surfel& s = points[i].surfel;
-    if (allSamePosition) {
-      s.position = Vec3f(0.25f);
-    } else if (i % 3 == 0) {
-      s.position = Vec3f(rng.uniform() * 2 - 1, -1.0f, rng.uniform() * 2 - 1);
-    } else {
-      const float z = rng.uniform() * 2 - 1, phi = rng.uniform() * 2 * kPi;
-      const float r = safeSqrt(1 - z * z);
-      s.position = 0.5f * Vec3f(r * std::cos(phi), r * std::sin(phi), z);
-    }
-    s.normal = i % 3 == 0 ? Vec3f(0, 1, 0) : normalize(s.position + Vec3f(1e-3f, 0, 0));
-    s.radius = 0.01f;
-    s.radiance = Rgb(rng.uniform(), rng.uniform() * 0.5f, 0.25f);
-    points[i].key = mortonKey(s.position, bounds);
-    points[i].sequence = i;
-  }
-  std::sort(points.begin(), points.end(), [](const SortedSurfel& a, const SortedSurfel& b) {
-    return a.key != b.key ? a.key < b.key : a.sequence < b.sequence;
-  });
-  return points;
-}
+using testing::makeSorted;
 
 int extendedLevel(const SortedSurfel& a, const SortedSurfel& b) {
   if (a.key != b.key) return commonLevel(a.key, b.key);
@@ -86,7 +59,7 @@ void expectSameTrees(const std::vector<InMemoryNode>& a, const std::vector<InMem
   }
 }
 
-class TreeBuildSizes : public testing::TestWithParam<std::tuple<size_t, int>> {};
+class TreeBuildSizes : public ::testing::TestWithParam<std::tuple<size_t, int>> {};
 
 TEST_P(TreeBuildSizes, SweepMatchesTopDownDefinition) {
   const auto [n, m] = GetParam();
@@ -102,7 +75,7 @@ TEST_P(TreeBuildSizes, SweepMatchesTopDownDefinition) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Sizes, TreeBuildSizes,
-                         testing::Values(std::tuple<size_t, int>{1, 16},
+                         ::testing::Values(std::tuple<size_t, int>{1, 16},
                                          std::tuple<size_t, int>{16, 16},
                                          std::tuple<size_t, int>{17, 16},
                                          std::tuple<size_t, int>{1000, 1},

@@ -1,0 +1,128 @@
+#pragma once
+// The PBGI gather (Christensen 2008, "Point-based approximate color bleeding"): the light
+// arriving at one receiver, from a top-down traversal of the PBGI tree rasterized into a
+// cube microbuffer around it.
+//
+// Per node, from the receiver at p with normal n:
+//   - culled when its bounds lie entirely behind the tangent plane at p, or when its normal
+//     cone faces entirely away from p (seen from behind, surfels and nodes are transparent);
+//   - splatted as a cluster when small from p: its projected area towards p over its
+//     distance squared is at most maxSolidAngle (and its bounding sphere not much larger),
+//     with the mean radiance its spherical harmonics send towards p;
+//   - refined otherwise; a leaf too large to be a cluster gives its surfels one by one, as
+//     exact disks, ray-cast over the whole buffer when nearer than nearFieldFactor radii.
+// Surfels centred on or behind the tangent plane, and those whose disk holds the receiver
+// (the receiver's own surfel and its overlapping neighbours), are left out: on a flat or
+// gently curved surface they would otherwise shadow the receiver with itself.
+//
+// Pages come from a TreePageSource and are held (shared_ptr) only while the traversal is in
+// them; a page the source cannot give fails the gather with the source's error.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "core/math/vec.h"
+#include "core/pbgi/microbuffer.h"
+#include "core/pbgi/tree_page.h"
+
+namespace pbgi {
+
+struct GatherOptions {
+  // A node whose projected solid angle from the receiver is at most this (sr) is splatted as
+  // a cluster; Christensen uses 0.02 to 0.03.
+  float maxSolidAngle = 0.03f;
+  int resolution = 12;  // microbuffer pixels per face side
+  // Surfels nearer than this many radii are ray-cast over the whole buffer instead of
+  // splatted within their bounding cone.
+  float nearFieldFactor = 4.0f;
+  // Surfels whose disk, grown by this factor, holds the receiver are not gathered.
+  float selfSkipRadius = 1.0f;
+
+  bool operator==(const GatherOptions&) const = default;
+  // InvalidArgument naming the field when a value is out of range.
+  absl::Status validate() const;
+  std::string toString() const;
+};
+
+// Quality presets: "draft", "default", "high". Unknown names are InvalidArgument.
+absl::StatusOr<GatherOptions> gatherPreset(std::string_view name);
+
+// Counts of one or more gathers: gathers add to them, never reset them.
+struct GatherStats {
+  uint64_t gathers = 0;
+  uint64_t nodesVisited = 0;
+  uint64_t nodesCulledPlane = 0;  // entirely behind the receiver's tangent plane
+  uint64_t nodesCulledCone = 0;   // normals all facing away from the receiver
+  uint64_t clustersSplatted = 0;
+  uint64_t clustersInvisible = 0;  // small, but no projected area towards the receiver
+  uint64_t disksSplatted = 0;
+  uint64_t nearFieldRayCasts = 0;
+  uint64_t surfelsSkipped = 0;    // behind or on the tangent plane, or holding the receiver
+  uint64_t surfelsBackFacing = 0;
+  uint64_t pagesTouched = 0;      // page() calls
+  uint64_t facesSkipped = 0;      // microbuffer faces entirely below the horizon
+  uint64_t pixelsSkipped = 0;     // microbuffer pixels below the horizon, never rasterized
+
+  GatherStats& operator+=(const GatherStats& o);
+  std::string toString() const;
+};
+
+// A reusable gather: owns the microbuffer, the traversal stack and the pages in use, so that
+// gathers after the first allocate nothing (what the source does to fetch a page aside).
+// One per thread; not thread-safe.
+class Gatherer {
+ public:
+  // Options must be valid (validate() first when they come from a user).
+  explicit Gatherer(const GatherOptions& options);
+
+  const GatherOptions& options() const { return options_; }
+
+  // Rasterizes the tree around the receiver into microbuffer(); `normal` need not be unit.
+  // Errors: InvalidArgument for a non-finite position or a zero or non-finite normal; the
+  // source's error for a page it cannot give; DataLoss for a page whose references point
+  // outside it or a tree deeper than any the builder makes.
+  absl::Status rasterize(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
+                         GatherStats* stats);
+  // rasterize, then the clamped-cosine convolution. DataLoss when the tree's radiance makes
+  // the result non-finite.
+  absl::StatusOr<Rgb> irradiance(TreePageSource& tree, const Vec3f& position,
+                                 const Vec3f& normal, GatherStats* stats);
+
+  // The last rasterized picture, for other convolutions (a BRDF) and debugging.
+  const Microbuffer& microbuffer() const { return buffer_; }
+
+ private:
+  struct StackEntry {
+    NodeRef ref;
+    uint32_t depth;
+  };
+  struct HeldPage {
+    uint32_t id = 0;
+    std::shared_ptr<const TreePage> page;
+    uint64_t lastUse = 0;
+  };
+
+  absl::StatusOr<const TreePage*> pageFor(TreePageSource& tree, uint32_t id, GatherStats* stats);
+  absl::Status traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n, GatherStats* stats);
+  void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
+                     GatherStats* stats);
+
+  GatherOptions options_;
+  Microbuffer buffer_;
+  std::vector<StackEntry> stack_;
+  std::vector<HeldPage> held_;
+  uint64_t useClock_ = 0;
+};
+
+// One gather with a Gatherer kept per thread (rebuilt when the options change). Invalid
+// options are InvalidArgument; otherwise as Gatherer::irradiance. `stats` may be null.
+absl::StatusOr<Rgb> gatherIrradiance(TreePageSource& tree, const Vec3f& position,
+                                     const Vec3f& normal, const GatherOptions& options,
+                                     GatherStats* stats);
+
+}  // namespace pbgi

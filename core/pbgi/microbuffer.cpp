@@ -1,0 +1,415 @@
+#include "core/pbgi/microbuffer.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <mutex>
+#include <cstdlib>
+
+#include "core/util/check.h"
+
+namespace pbgi {
+
+namespace {
+
+struct FaceAxes {
+  int a, b, c;  // looking along a, u along b, v along c
+  float sign;   // +1 towards +a, -1 towards -a
+};
+
+FaceAxes faceAxes(int f) {
+  const int a = f >> 1;
+  return {a, (a + 1) % 3, (a + 2) % 3, (f & 1) ? -1.0f : 1.0f};
+}
+
+// Solid angle of the rectangle [0, x] x [0, y] of the plane at distance 1, seen from the
+// origin, signed by the signs of x and y (Mathar, "Solid angle of a rectangular plate"):
+// rectangles then add and subtract like areas.
+double cornerSolidAngle(double x, double y) {
+  return std::atan2(x * y, std::sqrt(1.0 + x * x + y * y));
+}
+
+// The integral of the direction over the spherical polygon with unit vertices v (in order):
+// half the sum over edges of the edge's angle times the unit normal of its great circle
+// (Arvo 1995), turned to point into the polygon.
+Vec3f vectorSolidAngle(const double (*v)[3], int count, const double center[3]) {
+  double sum[3] = {0.0, 0.0, 0.0};
+  for (int e = 0; e < count; ++e) {
+    const double* a = v[e];
+    const double* b = v[(e + 1) % count];
+    double c[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+    const double len = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    const double angle = std::atan2(len, a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
+    for (int i = 0; i < 3; ++i) sum[i] += 0.5 * angle * c[i] / len;
+  }
+  const double side = sum[0] * center[0] + sum[1] * center[1] + sum[2] * center[2];
+  const double sign = side < 0.0 ? -1.0 : 1.0;
+  return Vec3f(static_cast<float>(sign * sum[0]), static_cast<float>(sign * sum[1]),
+               static_cast<float>(sign * sum[2]));
+}
+
+std::shared_ptr<const MicrobufferTables> computeTables(int n) {
+  auto tables = std::make_shared<MicrobufferTables>();
+  tables->resolution = n;
+  const size_t count = static_cast<size_t>(kCubeFaces) * n * n;
+  tables->directions.resize(count);
+  tables->solidAngles.resize(count);
+  tables->widths.resize(count);
+  tables->vectorSolidAngles.resize(count);
+  const double step = 2.0 / n;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    const FaceAxes axes = faceAxes(f);
+    // The unit direction through face coordinates (u, v).
+    auto unit = [&](double u, double v, double* out) {
+      double p[3];
+      p[axes.a] = axes.sign;
+      p[axes.b] = u;
+      p[axes.c] = v;
+      const double len = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+      for (int i = 0; i < 3; ++i) out[i] = p[i] / len;
+    };
+    for (int j = 0; j < n; ++j) {
+      const double v0 = -1.0 + j * step, v1 = v0 + step;
+      for (int i = 0; i < n; ++i) {
+        const double u0 = -1.0 + i * step, u1 = u0 + step;
+        const size_t k = (static_cast<size_t>(f) * n + j) * n + i;
+        const double omega = cornerSolidAngle(u1, v1) - cornerSolidAngle(u0, v1) -
+                             cornerSolidAngle(u1, v0) + cornerSolidAngle(u0, v0);
+        tables->solidAngles[k] = static_cast<float>(omega);
+        tables->widths[k] = static_cast<float>(std::sqrt(omega));
+        double center[3];
+        unit(0.5 * (u0 + u1), 0.5 * (v0 + v1), center);
+        tables->directions[k] = Vec3f(static_cast<float>(center[0]),
+                                      static_cast<float>(center[1]),
+                                      static_cast<float>(center[2]));
+        double corners[4][3];
+        unit(u0, v0, corners[0]);
+        unit(u1, v0, corners[1]);
+        unit(u1, v1, corners[2]);
+        unit(u0, v1, corners[3]);
+        tables->vectorSolidAngles[k] = vectorSolidAngle(corners, 4, center);
+        tables->maxWidth = std::max(tables->maxWidth, tables->widths[k]);
+      }
+    }
+  }
+  return tables;
+}
+
+}  // namespace
+
+std::shared_ptr<const MicrobufferTables> microbufferTables(int resolution) {
+  PBGI_CHECK_GE(resolution, kMinMicrobufferResolution);
+  PBGI_CHECK_LE(resolution, kMaxMicrobufferResolution);
+  static std::mutex mutex;
+  static std::array<std::shared_ptr<const MicrobufferTables>, kMaxMicrobufferResolution + 1> cache;
+  std::lock_guard lock(mutex);
+  auto& entry = cache[resolution];
+  if (!entry) entry = computeTables(resolution);
+  return entry;
+}
+
+Microbuffer::Microbuffer(int resolution)
+    : n_(resolution),
+      tables_(microbufferTables(resolution)),
+      directions_(tables_->directions.data()),
+      solidAngles_(tables_->solidAngles.data()),
+      widths_(tables_->widths.data()),
+      vectorSolidAngles_(tables_->vectorSolidAngles.data()),
+      depth_(tables_->directions.size(), kEmpty),
+      extent_(tables_->directions.size(), 0.0f),
+      coverage_(tables_->directions.size(), 0.0f),
+      radiance_(tables_->directions.size(), Rgb(0.0f)) {
+  scratch_.reserve(tables_->directions.size());
+  clear(Vec3f(0.0f));
+}
+
+void Microbuffer::clear(const Vec3f& origin) {
+  origin_ = origin;
+  std::fill(depth_.begin(), depth_.end(), kEmpty);
+  std::fill(coverage_.begin(), coverage_.end(), 0.0f);
+  std::fill(radiance_.begin(), radiance_.end(), Rgb(0.0f));
+  std::fill(std::begin(faceActive_), std::end(faceActive_), true);
+  skippedFaces_ = 0;
+  skippedPixels_ = 0;
+}
+
+void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
+  origin_ = origin;
+  std::fill(coverage_.begin(), coverage_.end(), 0.0f);
+  std::fill(radiance_.begin(), radiance_.end(), Rgb(0.0f));
+  skippedFaces_ = 0;
+  skippedPixels_ = 0;
+  const int facePixels = n_ * n_;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    const FaceAxes axes = faceAxes(f);
+    // The face's directions are positive combinations of its corners, so the largest dot
+    // product with the normal is at a corner: sign * n_a + |n_b| + |n_c|.
+    const float maxDot =
+        axes.sign * normal[axes.a] + std::abs(normal[axes.b]) + std::abs(normal[axes.c]);
+    float* depth = depth_.data() + f * facePixels;
+    const Vec3f* dirs = directions_ + f * facePixels;
+    if (!(maxDot > 0.0f)) {
+      faceActive_[f] = false;
+      std::fill(depth, depth + facePixels, 0.0f);
+      ++skippedFaces_;
+      skippedPixels_ += facePixels;
+      continue;
+    }
+    faceActive_[f] = true;
+    for (int k = 0; k < facePixels; ++k) {
+      const bool above = dot(dirs[k], normal) > 0.0f;
+      depth[k] = above ? kEmpty : 0.0f;
+      skippedPixels_ += above ? 0 : 1;
+    }
+  }
+}
+
+int Microbuffer::pixelIndex(const Vec3f& dir) const {
+  const float ax = std::abs(dir.x), ay = std::abs(dir.y), az = std::abs(dir.z);
+  const int a = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);
+  const int f = 2 * a + (dir[a] < 0.0f ? 1 : 0);
+  const FaceAxes axes = faceAxes(f);
+  const float inv = 1.0f / std::abs(dir[a]);
+  const float half = 0.5f * static_cast<float>(n_);
+  const int i = std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0,
+                           n_ - 1);
+  const int j = std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0,
+                           n_ - 1);
+  return (f * n_ + j) * n_ + i;
+}
+
+bool Microbuffer::coneRect(int f, const Vec3f& dir, float sinAngle, float cosAngle,
+                           PixelRect* rect) const {
+  const FaceAxes axes = faceAxes(f);
+  const float d = axes.sign * dir[axes.a];
+  const PixelRect full{0, n_ - 1, 0, n_ - 1};
+  // A cone of half-angle 90 degrees or more reaches every face.
+  if (cosAngle <= 0.0f) {
+    *rect = full;
+    return true;
+  }
+  // Entirely behind the face's plane (the face only holds directions with sign * w_a > 0).
+  if (d <= -sinAngle) return false;
+  // Straddling the plane, the cone's trace on the face is unbounded: try the whole face.
+  // This only happens for cones wider than about 35 degrees, which cover much of it anyway.
+  if (d <= sinAngle) {
+    *rect = full;
+    return true;
+  }
+  // In front of the plane, u = w_b / (sign w_a) is extreme where a plane through the origin
+  // containing the face's v axis touches the cone: (d_b - u d)^2 = sin^2 (1 + u^2).
+  const float s2 = sinAngle * sinAngle;
+  const float k = d * d - s2;
+  const float half = 0.5f * static_cast<float>(n_);
+  auto range = [&](float db, int* lo, int* hi) {
+    const float root = sinAngle * safeSqrt(d * d + db * db - s2);
+    // A little slack so that rounding never drops a pixel centre on the boundary; the dot
+    // or intersection test that follows is the authority.
+    const float slack = 1e-4f;
+    const float u0 = std::clamp((db * d - root) / k - slack, -2.0f, 2.0f);
+    const float u1 = std::clamp((db * d + root) / k + slack, -2.0f, 2.0f);
+    *lo = static_cast<int>(std::floor((u0 + 1.0f) * half));
+    *hi = static_cast<int>(std::floor((u1 + 1.0f) * half));
+    if (*hi < 0 || *lo > n_ - 1) return false;
+    *lo = std::max(*lo, 0);
+    *hi = std::min(*hi, n_ - 1);
+    return true;
+  };
+  return range(dir[axes.b], &rect->i0, &rect->i1) && range(dir[axes.c], &rect->j0, &rect->j1);
+}
+
+bool Microbuffer::compose(int k, float distance, float extent, float alpha, const Rgb& radiance) {
+  float& depth = depth_[k];
+  if (!(depth > 0.0f)) return false;  // below the horizon
+  float& coverage = coverage_[k];
+  Rgb& sum = radiance_[k];
+  if (depth == kEmpty) {
+    depth = distance;
+    extent_[k] = extent;
+    coverage = alpha;
+    sum = radiance * alpha;
+    return true;
+  }
+  const float reach = extent_[k] + extent;
+  if (distance + reach < depth) {
+    // In front: hides alpha of what was there.
+    const float keep = 1.0f - alpha;
+    sum = radiance * alpha + sum * keep;
+    coverage = alpha + coverage * keep;
+    depth = distance;
+    extent_[k] = extent;
+    return true;
+  }
+  const float open = 1.0f - coverage;
+  static const bool noClamp2 = getenv("PBGI_NOCLAMP") != nullptr;  // TEMP
+  if (!noClamp2 && !(open > 0.0f)) return false;
+  float a;
+  if (distance - reach > depth) {
+    if (!(open > 0.0f)) return false;
+    a = alpha * open;  // behind: seen through the open part, whatever it is
+  } else {
+    static const bool noClamp = getenv("PBGI_NOCLAMP") != nullptr;  // TEMP
+    a = noClamp ? alpha : std::min(alpha, open);  // the same surface: pieces side by side
+    depth = std::min(depth, distance);
+    extent_[k] = std::max(extent_[k], extent);
+  }
+  sum += radiance * a;
+  coverage += a;
+  return true;
+}
+
+int Microbuffer::splatFootprint(const Vec3f& dir, float distance, float solidAngle,
+                                const Rgb& radiance, float extent) {
+  if (!(distance > 0.0f) || !(solidAngle > 0.0f)) return 0;
+  solidAngle = std::min(solidAngle, 4.0f * kPi);
+  // Distances on the sphere as chords |w - dir|: a cap of solid angle w has
+  // 1 - cos(angle) = w / (2 pi), and its rim lies at chord sqrt(2 (1 - cos)).
+  const float rimChord = std::sqrt(solidAngle * kInvPi);
+  // A pixel centre up to half a pixel outside the rim is still partly covered.
+  const float reach = rimChord + 0.5f * tables_->maxWidth;
+  const float cosReach = std::max(-1.0f, 1.0f - 0.5f * reach * reach);
+  const float sinReach = safeSqrt(1.0f - cosReach * cosReach);
+  // First pass: the fractions by a linear ramp one pixel wide across the rim, over every
+  // face (below the horizon too: what falls there is lost, not given to the rest).
+  scratch_.clear();
+  float full = 0.0f, partial = 0.0f;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    PixelRect r;
+    if (!coneRect(f, dir, sinReach, cosReach, &r)) continue;
+    for (int j = r.j0; j <= r.j1; ++j) {
+      const int row = (f * n_ + j) * n_;
+      for (int k = row + r.i0; k <= row + r.i1; ++k) {
+        const float chord = safeSqrt(2.0f - 2.0f * dot(directions_[k], dir));
+        const float alpha = 0.5f + (rimChord - chord) / widths_[k];
+        if (!(alpha > 0.0f)) continue;
+        if (alpha >= 1.0f) {
+          full += solidAngles_[k];
+          scratch_.push_back({k, 1.0f});
+        } else {
+          partial += alpha * solidAngles_[k];
+          scratch_.push_back({k, alpha});
+        }
+      }
+    }
+  }
+  if (scratch_.empty()) {
+    // Smaller than a pixel and between centres: a fraction of the pixel it lies in.
+    const int k = pixelIndex(dir);
+    return compose(k, distance, extent, std::min(1.0f, solidAngle / solidAngles_[k]), radiance)
+               ? 1
+               : 0;
+  }
+  // Scale so that the splat covers exactly its solid angle: the rim makes up what the
+  // interior lacks, or, when the interior alone covers too much (a footprint of a pixel or
+  // two), everything shrinks alike.
+  float fullScale = 1.0f, partialScale = 0.0f;
+  if (full > solidAngle) {
+    fullScale = partialScale = solidAngle / (full + partial);
+  } else if (partial > 0.0f) {
+    partialScale = (solidAngle - full) / partial;
+  }
+  int reached = 0;
+  for (const Fraction& fr : scratch_) {
+    const float alpha = fr.alpha >= 1.0f ? fullScale : std::min(1.0f, fr.alpha * partialScale);
+    if (alpha > 0.0f && compose(fr.pixel, distance, extent, alpha, radiance)) ++reached;
+  }
+  return reached;
+}
+
+int Microbuffer::splatCluster(const Vec3f& centroid, float projectedArea, const Rgb& radiance,
+                              float extent) {
+  const Vec3f v = centroid - origin_;
+  const float distance = length(v);
+  if (!(distance > 0.0f)) return 0;
+  return splatFootprint(v / distance, distance, projectedArea / (distance * distance), radiance,
+                        extent);
+}
+
+int Microbuffer::diskRect(int f, const PixelRect& r, const Vec3f& toCenter, const Vec3f& normal,
+                          float radius, const Rgb& radiance, int* inside) {
+  // The centre ray w hits the disk's plane at t = dot(c - o, n) / dot(w, n); the disk faces
+  // the origin, so only rays with dot(w, n) < 0 reach its front.
+  const float planeDistance = dot(toCenter, normal);  // < 0: the origin is in front
+  const float r2 = radius * radius;
+  int won = 0;
+  for (int j = r.j0; j <= r.j1; ++j) {
+    const int row = (f * n_ + j) * n_;
+    for (int k = row + r.i0; k <= row + r.i1; ++k) {
+      const Vec3f& w = directions_[k];
+      const float denom = dot(w, normal);
+      if (!(denom < 0.0f)) continue;
+      const float t = planeDistance / denom;
+      if ((w * t - toCenter).length2() > r2) continue;
+      ++*inside;
+      if (compose(k, t, radius, 1.0f, radiance)) ++won;
+    }
+  }
+  return won;
+}
+
+int Microbuffer::splatDisk(const Vec3f& center, const Vec3f& normal, float radius,
+                           const Rgb& radiance) {
+  const Vec3f v = center - origin_;
+  if (!(dot(v, normal) < 0.0f) || !(radius > 0.0f)) return 0;  // seen from behind or edge-on
+  const float distance = length(v);
+  const Vec3f dir = v / distance;
+  // Every ray that hits the disk lies in the cone around its centre that holds its
+  // bounding sphere.
+  const float sinAngle = std::min(1.0f, radius / distance);
+  const float cosAngle = safeSqrt(1.0f - sinAngle * sinAngle);
+  int inside = 0, won = 0;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    PixelRect r;
+    if (!faceActive_[f] || !coneRect(f, dir, sinAngle, cosAngle, &r)) continue;
+    won += diskRect(f, r, v, normal, radius, radiance, &inside);
+  }
+  if (inside == 0) {
+    // Smaller than a pixel: the fraction of the pixel its projected solid angle makes.
+    const int k = pixelIndex(dir);
+    const float projected = kPi * radius * radius * -dot(dir, normal) / (distance * distance);
+    if (compose(k, distance, radius, std::min(1.0f, projected / solidAngles_[k]), radiance)) {
+      ++won;
+    }
+  }
+  return won;
+}
+
+int Microbuffer::rayCastDisk(const Vec3f& center, const Vec3f& normal, float radius,
+                             const Rgb& radiance) {
+  const Vec3f v = center - origin_;
+  if (!(dot(v, normal) < 0.0f) || !(radius > 0.0f)) return 0;
+  const PixelRect full{0, n_ - 1, 0, n_ - 1};
+  int inside = 0, won = 0;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    if (faceActive_[f]) won += diskRect(f, full, v, normal, radius, radiance, &inside);
+  }
+  return won;
+}
+
+Rgb Microbuffer::irradiance(const Vec3f& normal) const {
+  // Empty and inactive pixels are black, so every pixel of an active face can be summed.
+  Rgb sum(0.0f);
+  const int facePixels = n_ * n_;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    if (!faceActive_[f]) continue;
+    for (int k = f * facePixels; k < (f + 1) * facePixels; ++k) {
+      const float c = dot(vectorSolidAngles_[k], normal);
+      if (c > 0.0f) sum += radiance_[k] * c;
+    }
+  }
+  return sum;
+}
+
+int Microbuffer::coveredPixels() const {
+  int count = 0;
+  for (int k = 0; k < pixelCount(); ++k) count += covered(k) ? 1 : 0;
+  return count;
+}
+
+float Microbuffer::coveredSolidAngle() const {
+  double sum = 0.0;
+  for (int k = 0; k < pixelCount(); ++k) sum += coverage_[k] * solidAngles_[k];
+  return static_cast<float>(sum);
+}
+
+}  // namespace pbgi

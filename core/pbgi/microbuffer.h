@@ -1,0 +1,168 @@
+#pragma once
+// A cube microbuffer (Christensen 2008; Ritschel et al. 2009): a tiny fisheye picture of the
+// scene around one receiver, 6 faces of N x N pixels, that the gather rasterizes the PBGI
+// tree into and then convolves with a BRDF (the clamped cosine for diffuse receivers).
+//
+// Face f looks along axis a = f / 2, towards +a for even f and -a for odd f. Its pixel (i, j)
+// is the square [u0, u1] x [v0, v1] of the plane at distance 1, u along axis (a + 1) % 3 and
+// v along (a + 2) % 3, u0 = -1 + 2 i / N; pixel index (f N + j) N + i. Each pixel is sampled
+// at its centre direction and weighted by its exact solid angle.
+//
+// Coverage. A pixel holds the depth of the nearest surface in it, a coverage (the fraction
+// of the pixel that surface and what lies behind it fill) and the coverage-weighted radiance.
+// Every splat covers pixels with a fraction alpha in (0, 1]: 1 where a disk's exact hit or
+// a footprint's interior holds the pixel centre, less on a footprint's rim and for splats
+// smaller than a pixel, scaled so that a splat adds exactly its own solid angle. That keeps
+// both a lone far cluster (one pixel, a fraction of it) and a surface tiled by clusters (round
+// footprints that overlap and leave gaps) right in energy, where point-sampled all-or-nothing
+// coverage is off by the gaps or by whole pixels. Splats then compose per pixel by depth,
+// each with an extent (how far in depth it reaches: its bounding radius):
+//   - in front (nearer by more than both extents): it hides alpha of what was there; a
+//     solid splat (alpha 1) replaces it, which is the depth test, closer wins;
+//   - behind: it only fills what is still open, 1 - coverage;
+//   - overlapping in depth: pieces of one surface, their coverages add up to 1.
+// This is exact for one surface and for solid occluders, and approximate (order-dependent)
+// only for several partly covered layers in one pixel.
+//
+// A diffuse receiver only sees the hemisphere above its normal: clear(origin, normal) marks
+// the pixels below it inactive and skips whole faces below it; splats never write there.
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include "core/math/vec.h"
+
+namespace pbgi {
+
+inline constexpr int kMinMicrobufferResolution = 1;
+inline constexpr int kMaxMicrobufferResolution = 64;
+inline constexpr int kCubeFaces = 6;
+
+// What every buffer of one resolution shares: the pixels' unit centre directions, their
+// exact solid angles (the atan2 form of the solid angle of a rectangle seen from a point on
+// its normal through a corner, by inclusion-exclusion; they sum to 4 pi), their angular
+// widths (square roots of those), and the integral of the direction over each pixel, which
+// makes the clamped-cosine convolution exact for pixels entirely above the horizon.
+struct MicrobufferTables {
+  int resolution = 0;
+  std::vector<Vec3f> directions;
+  std::vector<float> solidAngles;
+  std::vector<float> widths;
+  std::vector<Vec3f> vectorSolidAngles;
+  float maxWidth = 0.0f;
+};
+
+// The tables of resolution N (kMinMicrobufferResolution..kMaxMicrobufferResolution), computed
+// once per N per process and shared; thread-safe.
+std::shared_ptr<const MicrobufferTables> microbufferTables(int resolution);
+
+class Microbuffer {
+ public:
+  explicit Microbuffer(int resolution);
+
+  int resolution() const { return n_; }
+  int pixelCount() const { return kCubeFaces * n_ * n_; }
+
+  // Starts a picture around `origin`: every pixel empty. The first form rasterizes the whole
+  // sphere, the second only directions above `normal` (unit).
+  void clear(const Vec3f& origin);
+  void clear(const Vec3f& origin, const Vec3f& normal);
+
+  // A cluster seen from far: `radiance` over a round footprint of `solidAngle` sr around unit
+  // direction `dir` at `distance`, reaching `extent` in depth either way. Pixels whose
+  // centre is inside are covered, those on the rim partly; a footprint smaller than a pixel
+  // covers a fraction of the pixels around its direction. Returns the pixels it reached.
+  int splatFootprint(const Vec3f& dir, float distance, float solidAngle, const Rgb& radiance,
+                     float extent);
+  // The same for a point at `centroid` covering `projectedArea` (seen from the origin).
+  int splatCluster(const Vec3f& centroid, float projectedArea, const Rgb& radiance, float extent);
+
+  // A one-sided disk (surfel), exact: the pixels whose centre ray hits the disk's front side
+  // are covered at the hit distance. Only pixels inside the disk's bounding cone are tried;
+  // a disk that hits no pixel centre covers the fraction of the pixel of its centre that its
+  // projected solid angle makes. Seen from behind a disk is transparent (its back is the
+  // inside of a surface, which the tree's one-sided projected areas make transparent too).
+  int splatDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance);
+  // Near field: the same intersection tried for every active pixel, with no bounding cone
+  // (the origin may be inside the disk's bounding sphere) and no sub-pixel fraction.
+  int rayCastDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance);
+
+  // Irradiance at the origin for a receiver facing `normal` (unit): the sum over pixels of
+  // radiance times the clamped cosine integrated over the pixel (exact for pixels above the
+  // horizon, from the tables' vector solid angles).
+  Rgb irradiance(const Vec3f& normal) const;
+  // The sum over pixels of radiance * weight(centre direction) * solid angle, for any
+  // per-direction weight (a BRDF times the cosine). Inactive pixels are black.
+  template <typename Weight>
+  Rgb convolve(Weight&& weight) const {
+    Rgb sum(0.0f);
+    for (int f = 0; f < kCubeFaces; ++f) {
+      if (!faceActive_[f]) continue;
+      const int end = (f + 1) * n_ * n_;
+      for (int k = f * n_ * n_; k < end; ++k) {
+        if (!covered(k)) continue;
+        sum += radiance_[k] * (weight(directions_[k]) * solidAngles_[k]);
+      }
+    }
+    return sum;
+  }
+
+  // Pixel access, for convolutions, tests and debugging pictures.
+  const Vec3f& direction(int pixel) const { return directions_[pixel]; }
+  float solidAngle(int pixel) const { return solidAngles_[pixel]; }
+  float depth(int pixel) const { return depth_[pixel]; }
+  float coverage(int pixel) const { return coverage_[pixel]; }
+  // Coverage-weighted: a pixel half covered by radiance L holds L / 2.
+  const Rgb& radiance(int pixel) const { return radiance_[pixel]; }
+  bool active(int pixel) const { return depth_[pixel] > 0.0f; }
+  bool covered(int pixel) const { return coverage_[pixel] > 0.0f; }
+  // The pixel whose square holds direction `dir` (any length but 0).
+  int pixelIndex(const Vec3f& dir) const;
+  int coveredPixels() const;
+  // The sum of solid angle times coverage.
+  float coveredSolidAngle() const;
+
+  // What the last clear left out: whole faces below the normal, and pixels never
+  // rasterized (inactive ones, those of skipped faces included).
+  int skippedFaces() const { return skippedFaces_; }
+  int skippedPixels() const { return skippedPixels_; }
+
+ private:
+  static constexpr float kEmpty = std::numeric_limits<float>::infinity();
+
+  struct PixelRect {
+    int i0, i1, j0, j1;  // inclusive
+  };
+  struct Fraction {
+    int pixel;
+    float alpha;
+  };
+
+  // The pixels of face f whose centre can lie within the cone around unit `dir` of half-angle
+  // with these sine and cosine; false when the cone misses the face.
+  bool coneRect(int f, const Vec3f& dir, float sinAngle, float cosAngle, PixelRect* rect) const;
+  // Composes alpha of `radiance` at `distance` into pixel k (see the header comment); false
+  // when it changed nothing (inactive pixel, or behind a full one).
+  bool compose(int k, float distance, float extent, float alpha, const Rgb& radiance);
+  // Exact disk test over the pixels of `rect` on face f; adds to *inside the centres that hit.
+  int diskRect(int f, const PixelRect& rect, const Vec3f& toCenter, const Vec3f& normal,
+               float radius, const Rgb& radiance, int* inside);
+
+  int n_ = 0;
+  std::shared_ptr<const MicrobufferTables> tables_;
+  const Vec3f* directions_ = nullptr;
+  const float* solidAngles_ = nullptr;
+  const float* widths_ = nullptr;
+  const Vec3f* vectorSolidAngles_ = nullptr;
+  Vec3f origin_{0.0f};
+  std::vector<float> depth_;  // 0: inactive, kEmpty: nothing yet
+  std::vector<float> extent_;
+  std::vector<float> coverage_;
+  std::vector<Rgb> radiance_;
+  std::vector<Fraction> scratch_;  // a footprint's pixels between its two passes
+  bool faceActive_[kCubeFaces] = {};
+  int skippedFaces_ = 0;
+  int skippedPixels_ = 0;
+};
+
+}  // namespace pbgi

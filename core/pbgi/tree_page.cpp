@@ -1,0 +1,613 @@
+#include "core/pbgi/tree_page.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Imath/half.h>
+#include <fmt/format.h>
+
+#include "core/util/bytes.h"
+#include "core/util/check.h"
+#include "core/util/status.h"
+
+namespace pbgi {
+
+namespace {
+
+constexpr float kU16Max = 65535.0f;
+constexpr double kY00 = 0.28209479177387814;
+
+// ---- Octahedral normals (Meyer et al. 2010) ----------------------------------------------
+
+float signNotZero(float v) { return v < 0.0f ? -1.0f : 1.0f; }
+
+uint16_t toUnorm16(float v) {  // v in [-1, 1]
+  return static_cast<uint16_t>(std::lround((std::clamp(v, -1.0f, 1.0f) * 0.5f + 0.5f) * kU16Max));
+}
+float fromUnorm16(uint16_t q) { return q / kU16Max * 2.0f - 1.0f; }
+
+void octEncode(const Vec3f& n, uint16_t* u, uint16_t* v) {
+  const float l1 = std::abs(n.x) + std::abs(n.y) + std::abs(n.z);
+  float x = l1 > 0.0f ? n.x / l1 : 0.0f, y = l1 > 0.0f ? n.y / l1 : 0.0f;
+  if (n.z < 0.0f) {
+    const float ox = x;
+    x = (1.0f - std::abs(y)) * signNotZero(ox);
+    y = (1.0f - std::abs(ox)) * signNotZero(y);
+  }
+  *u = toUnorm16(x);
+  *v = toUnorm16(y);
+}
+
+Vec3f octDecode(uint16_t u, uint16_t v) {
+  float x = fromUnorm16(u), y = fromUnorm16(v);
+  const float z = 1.0f - std::abs(x) - std::abs(y);
+  if (z < 0.0f) {
+    const float ox = x;
+    x = (1.0f - std::abs(y)) * signNotZero(ox);
+    y = (1.0f - std::abs(ox)) * signNotZero(y);
+  }
+  const Vec3f n(x, y, z);
+  const float len = length(n);
+  return len > 0.0f ? n / len : Vec3f(0.0f, 0.0f, 1.0f);
+}
+
+// ---- Values relative to a box ---------------------------------------------------------------
+
+// The ends map to the box's own ends exactly, so that a child touching its parent's face is
+// still inside the dequantized parent whatever the rounding in between.
+float dequantizeIn(uint16_t q, float lo, float hi) {
+  if (!(hi > lo) || q == 0) return lo;
+  if (q == 65535) return hi;
+  return lo + (hi - lo) * (q / kU16Max);
+}
+
+uint16_t quantizeNearest(float v, float lo, float hi) {
+  if (!(hi > lo)) return 0;
+  return static_cast<uint16_t>(std::lround(std::clamp((v - lo) / (hi - lo), 0.0f, 1.0f) * kU16Max));
+}
+
+// The largest code whose value is at most v (a min bound), and the smallest whose value is
+// at least v (a max bound): dequantized boxes contain the float ones despite rounding.
+uint16_t quantizeDown(float v, float lo, float hi) {
+  if (!(hi > lo)) return 0;
+  int q = static_cast<int>(std::floor(std::clamp((v - lo) / (hi - lo), 0.0f, 1.0f) * kU16Max));
+  while (q > 0 && dequantizeIn(static_cast<uint16_t>(q), lo, hi) > v) --q;
+  return static_cast<uint16_t>(q);
+}
+uint16_t quantizeUp(float v, float lo, float hi) {
+  if (!(hi > lo)) return 0;
+  int q = static_cast<int>(std::ceil(std::clamp((v - lo) / (hi - lo), 0.0f, 1.0f) * kU16Max));
+  while (q < 65535 && dequantizeIn(static_cast<uint16_t>(q), lo, hi) < v) ++q;
+  return static_cast<uint16_t>(q);
+}
+
+// Cone cosines quantize downwards: a wider cone is still a bound.
+uint16_t quantizeCosDown(float c) {
+  int q = static_cast<int>(std::floor((std::clamp(c, -1.0f, 1.0f) * 0.5f + 0.5f) * kU16Max));
+  while (q > 0 && fromUnorm16(static_cast<uint16_t>(q)) > c) --q;
+  return static_cast<uint16_t>(q);
+}
+
+float halfBits(uint16_t bits) {
+  half h;
+  h.setBits(bits);
+  return h;
+}
+
+half toHalf(float v) {
+  // Finite, within half's range: radiance beyond 65504 is clamped by the caller, who counts it.
+  return half(std::clamp(v, -static_cast<float>(HALF_MAX), static_cast<float>(HALF_MAX)));
+}
+
+// The bytes of a page: header, then three arrays of fixed-size records.
+struct PageCounts {
+  uint32_t nodes = 0, refs = 0, surfels = 0, exact = 0;
+};
+
+uint32_t exactMarker(TreeEncoding e) { return e == TreeEncoding::kQuantized8 ? 0xffu : 0xffffu; }
+
+void encodeBounds(ByteWriter& w, const Bounds3f& b, const Bounds3f& ref, Bounds3f* decoded) {
+  const uint16_t q[6] = {quantizeDown(b.min.x, ref.min.x, ref.max.x),
+                         quantizeDown(b.min.y, ref.min.y, ref.max.y),
+                         quantizeDown(b.min.z, ref.min.z, ref.max.z),
+                         quantizeUp(b.max.x, ref.min.x, ref.max.x),
+                         quantizeUp(b.max.y, ref.min.y, ref.max.y),
+                         quantizeUp(b.max.z, ref.min.z, ref.max.z)};
+  for (uint16_t v : q) w.u16(v);
+  decoded->min = Vec3f(dequantizeIn(q[0], ref.min.x, ref.max.x),
+                       dequantizeIn(q[1], ref.min.y, ref.max.y),
+                       dequantizeIn(q[2], ref.min.z, ref.max.z));
+  decoded->max = Vec3f(dequantizeIn(q[3], ref.min.x, ref.max.x),
+                       dequantizeIn(q[4], ref.min.y, ref.max.y),
+                       dequantizeIn(q[5], ref.min.z, ref.max.z));
+}
+
+Bounds3f decodeBounds(ByteReader& r, const Bounds3f& ref) {
+  uint16_t q[6];
+  for (uint16_t& v : q) v = r.u16();
+  Bounds3f b;
+  b.min = Vec3f(dequantizeIn(q[0], ref.min.x, ref.max.x), dequantizeIn(q[1], ref.min.y, ref.max.y),
+                dequantizeIn(q[2], ref.min.z, ref.max.z));
+  b.max = Vec3f(dequantizeIn(q[3], ref.min.x, ref.max.x), dequantizeIn(q[4], ref.min.y, ref.max.y),
+                dequantizeIn(q[5], ref.min.z, ref.max.z));
+  return b;
+}
+
+void writeVec3(ByteWriter& w, const Vec3f& v) {
+  w.f32(v.x);
+  w.f32(v.y);
+  w.f32(v.z);
+}
+Vec3f readVec3(ByteReader& r) {
+  const float x = r.f32(), y = r.f32();
+  return {x, y, r.f32()};
+}
+
+}  // namespace
+
+void writeFloatAttributes(ByteWriter& w, const NodeAttributes& a) {
+  writeVec3(w, a.bounds.min);
+  writeVec3(w, a.bounds.max);
+  writeVec3(w, a.centroid);
+  writeVec3(w, a.cone.axis);
+  w.f32(a.cone.cosAngle);
+  w.f32(a.area);
+  for (float c : a.areaSh.c) w.f32(c);
+  float power[Sh9Rgb::kFloats];
+  a.powerSh.toFloats(power);
+  for (float c : power) w.f32(c);
+}
+
+void readFloatAttributes(ByteReader& r, NodeAttributes* a) {
+  a->bounds.min = readVec3(r);
+  a->bounds.max = readVec3(r);
+  a->centroid = readVec3(r);
+  a->cone.axis = readVec3(r);
+  a->cone.cosAngle = r.f32();
+  a->area = r.f32();
+  for (float& c : a->areaSh.c) c = r.f32();
+  float power[Sh9Rgb::kFloats];
+  for (float& c : power) c = r.f32();
+  a->powerSh = Sh9Rgb::fromFloats(power);
+}
+
+void writeFloatSurfel(ByteWriter& w, const Surfel& s) {
+  writeVec3(w, s.position);
+  writeVec3(w, s.normal);
+  w.f32(s.radius);
+  writeVec3(w, s.radiance);
+  writeVec3(w, s.albedo);
+  w.u8(static_cast<uint8_t>(s.materialClass));
+}
+
+absl::Status readFloatSurfel(ByteReader& r, Surfel* s) {
+  s->position = readVec3(r);
+  s->normal = readVec3(r);
+  s->radius = r.f32();
+  s->radiance = readVec3(r);
+  s->albedo = readVec3(r);
+  const uint8_t material = r.u8();
+  if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {
+    return absl::DataLossError(fmt::format("material class {}, expected 0..3", material));
+  }
+  s->materialClass = static_cast<MaterialClass>(material);
+  return absl::OkStatus();
+}
+
+ShRotation shapeRotation(const Vec3f& coneAxis) {
+  uint16_t u, v;
+  octEncode(coneAxis, &u, &v);
+  return ShRotation::toLocal(Frame(octDecode(u, v)));
+}
+
+// ---- Shapes ------------------------------------------------------------------------------------
+
+float areaShDc(float area) { return static_cast<float>(area * std::numbers::pi * kY00); }
+
+void powerShape(const Sh9Rgb& sh, float out[kPowerShapeDims]) {
+  for (int ch = 0; ch < 3; ++ch) {
+    const float dc = sh.c[0][ch];
+    for (int k = 1; k < kShCoefficients; ++k) {
+      const float ratio = dc > 0.0f ? sh.c[k][ch] / dc : 0.0f;
+      out[(k - 1) * 3 + ch] = std::clamp(ratio, -kMaxShapeRatio, kMaxShapeRatio);
+    }
+  }
+}
+
+Sh9Rgb powerFromShape(const Rgb& dc, std::span<const float> shape) {
+  PBGI_CHECK_EQ(shape.size(), static_cast<size_t>(kPowerShapeDims));
+  Sh9Rgb sh;
+  sh.c[0] = dc;
+  for (int k = 1; k < kShCoefficients; ++k) {
+    for (int ch = 0; ch < 3; ++ch) sh.c[k][ch] = dc[ch] * shape[(k - 1) * 3 + ch];
+  }
+  return sh;
+}
+
+void areaShape(const Sh9& sh, float out[kAreaShapeDims]) {
+  const float dc = sh.c[0];
+  for (int k = 1; k < kShCoefficients; ++k) {
+    const float ratio = dc > 0.0f ? sh.c[k] / dc : 0.0f;
+    out[k - 1] = std::clamp(ratio, -kMaxShapeRatio, kMaxShapeRatio);
+  }
+}
+
+Sh9 areaFromShape(float dc, std::span<const float> shape) {
+  PBGI_CHECK_EQ(shape.size(), static_cast<size_t>(kAreaShapeDims));
+  Sh9 sh;
+  sh.c[0] = dc;
+  for (int k = 1; k < kShCoefficients; ++k) sh.c[k] = dc * shape[k - 1];
+  return sh;
+}
+
+// ---- Codebooks ---------------------------------------------------------------------------------
+
+std::vector<uint8_t> encodeCodebook(const Codebook& codebook) {
+  std::vector<uint8_t> out;
+  ByteWriter w(&out);
+  w.u32(static_cast<uint32_t>(codebook.dimension));
+  w.u32(static_cast<uint32_t>(codebook.size()));
+  for (float v : codebook.entries) w.f32(v);
+  return out;
+}
+
+absl::StatusOr<Codebook> decodeCodebook(std::span<const uint8_t> bytes, int expectedDimension) {
+  if (bytes.size() < 8) {
+    return absl::DataLossError(fmt::format("codebook: {} bytes, expected at least 8", bytes.size()));
+  }
+  ByteReader r(bytes.data());
+  const uint32_t dim = r.u32(), count = r.u32();
+  if (dim != static_cast<uint32_t>(expectedDimension)) {
+    return absl::DataLossError(
+        fmt::format("codebook: dimension {}, expected {}", dim, expectedDimension));
+  }
+  if (count < 1 || count > 65536) {
+    return absl::DataLossError(fmt::format("codebook: {} entries, expected 1..65536", count));
+  }
+  const uint64_t expectedBytes = 8 + uint64_t{count} * dim * 4;
+  if (bytes.size() != expectedBytes) {
+    return absl::DataLossError(fmt::format("codebook: {} bytes for {} entries of {}, expected {}",
+                                           bytes.size(), count, dim, expectedBytes));
+  }
+  Codebook book;
+  book.dimension = static_cast<int>(dim);
+  book.entries.resize(static_cast<size_t>(count) * dim);
+  for (float& v : book.entries) {
+    v = r.f32();
+    if (!std::isfinite(v)) return absl::DataLossError("codebook: an entry is not finite");
+  }
+  for (uint32_t i = 0; i < dim; ++i) {
+    if (book.entries[i] != 0.0f) return absl::DataLossError("codebook: entry 0 is not black");
+  }
+  return book;
+}
+
+// ---- Pages -------------------------------------------------------------------------------------
+
+size_t TreePage::memoryBytes() const {
+  return sizeof(TreePage) + nodes.capacity() * sizeof(TreeNode) +
+         children.capacity() * sizeof(NodeRef) + surfels.capacity() * sizeof(Surfel);
+}
+
+size_t treePageBytes(TreeEncoding encoding, size_t nodes, size_t refs, size_t surfels,
+                     size_t exact) {
+  return kTreePageHeaderBytes + nodes * nodeRecordBytes(encoding) + refs * kChildRefBytes +
+         surfels * surfelRecordBytes(encoding) + exact * kExactShBytes;
+}
+
+std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
+                                    std::span<const PageNode> nodes,
+                                    const TreeCodebooks* codebooks) {
+  PBGI_CHECK(!quantized(encoding) || codebooks != nullptr);
+  PageCounts counts;
+  counts.nodes = static_cast<uint32_t>(nodes.size());
+  Bounds3f pageBounds;
+  for (const PageNode& n : nodes) {
+    counts.refs += static_cast<uint32_t>(n.children.size());
+    counts.surfels += static_cast<uint32_t>(n.surfels.size());
+    counts.exact += quantized(encoding) && n.exact ? 1 : 0;
+    pageBounds.extend(n.attributes.bounds.min);
+    pageBounds.extend(n.attributes.bounds.max);
+  }
+  std::vector<uint8_t> out;
+  out.reserve(treePageBytes(encoding, counts.nodes, counts.refs, counts.surfels, counts.exact));
+  ByteWriter w(&out);
+  w.u32(counts.nodes);
+  w.u32(counts.refs);
+  w.u32(counts.surfels);
+  w.u32(counts.exact);
+  w.u8(static_cast<uint8_t>(encoding));
+  writeVec3(w, pageBounds.min);
+  writeVec3(w, pageBounds.max);
+
+  // Each node's bounds are relative to those its decoder will know: its in-page parent's
+  // dequantized bounds, else the page's.
+  std::vector<Bounds3f> reference(nodes.size(), pageBounds);
+  std::vector<Bounds3f> leafBounds(nodes.size());
+  uint32_t firstRef = 0, firstSurfel = 0;
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const PageNode& n = nodes[i];
+    const NodeAttributes& a = n.attributes;
+    PBGI_CHECK_LE(n.children.size(), 8u);
+    PBGI_CHECK_LE(n.surfels.size(), 255u);
+    PBGI_CHECK(n.children.empty() != n.surfels.empty());
+    w.u8(static_cast<uint8_t>(n.children.size()));
+    w.u8(static_cast<uint8_t>(n.surfels.size()));
+    w.u32(n.children.empty() ? firstSurfel : firstRef);
+    PBGI_CHECK_LE(a.pointCount, uint64_t{UINT32_MAX});
+    w.u32(static_cast<uint32_t>(a.pointCount));
+    firstRef += static_cast<uint32_t>(n.children.size());
+    firstSurfel += static_cast<uint32_t>(n.surfels.size());
+    if (!quantized(encoding)) {
+      writeFloatAttributes(w, a);
+      leafBounds[i] = a.bounds;
+      continue;
+    }
+    Bounds3f decoded;
+    encodeBounds(w, a.bounds, reference[i], &decoded);
+    leafBounds[i] = decoded;
+    for (const NodeRef& c : n.children) {
+      PBGI_CHECK(c.page != id || c.index != i);
+      if (c.page == id && c.index > i) reference[c.index] = decoded;
+    }
+    w.u16(quantizeNearest(a.centroid.x, decoded.min.x, decoded.max.x));
+    w.u16(quantizeNearest(a.centroid.y, decoded.min.y, decoded.max.y));
+    w.u16(quantizeNearest(a.centroid.z, decoded.min.z, decoded.max.z));
+    uint16_t u, v;
+    octEncode(a.cone.axis, &u, &v);
+    w.u16(u);
+    w.u16(v);
+    // The decoded axis is off by a little; the stored angle grows by as much.
+    const Vec3f axis = octDecode(u, v);
+    const float half = a.cone.cosAngle <= -1.0f
+                           ? kPi
+                           : safeAcos(a.cone.cosAngle) + safeAcos(dot(axis, a.cone.axis));
+    w.u16(half >= kPi ? 0 : quantizeCosDown(std::cos(half)));
+    w.f32(a.area);
+    writeVec3(w, a.powerSh.c[0]);
+    const uint32_t powerIndex = n.exact ? exactMarker(encoding) : n.powerIndex;
+    const uint32_t areaIndex = n.exact ? 0 : n.areaIndex;
+    if (!n.exact) {
+      PBGI_CHECK_LT(n.powerIndex, static_cast<uint32_t>(codebooks->power.size()));
+      PBGI_CHECK_LT(n.areaIndex, static_cast<uint32_t>(codebooks->area.size()));
+    }
+    if (encoding == TreeEncoding::kQuantized8) {
+      w.u8(static_cast<uint8_t>(powerIndex));
+      w.u8(static_cast<uint8_t>(areaIndex));
+    } else {
+      w.u16(static_cast<uint16_t>(powerIndex));
+      w.u16(static_cast<uint16_t>(areaIndex));
+    }
+  }
+  for (const PageNode& n : nodes) {
+    for (const NodeRef& c : n.children) {
+      w.u32(c.page);
+      w.u32(c.index);
+    }
+  }
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const Bounds3f& lb = leafBounds[i];
+    for (const Surfel& s : nodes[i].surfels) {
+      if (!quantized(encoding)) {
+        writeFloatSurfel(w, s);
+        continue;
+      }
+      w.u16(quantizeNearest(s.position.x, lb.min.x, lb.max.x));
+      w.u16(quantizeNearest(s.position.y, lb.min.y, lb.max.y));
+      w.u16(quantizeNearest(s.position.z, lb.min.z, lb.max.z));
+      uint16_t u, v;
+      octEncode(s.normal, &u, &v);
+      w.u16(u);
+      w.u16(v);
+      w.u16(toHalf(s.radius).bits());
+      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.radiance[ch]).bits());
+      for (int ch = 0; ch < 3; ++ch) {
+        w.u8(static_cast<uint8_t>(std::lround(std::clamp(s.albedo[ch], 0.0f, 1.0f) * 255.0f)));
+      }
+      w.u8(static_cast<uint8_t>(s.materialClass));
+    }
+  }
+  if (quantized(encoding)) {
+    for (const PageNode& n : nodes) {
+      if (!n.exact) continue;
+      for (float c : n.attributes.areaSh.c) w.f32(c);
+      float power[Sh9Rgb::kFloats];
+      n.attributes.powerSh.toFloats(power);
+      for (float c : power) w.f32(c);
+    }
+  }
+  PBGI_CHECK_EQ(out.size(),
+                treePageBytes(encoding, counts.nodes, counts.refs, counts.surfels, counts.exact));
+  return out;
+}
+
+absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
+                                                               std::span<const uint8_t> bytes,
+                                                               const TreeCodebooks* codebooks) {
+  auto fail = [id](const std::string& what) {
+    return absl::DataLossError(fmt::format("page {}: {}", id, what));
+  };
+  if (bytes.size() < kTreePageHeaderBytes) {
+    return fail(fmt::format("{} bytes, shorter than the {}-byte page header", bytes.size(),
+                            kTreePageHeaderBytes));
+  }
+  ByteReader header(bytes.data());
+  PageCounts counts;
+  counts.nodes = header.u32();
+  counts.refs = header.u32();
+  counts.surfels = header.u32();
+  counts.exact = header.u32();
+  const uint8_t encodingByte = header.u8();
+  if (encodingByte > static_cast<uint8_t>(TreeEncoding::kQuantized8)) {
+    return fail(fmt::format("encoding {}, expected 0 (float), 1 or 2 (quantized)", encodingByte));
+  }
+  const auto encoding = static_cast<TreeEncoding>(encodingByte);
+  // Counts are checked against the size in 64 bits before anything is allocated.
+  const uint64_t expected = kTreePageHeaderBytes +
+                            uint64_t{counts.nodes} * nodeRecordBytes(encoding) +
+                            uint64_t{counts.refs} * kChildRefBytes +
+                            uint64_t{counts.surfels} * surfelRecordBytes(encoding) +
+                            uint64_t{counts.exact} * kExactShBytes;
+  if (expected != bytes.size() || counts.nodes == 0 || counts.exact > counts.nodes) {
+    return fail(fmt::format(
+        "{} nodes ({} exact), {} references and {} surfels need {} bytes, found {}",
+        counts.nodes, counts.exact, counts.refs, counts.surfels, expected, bytes.size()));
+  }
+  if (quantized(encoding) && codebooks == nullptr) {
+    return fail("quantized page, but the tree has no codebooks");
+  }
+  auto page = std::make_shared<TreePage>();
+  page->id = id;
+  page->encoding = encoding;
+  page->bounds.min = readVec3(header);
+  page->bounds.max = readVec3(header);
+  if (!isFinite(page->bounds.min) || !isFinite(page->bounds.max) || page->bounds.empty()) {
+    return fail("page bounds are not a finite box");
+  }
+  page->nodes.resize(counts.nodes);
+  page->children.resize(counts.refs);
+  page->surfels.resize(counts.surfels);
+  const uint32_t nodeBytes = nodeRecordBytes(encoding);
+  const uint8_t* records = bytes.data() + kTreePageHeaderBytes;
+  ByteReader refs(records + size_t{counts.nodes} * nodeBytes);
+  for (NodeRef& c : page->children) {
+    c.page = refs.u32();
+    c.index = refs.u32();
+  }
+
+  // Topology first: ranges inside the page, and one in-page parent per node at most. A
+  // parent usually precedes its children; one packed after children that were placed before
+  // it refers back to them. (Cycles, which hostile files can also build across pages, are
+  // caught by traversals, which stop at the tree's maximum depth.)
+  std::vector<uint8_t> hasParent(counts.nodes, 0);
+  for (uint32_t i = 0; i < counts.nodes; ++i) {
+    TreeNode& n = page->nodes[i];
+    ByteReader r(records + size_t{i} * nodeBytes);
+    n.childCount = r.u8();
+    n.surfelCount = r.u8();
+    n.first = r.u32();
+    n.attributes.pointCount = r.u32();
+    if (n.childCount > 8) return fail(fmt::format("node {}: {} children, at most 8", i, n.childCount));
+    if ((n.childCount == 0) == (n.surfelCount == 0)) {
+      return fail(fmt::format("node {}: {} children and {} surfels, expected exactly one of them",
+                              i, n.childCount, n.surfelCount));
+    }
+    const uint64_t end = uint64_t{n.first} + (n.leaf() ? n.surfelCount : n.childCount);
+    if (end > (n.leaf() ? counts.surfels : counts.refs)) {
+      return fail(fmt::format("node {}: {} [{}, {}) past the page's {}", i,
+                              n.leaf() ? "surfels" : "children", n.first, end,
+                              n.leaf() ? counts.surfels : counts.refs));
+    }
+    for (const NodeRef& c : page->childrenOf(n)) {
+      if (c.page != id) continue;
+      if (c.index == i || c.index >= counts.nodes || hasParent[c.index]) {
+        return fail(fmt::format("node {}: in-page child {} is not another node of its own", i,
+                                c.index));
+      }
+      hasParent[c.index] = 1;
+    }
+  }
+
+  // Attributes, parents before children: a quantized node's bounds are relative to its
+  // in-page parent's, or to the page's.
+  std::vector<Bounds3f> reference(counts.nodes, page->bounds);
+  const uint8_t* exact = bytes.data() + bytes.size() - size_t{counts.exact} * kExactShBytes;
+  uint32_t exactSeen = 0;
+  for (uint32_t i = 0; i < counts.nodes; ++i) {
+    TreeNode& n = page->nodes[i];
+    NodeAttributes& a = n.attributes;
+    ByteReader r(records + size_t{i} * nodeBytes + 10);
+    if (!quantized(encoding)) {
+      readFloatAttributes(r, &a);
+      continue;
+    }
+    a.bounds = decodeBounds(r, reference[i]);
+    for (const NodeRef& c : page->childrenOf(n)) {
+      if (c.page == id && c.index > i) reference[c.index] = a.bounds;
+    }
+    const uint16_t cx = r.u16(), cy = r.u16(), cz = r.u16();
+    a.centroid = Vec3f(dequantizeIn(cx, a.bounds.min.x, a.bounds.max.x),
+                       dequantizeIn(cy, a.bounds.min.y, a.bounds.max.y),
+                       dequantizeIn(cz, a.bounds.min.z, a.bounds.max.z));
+    const uint16_t u = r.u16(), v = r.u16();
+    a.cone.axis = octDecode(u, v);
+    a.cone.cosAngle = fromUnorm16(r.u16());
+    a.area = r.f32();
+    const Rgb dc = readVec3(r);
+    uint32_t powerIndex, areaIndex;
+    if (encoding == TreeEncoding::kQuantized8) {
+      powerIndex = r.u8();
+      areaIndex = r.u8();
+    } else {
+      powerIndex = r.u16();
+      areaIndex = r.u16();
+    }
+    if (powerIndex == exactMarker(encoding)) {
+      if (exactSeen == counts.exact) {
+        return fail(fmt::format("node {}: more exact nodes than the {} the header counts", i,
+                                counts.exact));
+      }
+      ByteReader e(exact + size_t{exactSeen++} * kExactShBytes);
+      for (float& c : a.areaSh.c) c = e.f32();
+      float power[Sh9Rgb::kFloats];
+      for (float& c : power) c = e.f32();
+      a.powerSh = Sh9Rgb::fromFloats(power);
+      (void)dc;
+      continue;
+    }
+    if (powerIndex >= static_cast<uint32_t>(codebooks->power.size()) ||
+        areaIndex >= static_cast<uint32_t>(codebooks->area.size())) {
+      return fail(fmt::format("node {}: codebook indices {} and {}, the codebooks have {} and {}",
+                              i, powerIndex, areaIndex, codebooks->power.size(),
+                              codebooks->area.size()));
+    }
+    const ShRotation rotation = ShRotation::toLocal(Frame(a.cone.axis));
+    a.powerSh = rotation.applyInverse(
+        powerFromShape(dc, codebooks->power.entry(static_cast<int>(powerIndex))));
+    a.areaSh = rotation.applyInverse(
+        areaFromShape(areaShDc(a.area), codebooks->area.entry(static_cast<int>(areaIndex))));
+  }
+
+  if (exactSeen != counts.exact) {
+    return fail(fmt::format("{} exact nodes, the header counts {}", exactSeen, counts.exact));
+  }
+  // Surfels: their leaf's bounds are needed for quantized positions, so walk the leaves.
+  std::vector<const Bounds3f*> surfelBounds(counts.surfels, nullptr);
+  for (const TreeNode& n : page->nodes) {
+    if (!n.leaf()) continue;
+    for (uint32_t k = 0; k < n.surfelCount; ++k) {
+      if (surfelBounds[n.first + k] != nullptr) {
+        return fail(fmt::format("surfel {} belongs to two leaves", n.first + k));
+      }
+      surfelBounds[n.first + k] = &n.attributes.bounds;
+    }
+  }
+  ByteReader r(refs.position());
+  for (uint32_t si = 0; si < counts.surfels; ++si) {
+    Surfel& s = page->surfels[si];
+    if (!quantized(encoding)) {
+      if (auto status = readFloatSurfel(r, &s); !status.ok()) {
+        return fail(fmt::format("surfel {}: {}", si, status.message()));
+      }
+      continue;
+    }
+    if (surfelBounds[si] == nullptr) return fail(fmt::format("surfel {} is in no leaf", si));
+    const Bounds3f& lb = *surfelBounds[si];
+    const uint16_t px = r.u16(), py = r.u16(), pz = r.u16();
+    s.position = Vec3f(dequantizeIn(px, lb.min.x, lb.max.x), dequantizeIn(py, lb.min.y, lb.max.y),
+                       dequantizeIn(pz, lb.min.z, lb.max.z));
+    const uint16_t u = r.u16(), v = r.u16();
+    s.normal = octDecode(u, v);
+    s.radius = halfBits(r.u16());
+    for (int ch = 0; ch < 3; ++ch) s.radiance[ch] = halfBits(r.u16());
+    for (int ch = 0; ch < 3; ++ch) s.albedo[ch] = r.u8() / 255.0f;
+    const uint8_t material = r.u8();
+    if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {
+      return fail(fmt::format("surfel {}: material class {}, expected 0..3", si, material));
+    }
+    s.materialClass = static_cast<MaterialClass>(material);
+  }
+  return std::shared_ptr<const TreePage>(std::move(page));
+}
+
+}  // namespace pbgi

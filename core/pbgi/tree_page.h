@@ -1,0 +1,190 @@
+#pragma once
+// What a page of a PBGI tree holds, in bytes and decoded: the payload that the `.pbgi`
+// container (formats/pbgi/page_file) stores, compresses and checksums without looking in.
+//
+// A page holds whole subtrees laid out depth-first in Morton order (a parent before its
+// children), so that a top-down traversal walks a page from front to back and crosses into
+// another page only where a subtree was too big to share one. A node names each child by
+// NodeRef (page id, index of the node in that page).
+//
+// Two encodings share the layout. Float stores every attribute as computed. Quantized
+// (Buchholz and Boubekeur 2012) stores the spherical functions as a DC term plus a codebook
+// index into the shapes (coefficients 1..8 over coefficient 0, per channel), normals
+// octahedral in 2 x u16, bounds in u16 relative to the parent's (dequantized) bounds where
+// the parent comes earlier in the same page, else to the page's bounds, surfel positions in u16 relative to their
+// leaf's bounds and radiance in half floats. Quantized bounds and cones are conservative:
+// dequantized bounds contain the float ones and a dequantized cone contains its normals.
+//
+// Payload layout, version 1 (little-endian, fixed width, no padding):
+//   u32 node count, u32 child-reference count, u32 surfel count, u32 exact count, u8 encoding (0 float,
+//   1 quantized, 2 quantized with 8-bit indices), 6 x f32 page bounds (min xyz, max xyz),
+//   then the node records, the child references (u32 page, u32 index each), the surfel
+//   records, and the float SH of exact nodes (area 9 x f32, power 27 x f32 each, in node
+//   order). Record sizes below.
+// Node record: u8 child count (0 for a leaf), u8 surfel count (leaves), u32 first child
+//   reference or first surfel, u32 point count, then
+//   float:     bounds 6 x f32, centroid 3 x f32, cone axis 3 x f32, cone cos f32, area f32,
+//              area SH 9 x f32, power SH 27 x f32 (coefficient-major, RGB)           = 210
+//   quantized: bounds 6 x u16, centroid 3 x u16 (in the node's bounds), cone axis 2 x u16
+//              (octahedral), cone cos u16, area f32, power DC 3 x f32, power shape index
+//              u16, area shape index u16                                              =  54
+//              (u8 indices in kQuantized8                                             =  52)
+//              A power index of all ones (0xffff, 0xff) marks an exact node: the biggest
+//              clusters, few but carrying most of the light, keep their SH in float.
+// Surfel record:
+//   float:     position 3 x f32, normal 3 x f32, radius f32, radiance 3 x f32, albedo
+//              3 x f32, material class u8                                             =  53
+//   quantized: position 3 x u16 (in the leaf's bounds), normal 2 x u16 (octahedral),
+//              radius f16, radiance 3 x f16, albedo 3 x u8, material class u8         =  22
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "core/pbgi/quantize.h"
+#include "core/pbgi/tree.h"
+#include "core/util/bytes.h"
+
+namespace pbgi {
+
+inline constexpr uint32_t kTreePageHeaderBytes = 4 + 4 + 4 + 4 + 1 + 24;
+// The float spherical functions of an exact node: area SH 9 x f32, power SH 27 x f32.
+inline constexpr uint32_t kExactShBytes = 36 * 4;
+inline constexpr uint32_t kChildRefBytes = 8;
+
+// kQuantized stores 16-bit codebook indices, kQuantized8 8-bit ones (codebooks of at most
+// 256 entries, 2 bytes less per node).
+enum class TreeEncoding : uint8_t { kFloat = 0, kQuantized = 1, kQuantized8 = 2 };
+
+inline constexpr uint32_t nodeRecordBytes(TreeEncoding e) {
+  return e == TreeEncoding::kFloat ? 210 : e == TreeEncoding::kQuantized ? 54 : 52;
+}
+inline constexpr bool quantized(TreeEncoding e) { return e != TreeEncoding::kFloat; }
+// The largest codebook an encoding's indices address.
+// The largest index is reserved: it marks an exact node.
+inline constexpr int maxCodebookEntries(TreeEncoding e) {
+  return e == TreeEncoding::kQuantized8 ? 255 : 65535;
+}
+inline constexpr uint32_t surfelRecordBytes(TreeEncoding e) {
+  return e == TreeEncoding::kFloat ? 53 : 22;
+}
+
+struct NodeRef {
+  uint32_t page = 0;
+  uint32_t index = 0;
+  bool operator==(const NodeRef&) const = default;
+};
+
+// A node as a traversal sees it: attributes in float (dequantized), where its children are.
+struct TreeNode {
+  NodeAttributes attributes;
+  uint32_t childCount = 0;  // 0 for a leaf
+  uint32_t first = 0;       // first child in TreePage::children, or first surfel
+  uint32_t surfelCount = 0;
+  bool leaf() const { return childCount == 0; }
+};
+
+// One decoded page. Immutable once built, shared by the traversals that use it.
+struct TreePage {
+  uint32_t id = 0;
+  TreeEncoding encoding = TreeEncoding::kFloat;
+  Bounds3f bounds;
+  std::vector<TreeNode> nodes;
+  std::vector<NodeRef> children;
+  std::vector<Surfel> surfels;  // triangle and barycentric are not stored: left 0
+
+  std::span<const NodeRef> childrenOf(const TreeNode& n) const {
+    return std::span(children).subspan(n.first, n.childCount);
+  }
+  std::span<const Surfel> surfelsOf(const TreeNode& n) const {
+    return std::span(surfels).subspan(n.first, n.surfelCount);
+  }
+  // Memory the decoded page holds, what a page cache budgets.
+  size_t memoryBytes() const;
+};
+
+// The codebooks of a quantized tree: shapes of the power SH (24 floats: coefficients 1..8 of
+// each channel over that channel's coefficient 0) and of the area SH (8 floats).
+inline constexpr int kPowerShapeDims = 3 * (kShCoefficients - 1);
+inline constexpr int kAreaShapeDims = kShCoefficients - 1;
+// Shape ratios of non-negative functions stay within a few units; the clamp keeps a node
+// whose DC term nearly cancels from producing a huge vector that would own a centre.
+inline constexpr float kMaxShapeRatio = 4.0f;
+
+struct TreeCodebooks {
+  Codebook power;  // dimension kPowerShapeDims
+  Codebook area;   // dimension kAreaShapeDims
+};
+
+// Shapes are taken in a frame around the node's cone axis as the page stores it (octahedral,
+// rounded), where most clusters look alike (a clamped cosine around +z for a flat patch),
+// so that a small codebook serves every orientation. Encoder and decoder both build it
+// from the stored axis.
+ShRotation shapeRotation(const Vec3f& coneAxis);
+
+// The shape vectors quantization clusters (of functions already in the shape frame), and
+// back.
+void powerShape(const Sh9Rgb& sh, float out[kPowerShapeDims]);
+Sh9Rgb powerFromShape(const Rgb& dc, std::span<const float> shape);
+void areaShape(const Sh9& sh, float out[kAreaShapeDims]);
+Sh9 areaFromShape(float dc, std::span<const float> shape);
+// The DC coefficient of projected area is area * pi * Y00 for any normal.
+float areaShDc(float area);
+
+// Codebook bytes for the file's sections: u32 dimension, u32 entry count, then the entries
+// as f32. Decoding checks the dimension and that entry 0 is black.
+std::vector<uint8_t> encodeCodebook(const Codebook& codebook);
+absl::StatusOr<Codebook> decodeCodebook(std::span<const uint8_t> bytes, int expectedDimension);
+
+// A node on its way into a page: its float attributes, its surfels for a leaf, and its
+// children as references, some of which point into the same page (set by the pager).
+struct PageNode {
+  NodeAttributes attributes;
+  std::vector<NodeRef> children;
+  std::vector<Surfel> surfels;
+  // For quantized pages, the nearest codebook entries (the pager looks them up once).
+  uint32_t powerIndex = 0;
+  uint32_t areaIndex = 0;
+  bool exact = false;  // quantized pages: keep this node's SH in float
+};
+
+// The float fields of a node record after its point count (bounds, centroid, cone, area,
+// area SH, power SH) and a float surfel record: shared by float pages and the build's spill.
+void writeFloatAttributes(ByteWriter& w, const NodeAttributes& a);
+void readFloatAttributes(ByteReader& r, NodeAttributes* a);  // leaves pointCount alone
+void writeFloatSurfel(ByteWriter& w, const Surfel& s);
+// Fails on a material class byte that names no MaterialClass.
+absl::Status readFloatSurfel(ByteReader& r, Surfel* s);
+
+// Encoded size of a page holding `nodes` nodes (`exact` of them exact), `refs` references and
+// `surfels` surfels.
+size_t treePageBytes(TreeEncoding encoding, size_t nodes, size_t refs, size_t surfels,
+                     size_t exact);
+
+// Encodes nodes (in page order: mostly parents before children; a parent may also follow
+// children packed into the page before it) into a payload. `id` is the page's own id: references with that page id are in-page.
+std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
+                                    std::span<const PageNode> nodes,
+                                    const TreeCodebooks* codebooks);
+
+// Decodes and validates a payload: counts against the size, every reference and surfel range
+// in bounds, indices inside the codebooks, at most one in-page parent per node. Errors name
+// the page and what was wrong (DataLoss). `codebooks` is needed for quantized pages.
+absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
+                                                               std::span<const uint8_t> bytes,
+                                                               const TreeCodebooks* codebooks);
+
+// Where a traversal gets pages: a file read directly, a bounded cache, the network.
+class TreePageSource {
+ public:
+  virtual ~TreePageSource() = default;
+  virtual NodeRef root() const = 0;
+  // The page, decoded and validated; errors name the file and page.
+  virtual absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) = 0;
+};
+
+}  // namespace pbgi

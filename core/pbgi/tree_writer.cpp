@@ -1,0 +1,372 @@
+#include "core/pbgi/tree_writer.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <optional>
+
+#include <Imath/half.h>
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
+#include "core/sampling/rng.h"
+#include "core/util/check.h"
+#include "core/util/spill_file.h"
+#include "core/util/status.h"
+
+namespace pbgi {
+
+namespace {
+
+// Spill record: u32 child count, u32 surfel count, u64 point count, the float attributes,
+// then the surfels as float surfel records.
+constexpr size_t kSpillHeaderBytes = 16;
+constexpr size_t kFloatAttributeBytes = 200;  // nodeRecordBytes(kFloat) less its 10-byte head
+constexpr size_t kFloatSurfelBytes = 53;
+static_assert(nodeRecordBytes(TreeEncoding::kFloat) == 10 + kFloatAttributeBytes);
+static_assert(surfelRecordBytes(TreeEncoding::kFloat) == kFloatSurfelBytes);
+
+// Nodes quantized per parallel batch in the second pass.
+constexpr size_t kBatchNodes = 4096;
+
+struct ShapeSample {
+  uint64_t hash = 0;
+  std::array<float, kPowerShapeDims> power{};
+  std::array<float, kAreaShapeDims> area{};
+};
+
+// Squared-error sums of one family of vectors, combined in node order.
+struct ErrorSums {
+  double diff2 = 0.0, norm2 = 0.0, maxRelative = 0.0;
+  size_t count = 0, nonFinite = 0;
+  void add(double d2, double n2, bool finite) {
+    if (!finite) {
+      ++nonFinite;
+      return;
+    }
+    ++count;
+    diff2 += d2;
+    norm2 += n2;
+    if (n2 > 0.0) maxRelative = std::max(maxRelative, std::sqrt(d2 / n2));
+  }
+  QuantizationError report() const {
+    QuantizationError e;
+    e.count = count;
+    e.nonFinite = nonFinite;
+    e.rms = count > 0 ? std::sqrt(diff2 / static_cast<double>(count)) : 0.0;
+    e.relativeRms = norm2 > 0.0 ? std::sqrt(diff2 / norm2) : 0.0;
+    e.maxRelative = maxRelative;
+    return e;
+  }
+};
+
+template <size_t N>
+void squaredError(const float (&v)[N], const float (&q)[N], double* d2, double* n2, bool* finite) {
+  *d2 = *n2 = 0.0;
+  *finite = true;
+  for (size_t i = 0; i < N; ++i) {
+    if (!std::isfinite(v[i])) *finite = false;
+    *d2 += double(v[i] - q[i]) * double(v[i] - q[i]);
+    *n2 += double(v[i]) * double(v[i]);
+  }
+}
+
+}  // namespace
+
+std::string TreeWriteResult::toString() const {
+  return fmt::format(
+      "{}; pages={} payload_bytes={} power_codebook={} area_codebook={} power_rel_rms={:.4g} "
+      "area_rel_rms={:.4g} spill_bytes={}",
+      build.toString(), pages.pages, pages.payloadBytes, codebooks.power.size(),
+      codebooks.area.size(), quantization.power.relativeRms, quantization.area.relativeRms,
+      spillBytes);
+}
+
+class TreeWriter::Impl {
+ public:
+  Impl(const TreeWriteOptions& options, PageSink sink)
+      : options_(options),
+        sink_(std::move(sink)),
+        builder_(options.build, [this](const BuiltNode& n) { return onNode(n); }) {
+    PBGI_CHECK(validateOptions(options_).ok());
+    if (!quantized(options_.encoding)) {
+      pager_.emplace(pagerOptions(), nullptr, sink_);
+    }
+    const double f = std::clamp(options_.sampleFraction, 0.0, 1.0);
+    sampleThreshold_ = f >= 1.0 ? UINT64_MAX : static_cast<uint64_t>(f * 0x1p64);
+  }
+
+  absl::Status add(const SortedSurfel& point) {
+    if (!failure_.ok()) return failure_;
+    if (quantized(options_.encoding) && !spill_) {
+      auto spill = SpillFile::create(options_.tempDir, "pbgi-tree-spill");
+      if (!spill.ok()) return failure_ = spill.status();
+      spill_.emplace(std::move(*spill));
+    }
+    failure_ = builder_.add(point);
+    return failure_;
+  }
+
+  absl::StatusOr<TreeWriteResult> finish() {
+    if (!failure_.ok()) return failure_;
+    if (auto s = builder_.finish(); !s.ok()) return s;
+    if (builder_.stats().nodes == 0) {
+      return absl::FailedPreconditionError("a tree needs at least one surfel; none were given");
+    }
+    TreeWriteResult result;
+    result.rootAttributes = root_;
+    result.build = builder_.stats();
+    if (!quantized(options_.encoding)) {
+      auto root = pager_->finish();
+      if (!root.ok()) return root.status();
+      result.root = *root;
+      result.pages = pager_->stats();
+      return result;
+    }
+    trainCodebooks(&result.codebooks);
+    codebooks_ = result.codebooks;
+    pager_.emplace(pagerOptions(), &codebooks_, sink_);
+    if (auto s = secondPass(&result); !s.ok()) return s;
+    auto root = pager_->finish();
+    if (!root.ok()) return root.status();
+    result.root = *root;
+    result.pages = pager_->stats();
+    result.spillBytes = spill_->bytesWritten();
+    return result;
+  }
+
+ private:
+  TreePagerOptions pagerOptions() const {
+    return TreePagerOptions{options_.encoding, options_.pageSize};
+  }
+
+  absl::Status onNode(const BuiltNode& n) {
+    root_ = n.attributes;
+    if (!quantized(options_.encoding)) {
+      PageNode node;
+      node.attributes = n.attributes;
+      node.surfels.assign(n.surfels.begin(), n.surfels.end());
+      return pager_->add(std::move(node), n.childCount);
+    }
+    record_.clear();
+    ByteWriter w(&record_);
+    w.u32(n.childCount);
+    w.u32(static_cast<uint32_t>(n.surfels.size()));
+    w.u64(n.attributes.pointCount);
+    writeFloatAttributes(w, n.attributes);
+    for (const Surfel& s : n.surfels) writeFloatSurfel(w, s);
+    sample(n.attributes);
+    ++spilledNodes_;
+    return spill_->write(record_);
+  }
+
+  // Bottom-k by hash: the sample is the maxSample lowest hashes under the fraction's
+  // threshold, whatever the order nodes arrive in.
+  void sample(const NodeAttributes& a) {
+    const uint64_t hash = hashKeys(options_.seed, spilledNodes_, 0x7e5a3ull);
+    if (hash >= sampleThreshold_) return;
+    auto byHash = [](const ShapeSample& x, const ShapeSample& y) { return x.hash < y.hash; };
+    if (samples_.size() == options_.maxSample) {
+      if (options_.maxSample == 0 || hash >= samples_.front().hash) return;
+      std::pop_heap(samples_.begin(), samples_.end(), byHash);
+      samples_.pop_back();
+    }
+    ShapeSample s;
+    s.hash = hash;
+    const ShRotation rotation = shapeRotation(a.cone.axis);
+    powerShape(rotation.apply(a.powerSh), s.power.data());
+    areaShape(rotation.apply(a.areaSh), s.area.data());
+    samples_.push_back(s);
+    std::push_heap(samples_.begin(), samples_.end(), byHash);
+  }
+
+  void trainCodebooks(TreeCodebooks* books) {
+    // Training order follows the hashes, not the heap's layout.
+    std::sort(samples_.begin(), samples_.end(),
+              [](const ShapeSample& x, const ShapeSample& y) { return x.hash < y.hash; });
+    std::vector<float> power, area;
+    power.reserve(samples_.size() * kPowerShapeDims);
+    area.reserve(samples_.size() * kAreaShapeDims);
+    for (const ShapeSample& s : samples_) {
+      power.insert(power.end(), s.power.begin(), s.power.end());
+      area.insert(area.end(), s.area.begin(), s.area.end());
+    }
+    KMeansOptions k;
+    k.iterations = options_.kmeansIterations;
+    k.seed = options_.seed;
+    k.sampleFraction = 1.0;  // the sample is already drawn
+    k.minSample = 0;
+    k.maxSample = SIZE_MAX;
+    k.centres = options_.powerCentres;
+    books->power = trainCodebook(power, kPowerShapeDims, k);
+    k.centres = options_.areaCentres;
+    books->area = trainCodebook(area, kAreaShapeDims, k);
+    samples_.clear();
+    samples_.shrink_to_fit();
+  }
+
+  absl::Status readSpilled(PageNode* node, uint32_t* childCount) {
+    uint8_t head[kSpillHeaderBytes + kFloatAttributeBytes];
+    if (auto s = spill_->read(head); !s.ok()) return s;
+    ByteReader r(head);
+    *childCount = r.u32();
+    const uint32_t surfels = r.u32();
+    node->attributes.pointCount = r.u64();
+    readFloatAttributes(r, &node->attributes);
+    record_.resize(size_t{surfels} * kFloatSurfelBytes);
+    if (auto s = spill_->read(record_); !s.ok()) return s;
+    ByteReader sr(record_.data());
+    node->surfels.resize(surfels);
+    for (Surfel& surfel : node->surfels) {
+      if (auto s = readFloatSurfel(sr, &surfel); !s.ok()) {
+        return absl::DataLossError(fmt::format("spill file {}: {}", spill_->name(), s.message()));
+      }
+    }
+    return absl::OkStatus();
+  }
+
+  absl::Status secondPass(TreeWriteResult* result) {
+    if (auto s = spill_->rewind(); !s.ok()) return s;
+    struct Quantized {
+      double powerD2, powerN2, areaD2, areaN2;
+      bool powerFinite, areaFinite;
+    };
+    std::vector<PageNode> batch;
+    std::vector<uint32_t> childCounts;
+    std::vector<Quantized> errors;
+    ErrorSums powerSums, areaSums;
+    uint64_t remaining = spilledNodes_;
+    while (remaining > 0) {
+      const size_t n = static_cast<size_t>(std::min<uint64_t>(remaining, kBatchNodes));
+      batch.assign(n, PageNode{});
+      childCounts.assign(n, 0);
+      errors.assign(n, Quantized{});
+      for (size_t i = 0; i < n; ++i) {
+        if (auto s = readSpilled(&batch[i], &childCounts[i]); !s.ok()) return s;
+      }
+      // Codebook lookups are the cost; each node's is independent of the others'.
+      tbb::parallel_for(size_t{0}, n, [&](size_t i) {
+        PageNode& node = batch[i];
+        const NodeAttributes& a = node.attributes;
+        node.exact = options_.exactFromPoints > 0 && a.pointCount >= options_.exactFromPoints;
+        if (node.exact) {
+          float v[Sh9Rgb::kFloats];
+          a.powerSh.toFloats(v);
+          double n2 = 0.0;
+          bool finite = true;
+          for (float x : v) {
+            n2 += double(x) * double(x);
+            finite = finite && std::isfinite(x);
+          }
+          errors[i] = Quantized{0.0, n2, 0.0, 0.0, finite, true};
+          return;
+        }
+        const ShRotation rotation = shapeRotation(a.cone.axis);
+        float shape[kPowerShapeDims];
+        powerShape(rotation.apply(a.powerSh), shape);
+        node.powerIndex = nearestEntry(codebooks_.power, shape);
+        float areaShapeV[kAreaShapeDims];
+        areaShape(rotation.apply(a.areaSh), areaShapeV);
+        node.areaIndex = nearestEntry(codebooks_.area, areaShapeV);
+        // The error is measured on what a reader will decode, in world space.
+        float v[Sh9Rgb::kFloats], q[Sh9Rgb::kFloats];
+        a.powerSh.toFloats(v);
+        rotation
+            .applyInverse(
+                powerFromShape(a.powerSh.c[0], codebooks_.power.entry(int(node.powerIndex))))
+            .toFloats(q);
+        squaredError(v, q, &errors[i].powerD2, &errors[i].powerN2, &errors[i].powerFinite);
+        float av[kShCoefficients], aq[kShCoefficients];
+        std::copy(a.areaSh.c.begin(), a.areaSh.c.end(), av);
+        const Sh9 areaQ = rotation.applyInverse(
+            areaFromShape(areaShDc(a.area), codebooks_.area.entry(int(node.areaIndex))));
+        std::copy(areaQ.c.begin(), areaQ.c.end(), aq);
+        squaredError(av, aq, &errors[i].areaD2, &errors[i].areaN2, &errors[i].areaFinite);
+      });
+      for (size_t i = 0; i < n; ++i) {
+        powerSums.add(errors[i].powerD2, errors[i].powerN2, errors[i].powerFinite);
+        areaSums.add(errors[i].areaD2, errors[i].areaN2, errors[i].areaFinite);
+        for (const Surfel& s : batch[i].surfels) {
+          if (maxComponent(s.radiance) > static_cast<float>(HALF_MAX)) {
+            ++result->quantization.clampedSurfelRadiance;
+          }
+        }
+        if (auto s = pager_->add(std::move(batch[i]), childCounts[i]); !s.ok()) return s;
+      }
+      remaining -= n;
+    }
+    result->quantization.power = powerSums.report();
+    result->quantization.area = areaSums.report();
+    return absl::OkStatus();
+  }
+
+  TreeWriteOptions options_;
+  PageSink sink_;
+  TreeBuilder builder_;
+  std::optional<TreePager> pager_;
+  std::optional<SpillFile> spill_;
+  TreeCodebooks codebooks_;
+  std::vector<uint8_t> record_;
+  std::vector<ShapeSample> samples_;
+  uint64_t sampleThreshold_ = 0;
+  uint64_t spilledNodes_ = 0;
+  NodeAttributes root_;
+  absl::Status failure_;
+};
+
+absl::Status TreeWriter::validateOptions(const TreeWriteOptions& o) {
+  if (o.build.leafSize < 1 || o.build.leafSize > kMaxLeafSize) {
+    return absl::InvalidArgumentError(
+        fmt::format("leaf size {}: expected 1..{}", o.build.leafSize, kMaxLeafSize));
+  }
+  const uint32_t minPage = TreePager::minPageSize(o.encoding, o.build.leafSize);
+  if (o.pageSize < minPage) {
+    return absl::InvalidArgumentError(
+        fmt::format("page size {} bytes: leaves of {} surfels need at least {}", o.pageSize,
+                    o.build.leafSize, minPage));
+  }
+  const int maxCentres = maxCodebookEntries(o.encoding) - 1;  // less the black entry
+  for (int centres : {o.powerCentres, o.areaCentres}) {
+    if (quantized(o.encoding) && (centres < 1 || centres > maxCentres)) {
+      return absl::InvalidArgumentError(fmt::format(
+          "{} codebook centres: expected 1..{} for this index width", centres, maxCentres));
+    }
+  }
+  if (o.kmeansIterations < 0) {
+    return absl::InvalidArgumentError("k-means iterations must not be negative");
+  }
+  return absl::OkStatus();
+}
+
+TreeWriter::TreeWriter(const TreeWriteOptions& options, PageSink sink)
+    : impl_(std::make_unique<Impl>(options, std::move(sink))) {}
+TreeWriter::~TreeWriter() = default;
+absl::Status TreeWriter::add(const SortedSurfel& point) { return impl_->add(point); }
+absl::StatusOr<TreeWriteResult> TreeWriter::finish() { return impl_->finish(); }
+
+absl::StatusOr<std::shared_ptr<const TreePage>> MemoryTree::page(uint32_t id) {
+  if (id >= pages_.size()) {
+    return absl::DataLossError(fmt::format("page {}: the tree has {} pages", id, pages_.size()));
+  }
+  return decodeTreePage(id, pages_[id], &codebooks_);
+}
+
+absl::StatusOr<std::unique_ptr<MemoryTree>> buildMemoryTree(std::span<const SortedSurfel> sorted,
+                                                            const TreeWriteOptions& options,
+                                                            TreeWriteResult* result) {
+  if (auto s = TreeWriter::validateOptions(options); !s.ok()) return s;
+  std::vector<std::vector<uint8_t>> pages;
+  TreeWriter writer(options, [&](std::span<const uint8_t> bytes) -> absl::StatusOr<uint32_t> {
+    pages.emplace_back(bytes.begin(), bytes.end());
+    return static_cast<uint32_t>(pages.size() - 1);
+  });
+  for (const SortedSurfel& p : sorted) {
+    if (auto s = writer.add(p); !s.ok()) return s;
+  }
+  auto written = writer.finish();
+  if (!written.ok()) return written.status();
+  if (result != nullptr) *result = *written;
+  return std::make_unique<MemoryTree>(std::move(pages), written->codebooks, written->root);
+}
+
+}  // namespace pbgi

@@ -1,0 +1,105 @@
+#pragma once
+// The out-of-core build of a paged, quantized PBGI tree from surfels sorted by Morton key:
+// the sweep of tree_build.h, the codebooks of quantize.h (Buchholz and Boubekeur 2012) and the
+// page packing of tree_pager.h, in bounded memory whatever the point count.
+//
+// A float tree takes one pass: nodes go from the sweep straight into pages. A quantized tree
+// takes two, because its codebooks must be trained before the first node is encoded: the
+// sweep spills every node (float attributes and leaf surfels) to a temporary file and keeps a
+// bounded training sample of the nodes' shape vectors; the codebooks are trained on the
+// sample; a second pass reads the spill back, looks up each node's codebook entries,
+// measures the error, and packs the pages. The sample is chosen by a hash of the node's
+// post-order index and the seed, keeping the lowest hashes (a bottom-k sketch): it holds at
+// most maxSample vectors and is the same whatever the thread count.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "core/pbgi/tree_build.h"
+#include "core/pbgi/tree_pager.h"
+
+namespace pbgi {
+
+struct TreeWriteOptions {
+  TreeBuildOptions build;
+  TreeEncoding encoding = TreeEncoding::kQuantized;
+  uint32_t pageSize = 64 * 1024;
+  int powerCentres = 254;  // plus the black entry; at most 254 for 8-bit indices
+  int areaCentres = 62;
+  // Nodes over at least this many surfels keep their SH in float (few nodes, most of the
+  // light); 0 quantizes every node.
+  uint64_t exactFromPoints = 1024;
+  int kmeansIterations = 10;
+  double sampleFraction = 0.1;  // of the nodes, at most maxSample
+  size_t maxSample = 50000;
+  uint64_t seed = 0;
+  std::string tempDir;  // for the spill; empty: the system's temporary folder
+};
+
+// How far the quantized spherical functions are from the float ones, over every node.
+struct TreeQuantizationReport {
+  QuantizationError power;  // of the 27-float power SH vectors
+  QuantizationError area;   // of the 9-float projected-area SH vectors
+  uint64_t clampedSurfelRadiance = 0;  // surfel radiance beyond half's range, clamped
+};
+
+struct TreeWriteResult {
+  NodeRef root;
+  NodeAttributes rootAttributes;  // in float, as built
+  TreeBuildStats build;
+  TreePagerStats pages;
+  TreeCodebooks codebooks;  // empty for float trees
+  TreeQuantizationReport quantization;
+  uint64_t spillBytes = 0;
+  std::string toString() const;
+};
+
+class TreeWriter {
+ public:
+  // Checks the options (leaf size, page size against the largest node, centre counts).
+  static absl::Status validateOptions(const TreeWriteOptions& options);
+
+  TreeWriter(const TreeWriteOptions& options, PageSink sink);
+  ~TreeWriter();
+  TreeWriter(const TreeWriter&) = delete;
+  TreeWriter& operator=(const TreeWriter&) = delete;
+
+  // The next surfel in (key, sequence) order.
+  absl::Status add(const SortedSurfel& point);
+  // Builds what is left, trains the codebooks, writes every page. A tree needs at least one
+  // surfel (FailedPrecondition otherwise).
+  absl::StatusOr<TreeWriteResult> finish();
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// A tree whose pages live in memory as payloads, decoded on each page() call: for tests, and
+// for trees small enough not to need a file.
+class MemoryTree : public TreePageSource {
+ public:
+  MemoryTree(std::vector<std::vector<uint8_t>> pages, TreeCodebooks codebooks, NodeRef root)
+      : pages_(std::move(pages)), codebooks_(std::move(codebooks)), root_(root) {}
+  NodeRef root() const override { return root_; }
+  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override;
+  const std::vector<std::vector<uint8_t>>& payloads() const { return pages_; }
+  const TreeCodebooks& codebooks() const { return codebooks_; }
+
+ private:
+  std::vector<std::vector<uint8_t>> pages_;
+  TreeCodebooks codebooks_;
+  NodeRef root_;
+};
+
+// Builds the tree of sorted surfels into memory (spilling to options.tempDir as a file build
+// would). `result` may be null.
+absl::StatusOr<std::unique_ptr<MemoryTree>> buildMemoryTree(std::span<const SortedSurfel> sorted,
+                                                            const TreeWriteOptions& options,
+                                                            TreeWriteResult* result = nullptr);
+
+}  // namespace pbgi
