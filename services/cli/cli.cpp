@@ -1,8 +1,10 @@
 #include "services/cli/cli.h"
 
+#include <charconv>
 #include <cstdio>
 
 #include <CLI/CLI.hpp>
+#include <fmt/format.h>
 
 #include "core/util/log.h"
 
@@ -21,9 +23,34 @@ int reportError(const absl::Status& status) {
   }
 }
 
+std::string versionString() { return std::string("pbgi ") + PBGI_VERSION; }
+
+absl::StatusOr<uint64_t> parseByteSize(std::string_view text, std::string_view flag) {
+  uint64_t value = 0;
+  const char* end = text.data() + text.size();
+  const auto [p, ec] = std::from_chars(text.data(), end, value);
+  int shift = 0;
+  if (ec == std::errc() && p + 1 == end) {
+    switch (*p) {
+      case 'K': case 'k': shift = 10; break;
+      case 'M': case 'm': shift = 20; break;
+      case 'G': case 'g': shift = 30; break;
+      default: shift = -1;
+    }
+  } else if (ec != std::errc() || p != end) {
+    shift = -1;
+  }
+  if (shift < 0 || value == 0 || value > (UINT64_MAX >> shift)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "{} {}: expected a positive size in bytes, optionally with K, M or G (e.g. 256M)", flag,
+        text));
+  }
+  return value << shift;
+}
+
 int run(int argc, char** argv) {
   CLI::App app{"pbgi: point-based global illumination renderer"};
-  app.set_version_flag("--version", std::string("pbgi ") + PBGI_VERSION);
+  app.set_version_flag("--version", versionString());
   app.require_subcommand(1);
   bool verbose = false;
   bool quiet = false;
@@ -33,6 +60,8 @@ int run(int argc, char** argv) {
   CommandAction action;
   registerRenderCommand(app, action);
   registerCompareCommand(app, action);
+  registerBakeCommand(app, action);
+  registerInspectCommand(app, action);
 
   try {
     app.parse(argc, argv);

@@ -4,7 +4,11 @@
 
 #include <functional>
 
+#include <string>
+#include <string_view>
+
 #include <absl/status/status.h>
+#include <absl/status/statusor.h>
 
 namespace CLI {
 class App;
@@ -20,6 +24,15 @@ using CommandAction = std::function<int()>;
 // Each subcommand registers itself on the app and sets `action` for when it is chosen.
 void registerRenderCommand(CLI::App& app, CommandAction& action);
 void registerCompareCommand(CLI::App& app, CommandAction& action);
+void registerBakeCommand(CLI::App& app, CommandAction& action);
+void registerInspectCommand(CLI::App& app, CommandAction& action);
+
+// "pbgi <version>".
+std::string versionString();
+
+// A size in bytes: a number with an optional K, M or G (binary: 1K = 1024). Errors name the
+// flag.
+absl::StatusOr<uint64_t> parseByteSize(std::string_view text, std::string_view flag);
 
 // Prints "pbgi: error: <message>" and returns the exit code for the status: bad input
 // (InvalidArgument, NotFound, FailedPrecondition, OutOfRange) is 2, anything else 1.

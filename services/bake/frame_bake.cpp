@@ -1,0 +1,237 @@
+#include "services/bake/frame_bake.h"
+
+#include <chrono>
+#include <filesystem>
+#include <optional>
+
+#include <fmt/format.h>
+#include <tbb/task_arena.h>
+#include <xxhash.h>
+
+#include "core/pbgi/morton.h"
+#include "core/util/status.h"
+#include "formats/pbgi/tree_file.h"
+#include "formats/scene/frame_scene.h"
+#include "formats/vdb/surfel_vdb.h"
+
+namespace pbgi {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Surfels shaded per batch: enough to keep every core busy, small next to any budget.
+constexpr size_t kChunkSurfels = 64 * 1024;
+// What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
+constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
+
+std::filesystem::path framePathStem(const ShotDesc& shot, const FrameBakeRequest& request) {
+  const std::filesystem::path image(
+      outputPathForFrame(shot.output, request.frame, shot.lastFrame > shot.firstFrame));
+  const std::filesystem::path dir = request.outDir.empty() ? image.parent_path()
+                                                           : std::filesystem::path(request.outDir);
+  return dir / image.stem();
+}
+
+// What the tree was baked from: the shot file's bytes and every parameter that changes it.
+uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request, uint64_t points) {
+  std::string text;
+  if (FILE* f = std::fopen(shot.path.c_str(), "rb")) {
+    char buffer[65536];
+    size_t n;
+    while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) text.append(buffer, n);
+    std::fclose(f);
+  }
+  text += fmt::format("|frame={}|points={}|light_samples={}|bounces={}|encoding={}|leaf={}|page={}",
+                      request.frame, points, request.lightSamples, request.bounces,
+                      treeEncodingName(request.tree.encoding), request.tree.build.leafSize,
+                      request.tree.pageSize);
+  return XXH3_64bits(text.data(), text.size());
+}
+
+}  // namespace
+
+std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) {
+  return framePathStem(shot, request).string() + ".pbgi";
+}
+
+absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
+                                              const FrameBakeRequest& request) {
+  const auto wallStart = Clock::now();
+  if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
+    return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
+                                             shot.path, request.frame, shot.firstFrame,
+                                             shot.lastFrame));
+  }
+  if (request.bounces != 0) {
+    return absl::InvalidArgumentError(
+        fmt::format("--bounces {}: this build bakes direct light only (0 bounces)",
+                    request.bounces));
+  }
+  if (request.lightSamples < 1) {
+    return absl::InvalidArgumentError(
+        fmt::format("light samples {}: expected at least 1", request.lightSamples));
+  }
+  const size_t sortBudget = request.memoryBudget / 2;
+  ExternalSortOptions sortOptions;
+  sortOptions.memoryBudgetBytes = sortBudget;
+  sortOptions.tempDir = request.tempDir;
+  sortOptions.threads = request.threads;
+  if (auto s = ExternalSurfelSorter::validateOptions(sortOptions); !s.ok()) {
+    return absl::InvalidArgumentError(fmt::format(
+        "memory budget {} MiB is too small: {}", request.memoryBudget >> 20, s.message()));
+  }
+  TreeFileWriteOptions treeOptions;
+  treeOptions.tree = request.tree;
+  treeOptions.tree.seed = shot.render.seed;
+  treeOptions.tree.tempDir = request.tempDir;
+  if (auto s = TreeWriter::validateOptions(treeOptions.tree); !s.ok()) return s;
+
+  std::optional<tbb::task_arena> arena;
+  if (request.threads > 0) arena.emplace(request.threads);
+  absl::StatusOr<FrameBakeReport> result;
+  auto work = [&] {
+    FrameBakeReport report;
+    auto stage = [&](const char* name, Clock::time_point t0) {
+      report.stages.push_back({name, secondsSince(t0)});
+    };
+    auto t0 = Clock::now();
+    auto frameScene = loadFrameScene(shot, request.frame);
+    if (!frameScene.ok()) return result = frameScene.status(), void();
+    report.warnings = frameScene->warnings;
+    const Scene& scene = *frameScene->scene;
+    stage("load", t0);
+
+    SurfelSamplingOptions sampling;
+    sampling.targetCount = request.points > 0 ? request.points : kDefaultBakePoints;
+    sampling.seed = shot.render.seed;
+    sampling.frame = request.frame;
+    SurfelSamplingStats plan;
+    if (auto s = planSurfels(scene, sampling, &plan); !s.ok()) return result = s, void();
+
+    const std::string stem = framePathStem(shot, request).string();
+    report.treePath = stem + ".pbgi";
+    std::error_code ec;
+    std::filesystem::create_directories(std::filesystem::path(report.treePath).parent_path(), ec);
+    if (ec) {
+      return result = absl::PermissionDeniedError(fmt::format(
+                 "cannot create {}: {}",
+                 std::filesystem::path(report.treePath).parent_path().string(), ec.message())),
+             void();
+    }
+    bool keepCloud = request.pointCloud == PointCloudMode::kAlways;
+    if (request.pointCloud == PointCloudMode::kAuto) {
+      keepCloud = plan.surfels * kPointCloudBytesPerPoint <= request.memoryBudget / 4;
+      if (!keepCloud) {
+        report.warnings.push_back(fmt::format(
+            "point cloud not written: OpenVDB would hold {} surfels (about {} MiB) in memory, "
+            "over a quarter of the {} MiB budget (--point-cloud always writes it anyway)",
+            plan.surfels, plan.surfels * kPointCloudBytesPerPoint >> 20,
+            request.memoryBudget >> 20));
+      }
+    }
+
+    // Sample, shade and sort, a chunk at a time.
+    t0 = Clock::now();
+    ExternalSurfelSorter sorter(sortOptions);
+    const MortonCube cube(scene.bounds());
+    std::vector<Surfel> chunk, cloud;
+    chunk.reserve(kChunkSurfels);
+    uint64_t shadedSoFar = 0;
+    SurfelShadingOptions shading;
+    shading.lightSamples = request.lightSamples;
+    shading.seed = shot.render.seed;
+    shading.frame = request.frame;
+    auto flush = [&]() -> absl::Status {
+      const SurfelShadingStats s = shadeSurfelsDirect(scene, chunk, shadedSoFar, shading);
+      report.shading.surfels += s.surfels;
+      report.shading.emissive += s.emissive;
+      report.shading.discardedSamples += s.discardedSamples;
+      report.shading.nonFiniteSurfels += s.nonFiniteSurfels;
+      for (const Surfel& surfel : chunk) {
+        if (auto st = sorter.add(mortonKey(surfel.position, cube), surfel); !st.ok()) return st;
+      }
+      if (keepCloud) cloud.insert(cloud.end(), chunk.begin(), chunk.end());
+      shadedSoFar += chunk.size();
+      chunk.clear();
+      if (request.progress) request.progress("shade", shadedSoFar, plan.surfels);
+      return absl::OkStatus();
+    };
+    absl::Status sampled = sampleSurfels(
+        scene, sampling,
+        [&](const Surfel& s) -> absl::Status {
+          chunk.push_back(s);
+          return chunk.size() == kChunkSurfels ? flush() : absl::OkStatus();
+        },
+        &report.sampling);
+    if (sampled.ok() && !chunk.empty()) sampled = flush();
+    if (!sampled.ok()) return result = sampled, void();
+    stage("sample+shade", t0);
+
+    t0 = Clock::now();
+    if (auto s = sorter.finish(); !s.ok()) return result = s, void();
+    stage("sort", t0);
+
+    t0 = Clock::now();
+    treeOptions.sceneBounds = scene.bounds();
+    treeOptions.sceneHash = bakeHash(shot, request, report.sampling.surfels);
+    treeOptions.bakeInfo = {
+        {"shot", shot.path},
+        {"frame", std::to_string(request.frame)},
+        {"seed", std::to_string(shot.render.seed)},
+        {"points", std::to_string(report.sampling.surfels)},
+        {"surfel_radius", fmt::format("{:g}", report.sampling.radius)},
+        {"light_samples", std::to_string(request.lightSamples)},
+        {"bounces", std::to_string(request.bounces)},
+        {"memory_budget_bytes", std::to_string(request.memoryBudget)},
+        {"pbgi_version", request.pbgiVersion},
+    };
+    auto writer = TreeFileWriter::create(report.treePath, treeOptions);
+    if (!writer.ok()) return result = writer.status(), void();
+    SortedSurfel next;
+    uint64_t built = 0;
+    while (true) {
+      auto more = sorter.next(&next);
+      if (!more.ok()) return result = more.status(), void();
+      if (!*more) break;
+      if (auto s = (*writer)->add(next); !s.ok()) return result = s, void();
+      if (request.progress && (++built & 0xffff) == 0) {
+        request.progress("build", built, report.sampling.surfels);
+      }
+    }
+    report.sort = sorter.stats();
+    auto tree = (*writer)->finish();
+    if (!tree.ok()) return result = tree.status(), void();
+    report.tree = *tree;
+    report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
+    stage("build", t0);
+
+    if (keepCloud) {
+      t0 = Clock::now();
+      report.pointCloudPath = stem + ".vdb";
+      SurfelVdbOptions vdb;
+      vdb.metadata.shot = shot.name;
+      vdb.metadata.frame = request.frame;
+      vdb.metadata.seed = shot.render.seed;
+      vdb.metadata.pbgiVersion = request.pbgiVersion;
+      if (auto s = writeSurfelVdb(report.pointCloudPath, cloud, vdb); !s.ok()) {
+        return result = s, void();
+      }
+      stage("point cloud", t0);
+    }
+    report.wallSeconds = secondsSince(wallStart);
+    result = std::move(report);
+  };
+  if (arena) {
+    arena->execute(work);
+  } else {
+    work();
+  }
+  return result;
+}
+
+}  // namespace pbgi

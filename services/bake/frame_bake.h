@@ -1,0 +1,69 @@
+#pragma once
+// Bakes one frame of a shot: surfels sampled on every triangle and lit by the path tracer's
+// own light sampling, written as an OpenVDB point cloud, then sorted by Morton key in a
+// memory budget and swept into the paged, quantized PBGI tree (`.pbgi`). `pbgi bake` runs
+// it; the renderer and the farm's bake tasks share it.
+//
+// Memory: surfels stream through in chunks; the external sort gets half the budget, the
+// tree's spill and page buffers a few MiB. The point cloud is the one part OpenVDB builds in
+// memory; in `auto` mode it is written only when it fits in a quarter of the budget, and
+// skipped with a warning otherwise.
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <absl/status/statusor.h>
+
+#include "core/bake/surfel_sampler.h"
+#include "core/bake/surfel_shading.h"
+#include "core/pbgi/external_sort.h"
+#include "core/pbgi/tree_writer.h"
+#include "core/scene/shot.h"
+
+namespace pbgi {
+
+enum class PointCloudMode { kAuto, kAlways, kNever };
+
+struct FrameBakeRequest {
+  int frame = 0;
+  std::string outDir;        // empty: beside the frame's output image
+  uint64_t points = 0;       // 0: kDefaultBakePoints
+  size_t memoryBudget = size_t{1} << 30;
+  int bounces = 0;           // indirect bounces gathered over the tree itself
+  int lightSamples = 16;     // per surfel, for direct light
+  int threads = 0;           // 0: all cores
+  TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes (seed: the shot's)
+  PointCloudMode pointCloud = PointCloudMode::kAuto;
+  std::string tempDir;       // spill files; empty: the system's temporary folder
+  std::string pbgiVersion;
+  std::function<void(const std::string& stage, uint64_t done, uint64_t total)> progress;
+};
+
+inline constexpr uint64_t kDefaultBakePoints = 1'000'000;
+
+struct BakeStage {
+  std::string name;
+  double seconds = 0.0;
+};
+
+struct FrameBakeReport {
+  std::string treePath;
+  std::string pointCloudPath;  // empty when none was written
+  SurfelSamplingStats sampling;
+  SurfelShadingStats shading;
+  SortStats sort;
+  TreeWriteResult tree;
+  uint64_t treeFileBytes = 0;
+  std::vector<BakeStage> stages;
+  std::vector<std::string> warnings;
+  double wallSeconds = 0.0;
+};
+
+// Where a frame's bake goes: `<outDir or the image's folder>/<image stem>.pbgi` and `.vdb`.
+std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request);
+
+absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
+                                              const FrameBakeRequest& request);
+
+}  // namespace pbgi

@@ -1,0 +1,140 @@
+// pbgi bake SHOT --frame N [--out DIR] [--points N] [--mem-budget SIZE] [--bounces K] ...
+
+#include <cstdio>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include "formats/pbgi/tree_file.h"
+#include "formats/shot/shot_file.h"
+#include "services/bake/frame_bake.h"
+#include "services/cli/cli.h"
+#include "services/cli/progress.h"
+
+namespace pbgi::cli {
+
+namespace {
+
+struct BakeOptions {
+  std::string shot;
+  std::optional<int> frame;
+  std::string out;
+  uint64_t points = 0;
+  std::string memBudget = "1G";
+  int bounces = 0;
+  int lightSamples = 16;
+  int threads = 0;
+  int leafSize = kDefaultLeafSize;
+  std::string pageSize = "64K";
+  std::string encoding = "quantized";
+  int powerCentres = TreeWriteOptions{}.powerCentres;
+  std::string pointCloud = "auto";
+  std::string tempDir;
+};
+
+int runBake(const BakeOptions& o) {
+  auto shot = loadShotFile(o.shot);
+  if (!shot.ok()) return reportError(shot.status());
+  FrameBakeRequest request;
+  request.frame = o.frame.value_or(shot->firstFrame);
+  request.outDir = o.out;
+  request.points = o.points;
+  auto budget = parseByteSize(o.memBudget, "--mem-budget");
+  if (!budget.ok()) return reportError(budget.status());
+  request.memoryBudget = *budget;
+  auto pageSize = parseByteSize(o.pageSize, "--page-size");
+  if (!pageSize.ok()) return reportError(pageSize.status());
+  if (*pageSize > kMaxPageSize || *pageSize < kMinPageSize || (*pageSize & (*pageSize - 1)) != 0) {
+    return reportError(absl::InvalidArgumentError(fmt::format(
+        "--page-size {}: expected a power of two from {} to {} bytes", o.pageSize, kMinPageSize,
+        kMaxPageSize)));
+  }
+  request.tree.pageSize = static_cast<uint32_t>(*pageSize);
+  request.tree.build.leafSize = o.leafSize;
+  request.tree.powerCentres = o.powerCentres;
+  if (o.encoding == "float") {
+    request.tree.encoding = TreeEncoding::kFloat;
+  } else if (o.encoding == "quantized") {
+    request.tree.encoding = TreeEncoding::kQuantized;
+  } else {
+    request.tree.encoding = TreeEncoding::kQuantized8;
+    request.tree.powerCentres = std::min(request.tree.powerCentres, 254);
+  }
+  request.pointCloud = o.pointCloud == "always"  ? PointCloudMode::kAlways
+                       : o.pointCloud == "never" ? PointCloudMode::kNever
+                                                 : PointCloudMode::kAuto;
+  request.bounces = o.bounces;
+  request.lightSamples = o.lightSamples;
+  request.threads = o.threads;
+  request.tempDir = o.tempDir;
+  request.pbgiVersion = versionString();
+  Progress progress(fmt::format("bake {} frame {}", shot->name, request.frame));
+  request.progress = [&](const std::string&, uint64_t done, uint64_t total) {
+    progress.update(static_cast<int>(total > 0 ? done * 1000 / total : 1000), 1000);
+  };
+  auto report = bakeShotFrame(*shot, request);
+  progress.finish();
+  if (!report.ok()) return reportError(report.status());
+  for (const std::string& w : report->warnings) std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
+  const TreeWriteResult& t = report->tree;
+  std::printf("wrote %s (%.1f MiB)\n", report->treePath.c_str(), report->treeFileBytes / 1048576.0);
+  if (!report->pointCloudPath.empty()) std::printf("wrote %s\n", report->pointCloudPath.c_str());
+  std::printf("  surfels %llu (radius %g), emissive %llu, light samples discarded %llu\n",
+              static_cast<unsigned long long>(report->sampling.surfels), report->sampling.radius,
+              static_cast<unsigned long long>(report->shading.emissive),
+              static_cast<unsigned long long>(report->shading.discardedSamples));
+  std::printf("  tree: %llu nodes, %llu leaves, %llu pages, %.1f bytes/node in the file\n",
+              static_cast<unsigned long long>(t.build.nodes),
+              static_cast<unsigned long long>(t.build.leaves),
+              static_cast<unsigned long long>(t.pages.pages),
+              t.build.nodes > 0 ? double(report->treeFileBytes) / double(t.build.nodes) : 0.0);
+  if (quantized(request.tree.encoding)) {
+    std::printf(
+        "  codebooks: power %d entries, area %d entries; quantization error (relative RMS) "
+        "power %.3g, area %.3g, worst node %.3g\n",
+        t.codebooks.power.size(), t.codebooks.area.size(), t.quantization.power.relativeRms,
+        t.quantization.area.relativeRms, t.quantization.power.maxRelative);
+  }
+  std::printf("  sort: %s\n", report->sort.toString().c_str());
+  for (const BakeStage& s : report->stages) std::printf("  %-13s %8.3f s\n", s.name.c_str(), s.seconds);
+  std::printf("wall time %.3f s\n", report->wallSeconds);
+  return kExitOk;
+}
+
+}  // namespace
+
+void registerBakeCommand(CLI::App& app, CommandAction& action) {
+  auto options = std::make_shared<BakeOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "bake", "Bake one frame: a surfel point cloud (OpenVDB) and its paged PBGI tree (.pbgi)");
+  cmd->add_option("SHOT", options->shot, "Shot file (TOML)")->required();
+  cmd->add_option("--frame", options->frame, "Frame to bake (default: the shot's first)");
+  cmd->add_option("--out", options->out, "Output folder (default: beside the frame's image)");
+  cmd->add_option("--points", options->points,
+                  fmt::format("Surfel count (default: {})", kDefaultBakePoints))
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--mem-budget", options->memBudget,
+                  "Memory budget, e.g. 256M or 2G (default: 1G)");
+  cmd->add_option("--bounces", options->bounces, "Indirect bounces baked into the surfels")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--threads", options->threads, "Worker threads (default: all cores)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--leaf-size", options->leafSize, "Most surfels in a leaf (default: 16)")
+      ->check(CLI::Range(1, kMaxLeafSize));
+  cmd->add_option("--page-size", options->pageSize, "Tree page size (default: 64K)");
+  cmd->add_option("--encoding", options->encoding,
+                  "Node encoding: quantized (16-bit codebook indices), quantized8, or float")
+      ->check(CLI::IsMember({"quantized", "quantized8", "float"}));
+  cmd->add_option("--codebook", options->powerCentres,
+                  "Radiance codebook centres, plus the black entry (default: 254)")
+      ->check(CLI::Range(1, 65534));
+  cmd->add_option("--point-cloud", options->pointCloud,
+                  "Write the OpenVDB point cloud: auto (when it fits the budget), always, never")
+      ->check(CLI::IsMember({"auto", "always", "never"}));
+  cmd->add_option("--temp-dir", options->tempDir, "Folder for spill files (default: the system's)");
+  cmd->callback([options, &action] { action = [options] { return runBake(*options); }; });
+}
+
+}  // namespace pbgi::cli
