@@ -187,7 +187,6 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         {"surfel_radius", fmt::format("{:g}", report.sampling.radius)},
         {"light_samples", std::to_string(request.lightSamples)},
         {"bounces", std::to_string(request.bounces)},
-        {"memory_budget_bytes", std::to_string(request.memoryBudget)},
         {"pbgi_version", request.pbgiVersion},
     };
     auto writer = TreeFileWriter::create(report.treePath, treeOptions);

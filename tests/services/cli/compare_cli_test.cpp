@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "formats/image/image_io.h"
+#include "tests/support/run_pbgi.h"
 #include "tests/support/test_paths.h"
 
 namespace pbgi {
@@ -18,37 +19,12 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct RunResult {
-  int exitCode = -1;
-  std::string out;
-  std::string err;
-};
+using testing::RunResult;
+using testing::slurpFile;
 
-std::string slurp(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using testing::runPbgi;
 
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-RunResult runPbgi(const fs::path& dir, const std::string& args) {
-  const fs::path out = dir / "stdout.txt";
-  const fs::path err = dir / "stderr.txt";
-  const std::string command = quote(testing::pbgiBinary().string()) + " " + args + " >" +
-                              quote(out.string()) + " 2>" + quote(err.string());
-  const int status = std::system(command.c_str());
-  RunResult result;
-  if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
-  result.out = slurp(out);
-  result.err = slurp(err);
-  return result;
-}
+std::string quote(const std::string& s) { return testing::shellQuote(s); }
 
 class CompareCliTest : public ::testing::Test {
  protected:
@@ -75,7 +51,7 @@ class CompareCliTest : public ::testing::Test {
 };
 
 TEST_F(CompareCliTest, PrintsTheMetricsTable) {
-  const RunResult r = runPbgi(dir_, "compare " + quote(image_) + " " + quote(reference_));
+  const RunResult r = runPbgi("compare " + quote(image_) + " " + quote(reference_));
   EXPECT_EQ(r.exitCode, 0) << r.err;
   EXPECT_NE(r.out.find("RMSE"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("relMSE"), std::string::npos) << r.out;
@@ -89,7 +65,7 @@ TEST_F(CompareCliTest, PrintsTheMetricsTable) {
 
 TEST_F(CompareCliTest, JsonIsOneLineWithTheMetrics) {
   const fs::path diff = dir_ / "out" / "diff.exr";
-  const RunResult r = runPbgi(dir_, "compare " + quote(image_) + " " + quote(reference_) +
+  const RunResult r = runPbgi("compare " + quote(image_) + " " + quote(reference_) +
                                         " --json --diff " + quote(diff.string()));
   EXPECT_EQ(r.exitCode, 0) << r.err;
   ASSERT_FALSE(r.out.empty());
@@ -105,7 +81,7 @@ TEST_F(CompareCliTest, JsonIsOneLineWithTheMetrics) {
 }
 
 TEST_F(CompareCliTest, IdenticalImagesReportInfinitePsnr) {
-  const RunResult r = runPbgi(dir_, "compare --json " + quote(image_) + " " + quote(image_));
+  const RunResult r = runPbgi("compare --json " + quote(image_) + " " + quote(image_));
   EXPECT_EQ(r.exitCode, 0) << r.err;
   EXPECT_NE(r.out.find("\"rmse\":0,"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("\"psnr\":null"), std::string::npos) << r.out;
@@ -113,7 +89,7 @@ TEST_F(CompareCliTest, IdenticalImagesReportInfinitePsnr) {
 
 TEST_F(CompareCliTest, MissingFileIsBadInput) {
   const std::string missing = (dir_ / "missing.exr").string();
-  const RunResult r = runPbgi(dir_, "compare " + quote(missing) + " " + quote(reference_));
+  const RunResult r = runPbgi("compare " + quote(missing) + " " + quote(reference_));
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_EQ(r.err.rfind("pbgi: error: " + missing + ": ", 0), 0u) << r.err;
   EXPECT_TRUE(r.out.empty()) << r.out;
@@ -122,7 +98,7 @@ TEST_F(CompareCliTest, MissingFileIsBadInput) {
 TEST_F(CompareCliTest, UnreadableFileIsBadInput) {
   const std::string garbage = (dir_ / "garbage.exr").string();
   std::ofstream(garbage) << "not an image\n";
-  const RunResult r = runPbgi(dir_, "compare " + quote(image_) + " " + quote(garbage));
+  const RunResult r = runPbgi("compare " + quote(image_) + " " + quote(garbage));
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_EQ(r.err.rfind("pbgi: error: " + garbage + ": ", 0), 0u) << r.err;
 }
@@ -130,14 +106,14 @@ TEST_F(CompareCliTest, UnreadableFileIsBadInput) {
 TEST_F(CompareCliTest, SizeMismatchIsBadInput) {
   const std::string small = (dir_ / "small.exr").string();
   ASSERT_TRUE(writeExr(Image(2, 3, {"R", "G", "B"}), small).ok());
-  const RunResult r = runPbgi(dir_, "compare " + quote(image_) + " " + quote(small));
+  const RunResult r = runPbgi("compare " + quote(image_) + " " + quote(small));
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_NE(r.err.find("4x4"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("2x3"), std::string::npos) << r.err;
 }
 
 TEST_F(CompareCliTest, MissingArgumentIsBadUsage) {
-  const RunResult r = runPbgi(dir_, "compare " + quote(image_));
+  const RunResult r = runPbgi("compare " + quote(image_));
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_EQ(r.err.rfind("pbgi: error: ", 0), 0u) << r.err;
 }

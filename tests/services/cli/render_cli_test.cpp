@@ -7,27 +7,14 @@
 #include <fstream>
 
 #include "formats/image/image_io.h"
+#include "tests/support/run_pbgi.h"
 #include "tests/support/test_paths.h"
 
 namespace pbgi {
 namespace {
 
-struct Result {
-  int exitCode = -1;
-  std::string output;  // stdout and stderr together
-};
-
-Result runPbgi(const std::string& args) {
-  const std::string cmd = testing::pbgiBinary().string() + " " + args + " 2>&1";
-  Result r;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  while (size_t n = fread(buf.data(), 1, buf.size(), pipe)) r.output.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using testing::runPbgi;
+using Result = testing::RunResult;
 
 TEST(RenderCliTest, RendersTheSampleShotWithMetadataAndPreview) {
   const auto dir = testing::makeTempDir("render-cli");
@@ -35,11 +22,11 @@ TEST(RenderCliTest, RendersTheSampleShotWithMetadataAndPreview) {
   const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
   const Result r = runPbgi(shot.string() + " --frame 2 --spp 2 --threads 2 --out " + out.string());
   // The subcommand name goes first.
-  EXPECT_EQ(r.exitCode, 2) << r.output;
+  EXPECT_EQ(r.exitCode, 2) << r.output();
   const Result ok = runPbgi("render " + shot.string() + " --frame 2 --spp 2 --threads 2 --out " + out.string());
-  ASSERT_EQ(ok.exitCode, 0) << ok.output;
-  EXPECT_NE(ok.output.find("render"), std::string::npos);
-  EXPECT_NE(ok.output.find("wall time"), std::string::npos);
+  ASSERT_EQ(ok.exitCode, 0) << ok.output();
+  EXPECT_NE(ok.output().find("render"), std::string::npos);
+  EXPECT_NE(ok.output().find("wall time"), std::string::npos);
   auto image = readImage(out.string());
   ASSERT_TRUE(image.ok()) << image.status();
   EXPECT_EQ(image->width(), 256);
@@ -59,16 +46,16 @@ TEST(RenderCliTest, BadInputExitsTwoWithFileAndLine) {
   std::ofstream(shot) << "version = 1\n[shot]\nname = \"x\"\nframes = [1, 1]\nresolution = [8, 8]\n"
                          "output = \"o.exr\"\nbogus = 3\n";
   const Result r = runPbgi("render " + shot.string());
-  EXPECT_EQ(r.exitCode, 2) << r.output;
-  EXPECT_NE(r.output.find("pbgi: error: "), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("bad.toml:7"), std::string::npos) << r.output;
+  EXPECT_EQ(r.exitCode, 2) << r.output();
+  EXPECT_NE(r.output().find("pbgi: error: "), std::string::npos) << r.output();
+  EXPECT_NE(r.output().find("bad.toml:7"), std::string::npos) << r.output();
   const Result missing = runPbgi("render " + (dir / "nope.toml").string());
-  EXPECT_EQ(missing.exitCode, 2) << missing.output;
+  EXPECT_EQ(missing.exitCode, 2) << missing.output();
   const Result frame = runPbgi("render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() + " --frame 9");
-  EXPECT_EQ(frame.exitCode, 2) << frame.output;
-  EXPECT_NE(frame.output.find("outside"), std::string::npos) << frame.output;
+  EXPECT_EQ(frame.exitCode, 2) << frame.output();
+  EXPECT_NE(frame.output().find("outside"), std::string::npos) << frame.output();
   const Result integrator = runPbgi("render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() + " --integrator nonsense");
-  EXPECT_EQ(integrator.exitCode, 2) << integrator.output;
+  EXPECT_EQ(integrator.exitCode, 2) << integrator.output();
   std::filesystem::remove_all(dir);
 }
 

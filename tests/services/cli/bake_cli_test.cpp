@@ -1,0 +1,113 @@
+// `pbgi bake` and `pbgi inspect` as users run them: the real binary on the sample shot.
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "formats/pbgi/tree_file.h"
+#include "formats/vdb/surfel_vdb.h"
+#include "tests/support/run_pbgi.h"
+#include "tests/support/test_paths.h"
+
+namespace pbgi {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::runPbgi;
+using testing::shellQuote;
+using testing::slurpFile;
+
+const fs::path kShot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
+
+std::string bake(const fs::path& out, const std::string& extra) {
+  const testing::RunResult r = runPbgi("bake " + shellQuote(kShot.string()) + " --frame 2 --out " +
+                                       shellQuote(out.string()) + " --points 30000 " + extra);
+  EXPECT_EQ(r.exitCode, 0) << r.output();
+  return (out / "cornell.0002.pbgi").string();
+}
+
+TEST(BakeCli, WritesATreeAndAPointCloudThatInspectAccepts) {
+  const fs::path dir = testing::makeTempDir("bake-cli");
+  const std::string tree = bake(dir, "");
+  ASSERT_TRUE(fs::exists(tree));
+  ASSERT_TRUE(fs::exists(dir / "cornell.0002.vdb"));
+  auto cloud = readSurfelVdb((dir / "cornell.0002.vdb").string());
+  ASSERT_TRUE(cloud.ok()) << cloud.status();
+  EXPECT_EQ(cloud->size(), 30000u);
+  auto file = TreeFile::open(tree);
+  ASSERT_TRUE(file.ok()) << file.status();
+  EXPECT_EQ((*file)->container().info().pointCount, 30000u);
+  EXPECT_EQ((*file)->description().encoding, TreeEncoding::kQuantized);
+
+  const testing::RunResult inspect = runPbgi("inspect " + shellQuote(tree));
+  EXPECT_EQ(inspect.exitCode, 0) << inspect.output();
+  EXPECT_NE(inspect.out.find("points 30000"), std::string::npos) << inspect.out;
+  EXPECT_NE(inspect.out.find("depth histogram"), std::string::npos) << inspect.out;
+  EXPECT_NE(inspect.out.find("every page's checksum verified"), std::string::npos);
+  const testing::RunResult vdb = runPbgi("inspect " + shellQuote((dir / "cornell.0002.vdb").string()));
+  EXPECT_EQ(vdb.exitCode, 0) << vdb.output();
+  EXPECT_NE(vdb.out.find("points: 30000"), std::string::npos) << vdb.out;
+}
+
+TEST(BakeCli, InCoreOutOfCoreAndThreadCountsGiveTheSameBytes) {
+  const fs::path dir = testing::makeTempDir("bake-cli-same");
+  const std::string inCore = bake(dir / "a", "--mem-budget 1G --threads 2");
+  // 1 MiB: the sort spills runs and merges them.
+  const std::string outOfCore = bake(dir / "b", "--mem-budget 1M --threads 1 --point-cloud never");
+  const std::string twoThreadsSmall = bake(dir / "c", "--mem-budget 1M --threads 2 --point-cloud never");
+  const std::string a = slurpFile(inCore), b = slurpFile(outOfCore), c = slurpFile(twoThreadsSmall);
+  ASSERT_GT(a.size(), 1000u);
+  EXPECT_TRUE(a == b) << "in-core and out-of-core trees differ";
+  EXPECT_TRUE(b == c) << "1 and 2 threads differ";
+  EXPECT_FALSE(fs::exists(dir / "b" / "cornell.0002.vdb"));
+}
+
+TEST(BakeCli, InspectFindsADamagedPageAndExitsOne) {
+  const fs::path dir = testing::makeTempDir("bake-cli-damage");
+  const std::string tree = bake(dir, "--point-cloud never");
+  auto file = TreeFile::open(tree);
+  ASSERT_TRUE(file.ok());
+  const PageEntry entry = (*file)->container().directory().back();
+  file->reset();
+  {
+    std::fstream f(tree, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(static_cast<std::streamoff>(entry.offset + 3));
+    const char x = 0x33;
+    f.write(&x, 1);
+  }
+  const testing::RunResult r = runPbgi("inspect " + shellQuote(tree));
+  EXPECT_EQ(r.exitCode, 1) << r.output();
+  EXPECT_NE(r.err.find("page"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(tree), std::string::npos) << r.err;
+}
+
+TEST(BakeCli, InspectRefusesWhatItCannotRead) {
+  const fs::path dir = testing::makeTempDir("bake-cli-refuse");
+  std::ofstream(dir / "notes.txt") << "hello, not a tree\n";
+  testing::RunResult r = runPbgi("inspect " + shellQuote((dir / "notes.txt").string()));
+  EXPECT_EQ(r.exitCode, 2) << r.output();
+  EXPECT_NE(r.err.find("neither a PBGI tree"), std::string::npos) << r.err;
+  r = runPbgi("inspect " + shellQuote((dir / "missing.pbgi").string()));
+  EXPECT_EQ(r.exitCode, 2) << r.output();
+}
+
+TEST(BakeCli, BadFlagsAreUsageErrors) {
+  const fs::path dir = testing::makeTempDir("bake-cli-flags");
+  const std::string base = "bake " + shellQuote(kShot.string()) + " --out " + shellQuote(dir.string());
+  testing::RunResult r = runPbgi(base + " --mem-budget lots");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("--mem-budget lots"), std::string::npos) << r.err;
+  r = runPbgi(base + " --page-size 3000");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("power of two"), std::string::npos) << r.err;
+  r = runPbgi(base + " --frame 40");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("outside the shot's frames"), std::string::npos) << r.err;
+  r = runPbgi(base + " --mem-budget 100K");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("too small"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace pbgi
