@@ -1,0 +1,106 @@
+#include "core/pbgi/page_cache.h"
+
+#include <algorithm>
+
+#include <fmt/format.h>
+
+#include "core/util/check.h"
+
+namespace pbgi {
+
+std::string PageCacheCounters::toString() const {
+  return fmt::format(
+      "hits={} misses={} hit_rate={:.4f} failures={} evictions={} over_budget={} "
+      "bytes_loaded={} pages_resident={} bytes_resident={}",
+      hits, misses, hitRate(), failures, evictions, overBudget, bytesLoaded, pagesResident,
+      bytesResident);
+}
+
+PageCache::PageCache(TreePageSource& source, const PageCacheOptions& options)
+    : source_(source) {
+  PBGI_CHECK_GE(options.shards, 1);
+  shardBudget_ = options.budgetBytes / static_cast<size_t>(options.shards);
+  for (int i = 0; i < options.shards; ++i) shards_.push_back(std::make_unique<Shard>());
+}
+
+void PageCache::evict(Shard& shard) {
+  // From the least recently used end, passing over pinned pages (held outside the cache).
+  auto it = shard.lru.end();
+  while (shard.bytes > shardBudget_ && it != shard.lru.begin()) {
+    --it;
+    auto entry = shard.entries.find(*it);
+    PBGI_CHECK(entry != shard.entries.end());
+    if (entry->second.page.use_count() > 1) continue;
+    shard.bytes -= entry->second.bytes;
+    it = shard.lru.erase(it);
+    shard.entries.erase(entry);
+    ++shard.evictions;
+  }
+  if (shard.bytes > shardBudget_) ++shard.overBudget;
+}
+
+absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
+  Shard& shard = *shards_[id % shards_.size()];
+  {
+    std::lock_guard lock(shard.mutex);
+    auto it = shard.entries.find(id);
+    if (it != shard.entries.end()) {
+      shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
+      hits_.fetch_add(1, std::memory_order_relaxed);
+      return it->second.page;
+    }
+  }
+  misses_.fetch_add(1, std::memory_order_relaxed);
+  auto loaded = source_.page(id);
+  if (!loaded.ok()) {
+    failures_.fetch_add(1, std::memory_order_relaxed);
+    return loaded.status();
+  }
+  const size_t bytes = (*loaded)->memoryBytes();
+  bytesLoaded_.fetch_add(bytes, std::memory_order_relaxed);
+  {
+    std::lock_guard lock(seenMutex_);
+    if (seen_.size() <= id) seen_.resize(size_t{id} + 1, 0);
+    if (!seen_[id]) {
+      seen_[id] = 1;
+      ++distinct_;
+    }
+  }
+  std::lock_guard lock(shard.mutex);
+  auto [it, inserted] = shard.entries.try_emplace(id);
+  if (!inserted) {
+    // Another thread loaded it meanwhile: keep one copy.
+    shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
+    return it->second.page;
+  }
+  shard.lru.push_front(id);
+  it->second = Entry{*loaded, bytes, shard.lru.begin()};
+  shard.bytes += bytes;
+  // The page just loaded is returned pinned, so it survives its own insertion.
+  std::shared_ptr<const TreePage> result = it->second.page;
+  evict(shard);
+  return result;
+}
+
+PageCacheCounters PageCache::counters() const {
+  PageCacheCounters c;
+  c.hits = hits_.load(std::memory_order_relaxed);
+  c.misses = misses_.load(std::memory_order_relaxed);
+  c.failures = failures_.load(std::memory_order_relaxed);
+  c.bytesLoaded = bytesLoaded_.load(std::memory_order_relaxed);
+  for (const auto& shard : shards_) {
+    std::lock_guard lock(shard->mutex);
+    c.evictions += shard->evictions;
+    c.overBudget += shard->overBudget;
+    c.pagesResident += shard->entries.size();
+    c.bytesResident += shard->bytes;
+  }
+  return c;
+}
+
+uint64_t PageCache::distinctPagesLoaded() const {
+  std::lock_guard lock(seenMutex_);
+  return distinct_;
+}
+
+}  // namespace pbgi

@@ -1,0 +1,88 @@
+#pragma once
+// A bounded cache of decoded tree pages in front of any TreePageSource (a file read with
+// pread now, the coordinator's page stream later): what lets a renderer or a multi-bounce bake
+// traverse a tree far bigger than its memory.
+//
+// Budget: the decoded bytes of the pages held (TreePage::memoryBytes). Pages are handed out
+// as shared_ptr, and a page someone still holds is pinned: eviction passes over it, so a
+// traversal never loses a page under its feet; when everything left is pinned the cache runs
+// over budget until the pins go (counted). Least recently used goes first. The cache is split
+// into shards by page id, each with its own lock and a share of the budget, so that threads
+// gathering in parallel rarely wait on one another. Loading (pread, checksum, decompression,
+// decoding) happens outside the lock; two threads missing the same page at once may both
+// load it, and the second copy is dropped. A page the source fails to load is never cached:
+// the error (which names the file and page) goes to the caller, every time it is asked for.
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "core/pbgi/tree_page.h"
+
+namespace pbgi {
+
+struct PageCacheOptions {
+  size_t budgetBytes = size_t{256} << 20;
+  int shards = 16;
+};
+
+struct PageCacheCounters {
+  uint64_t hits = 0;
+  uint64_t misses = 0;        // loads from the source
+  uint64_t failures = 0;      // loads that failed
+  uint64_t evictions = 0;
+  uint64_t overBudget = 0;    // inserts that left a shard over its share (all pinned)
+  uint64_t bytesLoaded = 0;   // decoded bytes of every page loaded
+  uint64_t pagesResident = 0;
+  uint64_t bytesResident = 0;
+  double hitRate() const {
+    return hits + misses > 0 ? double(hits) / double(hits + misses) : 0.0;
+  }
+  std::string toString() const;
+};
+
+class PageCache : public TreePageSource {
+ public:
+  // `source` must outlive the cache.
+  PageCache(TreePageSource& source, const PageCacheOptions& options);
+  PageCache(const PageCache&) = delete;
+  PageCache& operator=(const PageCache&) = delete;
+
+  NodeRef root() const override { return source_.root(); }
+  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override;
+
+  PageCacheCounters counters() const;
+  // The distinct pages ever loaded (a traversal's footprint, for "pages read / pages in file").
+  uint64_t distinctPagesLoaded() const;
+
+ private:
+  struct Entry {
+    std::shared_ptr<const TreePage> page;
+    size_t bytes = 0;
+    std::list<uint32_t>::iterator lru;
+  };
+  struct Shard {
+    std::mutex mutex;
+    std::unordered_map<uint32_t, Entry> entries;
+    std::list<uint32_t> lru;  // front: most recent
+    size_t bytes = 0;
+    uint64_t evictions = 0, overBudget = 0;
+  };
+
+  void evict(Shard& shard);
+
+  TreePageSource& source_;
+  size_t shardBudget_;
+  std::vector<std::unique_ptr<Shard>> shards_;
+  std::atomic<uint64_t> hits_{0}, misses_{0}, failures_{0}, bytesLoaded_{0};
+  mutable std::mutex seenMutex_;
+  std::vector<uint8_t> seen_;
+  uint64_t distinct_ = 0;
+};
+
+}  // namespace pbgi

@@ -1,0 +1,126 @@
+#include "core/pbgi/page_cache.h"
+
+#include <gtest/gtest.h>
+
+#include <tbb/parallel_for.h>
+
+#include "core/pbgi/tree_writer.h"
+#include "tests/support/surfel_clouds.h"
+
+namespace pbgi {
+namespace {
+
+// A MemoryTree that counts loads and can be told to fail one page.
+class CountingSource : public TreePageSource {
+ public:
+  explicit CountingSource(std::unique_ptr<MemoryTree> tree) : tree_(std::move(tree)) {}
+  NodeRef root() const override { return tree_->root(); }
+  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override {
+    loads_.fetch_add(1);
+    if (id == failing_) return absl::DataLossError(fmt::format("tree.pbgi: page {}: damaged", id));
+    return tree_->page(id);
+  }
+  size_t pageCount() const { return tree_->payloads().size(); }
+  std::atomic<int> loads_{0};
+  uint32_t failing_ = UINT32_MAX;
+
+ private:
+  std::unique_ptr<MemoryTree> tree_;
+};
+
+std::unique_ptr<CountingSource> makeSource() {
+  TreeWriteOptions o;
+  o.encoding = TreeEncoding::kQuantized;
+  o.pageSize = 4096;
+  o.build.leafSize = 8;
+  o.powerCentres = 32;
+  o.areaCentres = 8;
+  auto tree = buildMemoryTree(testing::makeSorted(20000, 31), o);
+  PBGI_CHECK(tree.ok());
+  return std::make_unique<CountingSource>(std::move(*tree));
+}
+
+size_t onePageBytes(CountingSource& source) { return (*source.page(0))->memoryBytes(); }
+
+TEST(PageCache, HitsAfterTheFirstLoad) {
+  auto source = makeSource();
+  PageCache cache(*source, {.budgetBytes = size_t{1} << 30, .shards = 4});
+  for (int round = 0; round < 3; ++round) {
+    for (uint32_t id = 0; id < source->pageCount(); ++id) ASSERT_TRUE(cache.page(id).ok());
+  }
+  const PageCacheCounters c = cache.counters();
+  EXPECT_EQ(c.misses, source->pageCount());
+  EXPECT_EQ(c.hits, 2 * source->pageCount());
+  EXPECT_EQ(c.evictions, 0u);
+  EXPECT_EQ(c.pagesResident, source->pageCount());
+  EXPECT_EQ(cache.distinctPagesLoaded(), source->pageCount());
+}
+
+TEST(PageCache, StaysWithinItsBudgetWhenNothingIsPinned) {
+  auto source = makeSource();
+  const size_t budget = 8 * onePageBytes(*source);
+  PageCache cache(*source, {.budgetBytes = budget, .shards = 1});
+  for (int round = 0; round < 2; ++round) {
+    for (uint32_t id = 0; id < source->pageCount(); ++id) {
+      ASSERT_TRUE(cache.page(id).ok());
+      // Pages differ in size; one page of slack.
+      EXPECT_LE(cache.counters().bytesResident, budget + 2 * onePageBytes(*source));
+    }
+  }
+  EXPECT_GT(cache.counters().evictions, 0u);
+}
+
+TEST(PageCache, PinnedPagesAreNotEvicted) {
+  auto source = makeSource();
+  PageCache cache(*source, {.budgetBytes = 1, .shards = 1});
+  auto pinned = cache.page(3);
+  ASSERT_TRUE(pinned.ok());
+  for (uint32_t id = 0; id < 10; ++id) ASSERT_TRUE(cache.page(id).ok());
+  const int loads = source->loads_;
+  auto again = cache.page(3);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(source->loads_, loads) << "page 3 was pinned and stays cached";
+  EXPECT_EQ(again->get(), pinned->get());
+}
+
+TEST(PageCache, OnePageBudgetStillServesEveryPage) {
+  auto source = makeSource();
+  PageCache cache(*source, {.budgetBytes = 1, .shards = 1});
+  for (uint32_t id = 0; id < source->pageCount(); ++id) {
+    auto p = cache.page(id);
+    ASSERT_TRUE(p.ok());
+    EXPECT_EQ((*p)->id, id);
+  }
+  EXPECT_LE(cache.counters().pagesResident, 1u);
+}
+
+TEST(PageCache, FailuresAreReturnedEveryTimeAndNeverCached) {
+  auto source = makeSource();
+  source->failing_ = 2;
+  PageCache cache(*source, {.budgetBytes = size_t{1} << 30, .shards = 2});
+  for (int i = 0; i < 2; ++i) {
+    auto p = cache.page(2);
+    EXPECT_EQ(p.status().code(), absl::StatusCode::kDataLoss);
+    EXPECT_NE(p.status().message().find("page 2"), std::string::npos);
+  }
+  EXPECT_EQ(cache.counters().failures, 2u);
+  EXPECT_TRUE(cache.page(1).ok());
+}
+
+TEST(PageCache, ParallelReadersSeeConsistentPages) {
+  auto source = makeSource();
+  PageCache cache(*source, {.budgetBytes = 6 * onePageBytes(*source), .shards = 4});
+  const size_t pages = source->pageCount();
+  std::atomic<int> wrong{0};
+  tbb::parallel_for(size_t{0}, size_t{20000}, [&](size_t i) {
+    const auto id = static_cast<uint32_t>((i * 7919) % pages);
+    auto p = cache.page(id);
+    if (!p.ok() || (*p)->id != id || (*p)->nodes.empty()) wrong.fetch_add(1);
+  });
+  EXPECT_EQ(wrong.load(), 0);
+  const PageCacheCounters c = cache.counters();
+  EXPECT_EQ(c.hits + c.misses, 20000u);
+}
+
+}  // namespace
+}  // namespace pbgi
