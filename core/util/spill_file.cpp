@@ -90,8 +90,9 @@ absl::Status SpillFile::write(std::span<const uint8_t> bytes) {
 }
 
 absl::Status SpillFile::rewind() {
-  PBGI_CHECK(!reading_);
-  if (auto s = flush(); !s.ok()) return s;
+  if (!reading_) {
+    if (auto s = flush(); !s.ok()) return s;
+  }
   if (::lseek(fd_, 0, SEEK_SET) != 0) return errnoStatus(errno, "rewinding spill file", name_);
 #ifdef POSIX_FADV_SEQUENTIAL
   ::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);

@@ -1,5 +1,5 @@
 #pragma once
-// A temporary file written once front to back and then read once front to back, through one
+// A temporary file written once front to back and then read front to back, once or more, through one
 // bounded buffer: what the out-of-core build spills between its passes. The file is unlinked
 // as soon as it is created, so it never outlives its process, even one killed with -9.
 #include <cstddef>
@@ -25,7 +25,7 @@ class SpillFile {
   ~SpillFile();
 
   absl::Status write(std::span<const uint8_t> bytes);
-  // Ends writing; reading starts at the first byte.
+  // Ends writing (the first time); reading starts again at the first byte, as often as wanted.
   absl::Status rewind();
   // Exactly bytes.size() bytes; running out is a DataLoss error naming the file.
   absl::Status read(std::span<uint8_t> bytes);

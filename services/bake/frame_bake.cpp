@@ -5,10 +5,15 @@
 #include <optional>
 
 #include <fmt/format.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <xxhash.h>
 
+#include "core/pbgi/gather.h"
 #include "core/pbgi/morton.h"
+#include "core/pbgi/page_cache.h"
+#include "core/util/spill_file.h"
 #include "core/util/status.h"
 #include "formats/pbgi/tree_file.h"
 #include "formats/scene/frame_scene.h"
@@ -53,6 +58,58 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request, uint64_
   return XXH3_64bits(text.data(), text.size());
 }
 
+// Lights every surfel of the sorted spill with one more bounce gathered from the tree at
+// `fromPath` through a page cache, and writes the next tree to `toPath`. Surfels keep their
+// direct light (and emission); only diffuse surfels reflect the gathered light, as in the
+// direct pass.
+absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const std::string& toPath,
+                                           SpillFile& sorted, const TreeFileWriteOptions& options,
+                                           const FrameBakeRequest& request, uint64_t surfels,
+                                           GatherStats* gatherStats) {
+  auto from = TreeFile::open(fromPath);
+  if (!from.ok()) return from.status();
+  PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4});
+  auto writer = TreeFileWriter::create(toPath, options);
+  if (!writer.ok()) return writer.status();
+  if (auto s = sorted.rewind(); !s.ok()) return s;
+  tbb::enumerable_thread_specific<Gatherer> gatherers(
+      [&] { return Gatherer(request.gather); });
+  tbb::enumerable_thread_specific<GatherStats> stats;
+  std::vector<SortedSurfel> batch;
+  std::vector<absl::Status> errors;
+  std::vector<uint8_t> bytes;
+  for (uint64_t done = 0; done < surfels;) {
+    const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
+    bytes.resize(n * kSurfelRecordBytes);
+    if (auto s = sorted.read(bytes); !s.ok()) return s;
+    batch.resize(n);
+    errors.assign(n, absl::OkStatus());
+    for (size_t i = 0; i < n; ++i) {
+      if (auto s = decodeSurfelRecord(bytes.data() + i * kSurfelRecordBytes, &batch[i]); !s.ok()) {
+        return absl::DataLossError(fmt::format("{}: {}", sorted.name(), s.message()));
+      }
+    }
+    tbb::parallel_for(size_t{0}, n, [&](size_t i) {
+      Surfel& s = batch[i].surfel;
+      if (s.materialClass != MaterialClass::kDiffuse || isBlack(s.albedo)) return;
+      auto e = gatherers.local().irradiance(cache, s.position, s.normal, &stats.local());
+      if (!e.ok()) {
+        errors[i] = e.status();
+        return;
+      }
+      s.radiance += s.albedo * kInvPi * *e;
+    });
+    for (size_t i = 0; i < n; ++i) {
+      if (!errors[i].ok()) return errors[i];
+      if (auto s = (*writer)->add(batch[i]); !s.ok()) return s;
+    }
+    done += n;
+    if (request.progress) request.progress("bounce", done, surfels);
+  }
+  for (const GatherStats& s : stats) *gatherStats += s;
+  return (*writer)->finish();
+}
+
 }  // namespace
 
 std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) {
@@ -67,11 +124,11 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                                              shot.path, request.frame, shot.firstFrame,
                                              shot.lastFrame));
   }
-  if (request.bounces != 0) {
+  if (request.bounces < 0 || request.bounces > kMaxBakeBounces) {
     return absl::InvalidArgumentError(
-        fmt::format("--bounces {}: this build bakes direct light only (0 bounces)",
-                    request.bounces));
+        fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));
   }
+  if (auto s = request.gather.validate(); !s.ok()) return s;
   if (request.lightSamples < 1) {
     return absl::InvalidArgumentError(
         fmt::format("light samples {}: expected at least 1", request.lightSamples));
@@ -189,15 +246,33 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         {"bounces", std::to_string(request.bounces)},
         {"pbgi_version", request.pbgiVersion},
     };
-    auto writer = TreeFileWriter::create(report.treePath, treeOptions);
+    // Without bounces the sorted stream goes straight into the output tree. With K bounces it
+    // also goes to a spill (direct light only), tree k - 1 is gathered from for every surfel
+    // to light tree k, and only the last one is the output.
+    std::optional<SpillFile> sorted;
+    if (request.bounces > 0) {
+      auto spill = SpillFile::create(request.tempDir, "pbgi-bake-sorted");
+      if (!spill.ok()) return result = spill.status(), void();
+      sorted.emplace(std::move(*spill));
+    }
+    auto bounceTreePath = [&](int bounce) {
+      return bounce == request.bounces ? report.treePath
+                                       : fmt::format("{}.bounce{}.tmp.pbgi", stem, bounce);
+    };
+    auto writer = TreeFileWriter::create(bounceTreePath(0), treeOptions);
     if (!writer.ok()) return result = writer.status(), void();
     SortedSurfel next;
+    uint8_t record[kSurfelRecordBytes];
     uint64_t built = 0;
     while (true) {
       auto more = sorter.next(&next);
       if (!more.ok()) return result = more.status(), void();
       if (!*more) break;
       if (auto s = (*writer)->add(next); !s.ok()) return result = s, void();
+      if (sorted) {
+        encodeSurfelRecord(next, record);
+        if (auto s = sorted->write(record); !s.ok()) return result = s, void();
+      }
       if (request.progress && (++built & 0xffff) == 0) {
         request.progress("build", built, report.sampling.surfels);
       }
@@ -206,8 +281,19 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     auto tree = (*writer)->finish();
     if (!tree.ok()) return result = tree.status(), void();
     report.tree = *tree;
-    report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
     stage("build", t0);
+
+    for (int bounce = 1; bounce <= request.bounces; ++bounce) {
+      t0 = Clock::now();
+      auto lit = bakeBounce(bounceTreePath(bounce - 1), bounceTreePath(bounce), *sorted,
+                            treeOptions, request, report.sampling.surfels, &report.gather);
+      std::error_code removeError;
+      std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
+      if (!lit.ok()) return result = lit.status(), void();
+      report.tree = *lit;
+      stage(fmt::format("bounce {}", bounce).c_str(), t0);
+    }
+    report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
 
     if (keepCloud) {
       t0 = Clock::now();

@@ -4,6 +4,10 @@
 // memory budget and swept into the paged, quantized PBGI tree (`.pbgi`). `pbgi bake` runs
 // it; the renderer and the farm's bake tasks share it.
 //
+// Bounces (Christensen's multi-pass): the sorted surfels are kept in a spill with their
+// direct light; each bounce gathers irradiance for every diffuse surfel from the previous
+// bounce's tree (read through a page cache of a quarter of the budget) and builds the next.
+//
 // Memory: surfels stream through in chunks; the external sort gets half the budget, the
 // tree's spill and page buffers a few MiB. The point cloud is the one part OpenVDB builds in
 // memory; in `auto` mode it is written only when it fits in a quarter of the budget, and
@@ -18,6 +22,7 @@
 #include "core/bake/surfel_sampler.h"
 #include "core/bake/surfel_shading.h"
 #include "core/pbgi/external_sort.h"
+#include "core/pbgi/gather.h"
 #include "core/pbgi/tree_writer.h"
 #include "core/scene/shot.h"
 
@@ -31,6 +36,7 @@ struct FrameBakeRequest {
   uint64_t points = 0;       // 0: kDefaultBakePoints
   size_t memoryBudget = size_t{1} << 30;
   int bounces = 0;           // indirect bounces gathered over the tree itself
+  GatherOptions gather;      // how those bounces gather
   int lightSamples = 16;     // per surfel, for direct light
   int threads = 0;           // 0: all cores
   TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes (seed: the shot's)
@@ -41,6 +47,7 @@ struct FrameBakeRequest {
 };
 
 inline constexpr uint64_t kDefaultBakePoints = 1'000'000;
+inline constexpr int kMaxBakeBounces = 16;
 
 struct BakeStage {
   std::string name;
@@ -54,6 +61,7 @@ struct FrameBakeReport {
   SurfelShadingStats shading;
   SortStats sort;
   TreeWriteResult tree;
+  GatherStats gather;  // of the bounces
   uint64_t treeFileBytes = 0;
   std::vector<BakeStage> stages;
   std::vector<std::string> warnings;

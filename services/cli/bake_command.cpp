@@ -30,6 +30,7 @@ struct BakeOptions {
   int powerCentres = TreeWriteOptions{}.powerCentres;
   std::string pointCloud = "auto";
   std::string tempDir;
+  std::string bounceQuality = "default";
 };
 
 int runBake(const BakeOptions& o) {
@@ -64,6 +65,9 @@ int runBake(const BakeOptions& o) {
                        : o.pointCloud == "never" ? PointCloudMode::kNever
                                                  : PointCloudMode::kAuto;
   request.bounces = o.bounces;
+  auto gather = gatherPreset(o.bounceQuality);
+  if (!gather.ok()) return reportError(gather.status());
+  request.gather = *gather;
   request.lightSamples = o.lightSamples;
   request.threads = o.threads;
   request.tempDir = o.tempDir;
@@ -96,6 +100,7 @@ int runBake(const BakeOptions& o) {
         t.quantization.area.relativeRms, t.quantization.power.maxRelative);
   }
   std::printf("  sort: %s\n", report->sort.toString().c_str());
+  if (request.bounces > 0) std::printf("  bounces: %s\n", report->gather.toString().c_str());
   for (const BakeStage& s : report->stages) std::printf("  %-13s %8.3f s\n", s.name.c_str(), s.seconds);
   std::printf("wall time %.3f s\n", report->wallSeconds);
   return kExitOk;
@@ -117,6 +122,9 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
                   "Memory budget, e.g. 256M or 2G (default: 1G)");
   cmd->add_option("--bounces", options->bounces, "Indirect bounces baked into the surfels")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--bounce-quality", options->bounceQuality,
+                  "Gather preset for the bounces: draft, default, high")
+      ->check(CLI::IsMember({"draft", "default", "high"}));
   cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")
       ->check(CLI::PositiveNumber);
   cmd->add_option("--threads", options->threads, "Worker threads (default: all cores)")

@@ -20,9 +20,10 @@ using testing::slurpFile;
 
 const fs::path kShot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
 
-std::string bake(const fs::path& out, const std::string& extra) {
-  const testing::RunResult r = runPbgi("bake " + shellQuote(kShot.string()) + " --frame 2 --out " +
-                                       shellQuote(out.string()) + " --points 30000 " + extra);
+std::string bake(const fs::path& out, const std::string& extra, int points = 30000) {
+  const testing::RunResult r =
+      runPbgi("bake " + shellQuote(kShot.string()) + " --frame 2 --out " +
+              shellQuote(out.string()) + " --points " + std::to_string(points) + " " + extra);
   EXPECT_EQ(r.exitCode, 0) << r.output();
   return (out / "cornell.0002.pbgi").string();
 }
@@ -107,6 +108,40 @@ TEST(BakeCli, BadFlagsAreUsageErrors) {
   r = runPbgi(base + " --mem-budget 100K");
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_NE(r.err.find("too small"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+// The root's outgoing power (DC of the radiant intensity, luminance) of a baked tree.
+float rootPower(const std::string& path) {
+  auto file = TreeFile::open(path);
+  EXPECT_TRUE(file.ok()) << file.status();
+  if (!file.ok()) return 0.0f;
+  auto page = (*file)->page((*file)->root().page);
+  EXPECT_TRUE(page.ok());
+  return luminance((*page)->nodes[(*file)->root().index].attributes.powerSh.c[0]);
+}
+
+TEST(BakeCli, BouncesAddLessAndLessLight) {
+  const fs::path dir = testing::makeTempDir("bake-cli-bounces");
+  float power[3];
+  for (int k = 0; k < 3; ++k) {
+    const std::string tree = bake(dir / std::to_string(k),
+                                  fmt::format("--bounces {} --bounce-quality draft --point-cloud never", k),
+                                  8000);
+    power[k] = rootPower(tree);
+    // No temporary tree of an earlier bounce is left behind.
+    EXPECT_EQ(testing::filesIn(dir / std::to_string(k)).size(), 1u);
+  }
+  // The Cornell box's walls reflect about half: each bounce adds light, less than the last.
+  EXPECT_GT(power[1], power[0] * 1.1f) << power[0] << " " << power[1];
+  EXPECT_GT(power[2], power[1]) << power[1] << " " << power[2];
+  EXPECT_LT(power[2] - power[1], power[1] - power[0]);
+  std::cout << "root power by bounces: " << power[0] << " " << power[1] << " " << power[2] << "\n";
 }
 
 }  // namespace
