@@ -22,6 +22,12 @@ constexpr float kMaxExtentFactor = 4.0f;
 constexpr size_t kMaxHeldPages = 16;
 // Deeper than any tree the builder makes: a reference cycle in a damaged file stops here.
 constexpr uint32_t kMaxGatherDepth = 2 * kMaxTreeLevels;
+// A cluster's splat reaches this many bounding radii in depth: its round footprint spreads
+// past the cluster's true outline (most at grazing views), onto pixels where the same
+// surface lies up to a bounding diameter nearer or farther, and those must count as one
+// surface (coverage adds up) rather than as layers that hide each other. Measured: 1 loses
+// 2-3 % of the light of a surface seen from close by, 4 merges an occluder with what it hides.
+constexpr float kLayerExtentFactor = 2.0f;
 // Surfels centred within this fraction of their radius of the receiver's tangent plane
 // (or behind it) are on the receiver's own surface.
 constexpr float kCoplanarFraction = 0.01f;
@@ -88,8 +94,8 @@ int checkedResolution(const GatherOptions& options) {
 
 absl::Status GatherOptions::validate() const {
   if (!(maxSolidAngle > 0.0f && maxSolidAngle <= 4.0f * kPi)) {
-    return absl::InvalidArgumentError(
-        fmt::format("gather options: maxSolidAngle must be in (0, 4 pi] sr, got {}", maxSolidAngle));
+    return absl::InvalidArgumentError(fmt::format(
+        "gather options: maxSolidAngle must be in (0, 4 pi] sr, got {}", maxSolidAngle));
   }
   if (resolution < kMinMicrobufferResolution || resolution > kMaxMicrobufferResolution) {
     return absl::InvalidArgumentError(
@@ -97,8 +103,8 @@ absl::Status GatherOptions::validate() const {
                     kMinMicrobufferResolution, kMaxMicrobufferResolution, resolution));
   }
   if (!(nearFieldFactor >= 0.0f && nearFieldFactor <= 1e3f)) {
-    return absl::InvalidArgumentError(
-        fmt::format("gather options: nearFieldFactor must be in [0, 1000], got {}", nearFieldFactor));
+    return absl::InvalidArgumentError(fmt::format(
+        "gather options: nearFieldFactor must be in [0, 1000], got {}", nearFieldFactor));
   }
   if (!(selfSkipRadius >= 0.0f && selfSkipRadius <= 100.0f)) {
     return absl::InvalidArgumentError(
@@ -126,8 +132,8 @@ absl::StatusOr<GatherOptions> gatherPreset(std::string_view name) {
     o.resolution = 20;
     o.nearFieldFactor = 6.0f;
   } else {
-    return absl::InvalidArgumentError(fmt::format(
-        "gather preset \"{}\" unknown; known presets: draft, default, high", name));
+    return absl::InvalidArgumentError(
+        fmt::format("gather preset \"{}\" unknown; known presets: draft, default, high", name));
   }
   return o;
 }
@@ -154,9 +160,9 @@ std::string GatherStats::toString() const {
       "gathers={} nodes_visited={} culled_plane={} culled_cone={} clusters={} "
       "clusters_invisible={} disks={} near_field={} surfels_skipped={} surfels_back_facing={} "
       "pages_touched={} faces_skipped={} pixels_skipped={}",
-      gathers, nodesVisited, nodesCulledPlane, nodesCulledCone, clustersSplatted,
-      clustersInvisible, disksSplatted, nearFieldRayCasts, surfelsSkipped, surfelsBackFacing,
-      pagesTouched, facesSkipped, pixelsSkipped);
+      gathers, nodesVisited, nodesCulledPlane, nodesCulledCone, clustersSplatted, clustersInvisible,
+      disksSplatted, nearFieldRayCasts, surfelsSkipped, surfelsBackFacing, pagesTouched,
+      facesSkipped, pixelsSkipped);
 }
 
 Gatherer::Gatherer(const GatherOptions& options)
@@ -211,7 +217,7 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
       buffer_.rayCastDisk(s.position, s.normal, s.radius, s.radiance);
       ++stats->nearFieldRayCasts;
     } else {
-      buffer_.splatDisk(s.position, s.normal, s.radius, s.radiance);
+      buffer_.splatDisk(s.position, s.normal, s.radius, s.radiance, kLayerExtentFactor * s.radius);
       ++stats->disksSplatted;
     }
   }
@@ -230,8 +236,9 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
     if (!pageOr.ok()) return pageOr.status();
     const TreePage& page = **pageOr;
     if (entry.ref.index >= page.nodes.size()) {
-      return absl::DataLossError(fmt::format("gather: page {} has {} nodes, a reference names node {}",
-                                             entry.ref.page, page.nodes.size(), entry.ref.index));
+      return absl::DataLossError(
+          fmt::format("gather: page {} has {} nodes, a reference names node {}", entry.ref.page,
+                      page.nodes.size(), entry.ref.index));
     }
     const TreeNode& node = page.nodes[entry.ref.index];
     const NodeAttributes& a = node.attributes;
@@ -278,7 +285,7 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
             radiance = vmax(radiance, Rgb(0.0f)) / shArea;
           }
           buffer_.splatFootprint(dir, distance, area / distance2, radiance,
-                                 std::sqrt(boundRadius2));
+                                 kLayerExtentFactor * std::sqrt(boundRadius2));
           ++stats->clustersSplatted;
           continue;
         }
@@ -287,24 +294,22 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
 
     if (node.leaf()) {
       if (uint64_t{node.first} + node.surfelCount > page.surfels.size()) {
-        return absl::DataLossError(
-            fmt::format("gather: page {} node {} names surfels {}..{} of {}", entry.ref.page,
-                        entry.ref.index, node.first, uint64_t{node.first} + node.surfelCount,
-                        page.surfels.size()));
+        return absl::DataLossError(fmt::format(
+            "gather: page {} node {} names surfels {}..{} of {}", entry.ref.page, entry.ref.index,
+            node.first, uint64_t{node.first} + node.surfelCount, page.surfels.size()));
       }
       gatherSurfels(page, node, p, n, stats);
       continue;
     }
     if (uint64_t{node.first} + node.childCount > page.children.size()) {
-      return absl::DataLossError(
-          fmt::format("gather: page {} node {} names children {}..{} of {}", entry.ref.page,
-                      entry.ref.index, node.first, uint64_t{node.first} + node.childCount,
-                      page.children.size()));
+      return absl::DataLossError(fmt::format(
+          "gather: page {} node {} names children {}..{} of {}", entry.ref.page, entry.ref.index,
+          node.first, uint64_t{node.first} + node.childCount, page.children.size()));
     }
     if (entry.depth + 1 > kMaxGatherDepth) {
-      return absl::DataLossError(fmt::format(
-          "gather: tree deeper than {} levels at page {} node {} (a reference cycle?)",
-          kMaxGatherDepth, entry.ref.page, entry.ref.index));
+      return absl::DataLossError(
+          fmt::format("gather: tree deeper than {} levels at page {} node {} (a reference cycle?)",
+                      kMaxGatherDepth, entry.ref.page, entry.ref.index));
     }
     // Reversed, so that children come off the stack in Morton order: the page is walked
     // front to back.
@@ -334,9 +339,9 @@ absl::StatusOr<Rgb> Gatherer::irradiance(TreePageSource& tree, const Vec3f& posi
   if (absl::Status s = rasterize(tree, position, normal, stats); !s.ok()) return s;
   const Rgb e = buffer_.irradiance(*receiverNormal(position, normal));
   if (!isFinite(e)) {
-    return absl::DataLossError(fmt::format(
-        "gather: irradiance {} at {} is not finite: the tree holds non-finite radiance", e,
-        position));
+    return absl::DataLossError(
+        fmt::format("gather: irradiance {} at {} is not finite: the tree holds non-finite radiance",
+                    e, position));
   }
   return e;
 }

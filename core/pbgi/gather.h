@@ -6,11 +6,13 @@
 // Per node, from the receiver at p with normal n:
 //   - culled when its bounds lie entirely behind the tangent plane at p, or when its normal
 //     cone faces entirely away from p (seen from behind, surfels and nodes are transparent);
-//   - splatted as a cluster when small from p: its projected area towards p over its
-//     distance squared is at most maxSolidAngle (and its bounding sphere not much larger),
-//     with the mean radiance its spherical harmonics send towards p;
+//   - splatted as a cluster when small from p: its projected area towards p (from its SH,
+//     held within what its normal cone allows) over its distance squared is at most
+//     maxSolidAngle, and its bounding sphere not much larger; with the mean radiance its
+//     spherical harmonics send towards p;
 //   - refined otherwise; a leaf too large to be a cluster gives its surfels one by one, as
-//     exact disks, ray-cast over the whole buffer when nearer than nearFieldFactor radii.
+//     footprints of their solid angle, or ray-cast exactly when nearer than nearFieldFactor
+//     radii.
 // Surfels centred on or behind the tangent plane, and those whose disk holds the receiver
 // (the receiver's own surfel and its overlapping neighbours), are left out: on a flat or
 // gently curved surface they would otherwise shadow the receiver with itself.
@@ -37,8 +39,8 @@ struct GatherOptions {
   // a cluster; Christensen uses 0.02 to 0.03.
   float maxSolidAngle = 0.03f;
   int resolution = 12;  // microbuffer pixels per face side
-  // Surfels nearer than this many radii are ray-cast over the whole buffer instead of
-  // splatted within their bounding cone.
+  // Surfels nearer than this many radii are ray-cast (exact disks) instead of splatted as
+  // round footprints: near, a disk's outline spans many pixels.
   float nearFieldFactor = 4.0f;
   // Surfels whose disk, grown by this factor, holds the receiver are not gathered.
   float selfSkipRadius = 1.0f;
@@ -62,11 +64,11 @@ struct GatherStats {
   uint64_t clustersInvisible = 0;  // small, but no projected area towards the receiver
   uint64_t disksSplatted = 0;
   uint64_t nearFieldRayCasts = 0;
-  uint64_t surfelsSkipped = 0;    // behind or on the tangent plane, or holding the receiver
+  uint64_t surfelsSkipped = 0;  // behind or on the tangent plane, or holding the receiver
   uint64_t surfelsBackFacing = 0;
-  uint64_t pagesTouched = 0;      // page() calls
-  uint64_t facesSkipped = 0;      // microbuffer faces entirely below the horizon
-  uint64_t pixelsSkipped = 0;     // microbuffer pixels below the horizon, never rasterized
+  uint64_t pagesTouched = 0;   // page() calls
+  uint64_t facesSkipped = 0;   // microbuffer faces entirely below the horizon
+  uint64_t pixelsSkipped = 0;  // microbuffer pixels below the horizon, never rasterized
 
   GatherStats& operator+=(const GatherStats& o);
   std::string toString() const;
@@ -90,8 +92,8 @@ class Gatherer {
                          GatherStats* stats);
   // rasterize, then the clamped-cosine convolution. DataLoss when the tree's radiance makes
   // the result non-finite.
-  absl::StatusOr<Rgb> irradiance(TreePageSource& tree, const Vec3f& position,
-                                 const Vec3f& normal, GatherStats* stats);
+  absl::StatusOr<Rgb> irradiance(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
+                                 GatherStats* stats);
 
   // The last rasterized picture, for other convolutions (a BRDF) and debugging.
   const Microbuffer& microbuffer() const { return buffer_; }

@@ -4,7 +4,7 @@
 #include <array>
 #include <cmath>
 #include <mutex>
-#include <cstdlib>
+#include <numbers>
 
 #include "core/util/check.h"
 
@@ -55,6 +55,7 @@ std::shared_ptr<const MicrobufferTables> computeTables(int n) {
   tables->directions.resize(count);
   tables->solidAngles.resize(count);
   tables->widths.resize(count);
+  tables->inverseWidths.resize(count);
   tables->vectorSolidAngles.resize(count);
   const double step = 2.0 / n;
   for (int f = 0; f < kCubeFaces; ++f) {
@@ -77,10 +78,10 @@ std::shared_ptr<const MicrobufferTables> computeTables(int n) {
                              cornerSolidAngle(u1, v0) + cornerSolidAngle(u0, v0);
         tables->solidAngles[k] = static_cast<float>(omega);
         tables->widths[k] = static_cast<float>(std::sqrt(omega));
+        tables->inverseWidths[k] = static_cast<float>(1.0 / std::sqrt(omega));
         double center[3];
         unit(0.5 * (u0 + u1), 0.5 * (v0 + v1), center);
-        tables->directions[k] = Vec3f(static_cast<float>(center[0]),
-                                      static_cast<float>(center[1]),
+        tables->directions[k] = Vec3f(static_cast<float>(center[0]), static_cast<float>(center[1]),
                                       static_cast<float>(center[2]));
         double corners[4][3];
         unit(u0, v0, corners[0]);
@@ -113,21 +114,16 @@ Microbuffer::Microbuffer(int resolution)
       tables_(microbufferTables(resolution)),
       directions_(tables_->directions.data()),
       solidAngles_(tables_->solidAngles.data()),
-      widths_(tables_->widths.data()),
+      inverseWidths_(tables_->inverseWidths.data()),
       vectorSolidAngles_(tables_->vectorSolidAngles.data()),
-      depth_(tables_->directions.size(), kEmpty),
-      extent_(tables_->directions.size(), 0.0f),
-      coverage_(tables_->directions.size(), 0.0f),
-      radiance_(tables_->directions.size(), Rgb(0.0f)) {
+      pixels_(tables_->directions.size()) {
   scratch_.reserve(tables_->directions.size());
   clear(Vec3f(0.0f));
 }
 
 void Microbuffer::clear(const Vec3f& origin) {
   origin_ = origin;
-  std::fill(depth_.begin(), depth_.end(), kEmpty);
-  std::fill(coverage_.begin(), coverage_.end(), 0.0f);
-  std::fill(radiance_.begin(), radiance_.end(), Rgb(0.0f));
+  std::fill(pixels_.begin(), pixels_.end(), Pixel{});
   std::fill(std::begin(faceActive_), std::end(faceActive_), true);
   skippedFaces_ = 0;
   skippedPixels_ = 0;
@@ -135,8 +131,7 @@ void Microbuffer::clear(const Vec3f& origin) {
 
 void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
   origin_ = origin;
-  std::fill(coverage_.begin(), coverage_.end(), 0.0f);
-  std::fill(radiance_.begin(), radiance_.end(), Rgb(0.0f));
+  std::fill(pixels_.begin(), pixels_.end(), Pixel{});
   skippedFaces_ = 0;
   skippedPixels_ = 0;
   const int facePixels = n_ * n_;
@@ -146,11 +141,11 @@ void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
     // product with the normal is at a corner: sign * n_a + |n_b| + |n_c|.
     const float maxDot =
         axes.sign * normal[axes.a] + std::abs(normal[axes.b]) + std::abs(normal[axes.c]);
-    float* depth = depth_.data() + f * facePixels;
+    Pixel* pixels = pixels_.data() + f * facePixels;
     const Vec3f* dirs = directions_ + f * facePixels;
     if (!(maxDot > 0.0f)) {
       faceActive_[f] = false;
-      std::fill(depth, depth + facePixels, 0.0f);
+      for (int k = 0; k < facePixels; ++k) pixels[k].front.depth = 0.0f;
       ++skippedFaces_;
       skippedPixels_ += facePixels;
       continue;
@@ -158,7 +153,7 @@ void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
     faceActive_[f] = true;
     for (int k = 0; k < facePixels; ++k) {
       const bool above = dot(dirs[k], normal) > 0.0f;
-      depth[k] = above ? kEmpty : 0.0f;
+      pixels[k].front.depth = above ? kEmpty : 0.0f;
       skippedPixels_ += above ? 0 : 1;
     }
   }
@@ -171,10 +166,10 @@ int Microbuffer::pixelIndex(const Vec3f& dir) const {
   const FaceAxes axes = faceAxes(f);
   const float inv = 1.0f / std::abs(dir[a]);
   const float half = 0.5f * static_cast<float>(n_);
-  const int i = std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0,
-                           n_ - 1);
-  const int j = std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0,
-                           n_ - 1);
+  const int i =
+      std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0, n_ - 1);
+  const int j =
+      std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0, n_ - 1);
   return (f * n_ + j) * n_ + i;
 }
 
@@ -188,8 +183,11 @@ bool Microbuffer::coneRect(int f, const Vec3f& dir, float sinAngle, float cosAng
     *rect = full;
     return true;
   }
-  // Entirely behind the face's plane (the face only holds directions with sign * w_a > 0).
-  if (d <= -sinAngle) return false;
+  // The face is the intersection of four half-spaces through the origin, sign * w_a >= |w_b|
+  // and >= |w_c|; a cone that misses one of them (its axis more than its half-angle on the
+  // wrong side of the plane) misses the face.
+  const float margin = -sinAngle * std::numbers::sqrt2_v<float>;
+  if (d - std::abs(dir[axes.b]) < margin || d - std::abs(dir[axes.c]) < margin) return false;
   // Straddling the plane, the cone's trace on the face is unbounded: try the whole face.
   // This only happens for cones wider than about 35 degrees, which cover much of it anyway.
   if (d <= sinAngle) {
@@ -218,43 +216,57 @@ bool Microbuffer::coneRect(int f, const Vec3f& dir, float sinAngle, float cosAng
   return range(dir[axes.b], &rect->i0, &rect->i1) && range(dir[axes.c], &rect->j0, &rect->j1);
 }
 
+namespace {
+
+bool overlaps(float distance, float extent, float depth, float layerExtent) {
+  return std::abs(distance - depth) <= extent + layerExtent;
+}
+
+}  // namespace
+
 bool Microbuffer::compose(int k, float distance, float extent, float alpha, const Rgb& radiance) {
-  float& depth = depth_[k];
-  if (!(depth > 0.0f)) return false;  // below the horizon
-  float& coverage = coverage_[k];
-  Rgb& sum = radiance_[k];
-  if (depth == kEmpty) {
-    depth = distance;
-    extent_[k] = extent;
-    coverage = alpha;
-    sum = radiance * alpha;
+  Pixel& p = pixels_[k];
+  Layer& front = p.front;
+  if (!(front.depth > 0.0f)) return false;  // below the horizon
+  const Layer piece{distance, extent, alpha, radiance * alpha};
+  // Adds a piece of the same surface to a layer.
+  auto add = [&](Layer& layer) {
+    layer.depth = std::min(layer.depth, distance);
+    layer.extent = std::max(layer.extent, extent);
+    layer.coverage += alpha;
+    layer.radiance += piece.radiance;
+  };
+  // Puts `top` over `under`: under shows through what top leaves open.
+  auto over = [](const Layer& top, const Layer& under) {
+    const float scale = underScale(top, under);
+    return Layer{top.depth, top.extent, top.coverage + under.coverage * scale,
+                 top.radiance + under.radiance * scale};
+  };
+  if (front.depth == kEmpty) {
+    front = piece;
     return true;
   }
-  const float reach = extent_[k] + extent;
-  if (distance + reach < depth) {
-    // In front: hides alpha of what was there.
-    const float keep = 1.0f - alpha;
-    sum = radiance * alpha + sum * keep;
-    coverage = alpha + coverage * keep;
-    depth = distance;
-    extent_[k] = extent;
+  if (overlaps(distance, extent, front.depth, front.extent)) {
+    add(front);
     return true;
   }
-  const float open = 1.0f - coverage;
-  static const bool noClamp2 = getenv("PBGI_NOCLAMP") != nullptr;  // TEMP
-  if (!noClamp2 && !(open > 0.0f)) return false;
-  float a;
-  if (distance - reach > depth) {
-    if (!(open > 0.0f)) return false;
-    a = alpha * open;  // behind: seen through the open part, whatever it is
+  if (distance < front.depth) {
+    p.back = p.back.depth == kEmpty ? front : over(front, p.back);
+    front = piece;
+    return true;
+  }
+  if (!(front.coverage < 1.0f)) return false;  // hidden behind a full front layer
+  Layer& back = p.back;
+  if (back.depth == kEmpty) {
+    back = piece;
+  } else if (overlaps(distance, extent, back.depth, back.extent)) {
+    add(back);
+  } else if (distance < back.depth) {
+    back = over(piece, back);
   } else {
-    static const bool noClamp = getenv("PBGI_NOCLAMP") != nullptr;  // TEMP
-    a = noClamp ? alpha : std::min(alpha, open);  // the same surface: pieces side by side
-    depth = std::min(depth, distance);
-    extent_[k] = std::max(extent_[k], extent);
+    if (!(back.coverage < 1.0f)) return false;
+    back = over(back, piece);
   }
-  sum += radiance * a;
-  coverage += a;
   return true;
 }
 
@@ -272,45 +284,52 @@ int Microbuffer::splatFootprint(const Vec3f& dir, float distance, float solidAng
   // First pass: the fractions by a linear ramp one pixel wide across the rim, over every
   // face (below the horizon too: what falls there is lost, not given to the rest).
   scratch_.clear();
-  float full = 0.0f, partial = 0.0f;
-  for (int f = 0; f < kCubeFaces; ++f) {
-    PixelRect r;
-    if (!coneRect(f, dir, sinReach, cosReach, &r)) continue;
+  float full = 0.0f, partial = 0.0f, room = 0.0f;
+  auto fractions = [&](int f, const PixelRect& r) {
     for (int j = r.j0; j <= r.j1; ++j) {
       const int row = (f * n_ + j) * n_;
       for (int k = row + r.i0; k <= row + r.i1; ++k) {
         const float chord = safeSqrt(2.0f - 2.0f * dot(directions_[k], dir));
-        const float alpha = 0.5f + (rimChord - chord) / widths_[k];
+        const float alpha = 0.5f + (rimChord - chord) * inverseWidths_[k];
         if (!(alpha > 0.0f)) continue;
         if (alpha >= 1.0f) {
           full += solidAngles_[k];
           scratch_.push_back({k, 1.0f});
         } else {
           partial += alpha * solidAngles_[k];
+          room += (1.0f - alpha) * solidAngles_[k];
           scratch_.push_back({k, alpha});
         }
       }
     }
+  };
+  for (int f = 0; f < kCubeFaces; ++f) {
+    PixelRect rect;
+    if (coneRect(f, dir, sinReach, cosReach, &rect)) fractions(f, rect);
   }
   if (scratch_.empty()) {
     // Smaller than a pixel and between centres: a fraction of the pixel it lies in.
     const int k = pixelIndex(dir);
-    return compose(k, distance, extent, std::min(1.0f, solidAngle / solidAngles_[k]), radiance)
-               ? 1
-               : 0;
+    return compose(k, distance, extent, std::min(1.0f, solidAngle / solidAngles_[k]), radiance) ? 1
+                                                                                                : 0;
   }
-  // Scale so that the splat covers exactly its solid angle: the rim makes up what the
-  // interior lacks, or, when the interior alone covers too much (a footprint of a pixel or
-  // two), everything shrinks alike.
-  float fullScale = 1.0f, partialScale = 0.0f;
-  if (full > solidAngle) {
-    fullScale = partialScale = solidAngle / (full + partial);
-  } else if (partial > 0.0f) {
-    partialScale = (solidAngle - full) / partial;
+  // Make the splat cover exactly its solid angle. Usually the rim makes up what the interior
+  // lacks by scaling its fractions; when that would push them past 1 (a cap so wide that its
+  // rim wraps around the sphere) they grow towards 1 instead; when the interior alone covers
+  // too much (a footprint of a pixel or two), everything shrinks alike.
+  const float lack = solidAngle - full;
+  float interior = 1.0f, scale = 0.0f, fill = 0.0f;
+  if (lack < 0.0f) {
+    interior = scale = solidAngle / (full + partial);
+  } else if (lack <= partial) {
+    scale = lack / partial;
+  } else {
+    scale = 1.0f;
+    fill = room > 0.0f ? std::min(1.0f, (lack - partial) / room) : 0.0f;
   }
   int reached = 0;
   for (const Fraction& fr : scratch_) {
-    const float alpha = fr.alpha >= 1.0f ? fullScale : std::min(1.0f, fr.alpha * partialScale);
+    const float alpha = fr.alpha >= 1.0f ? interior : fr.alpha * scale + (1.0f - fr.alpha) * fill;
     if (alpha > 0.0f && compose(fr.pixel, distance, extent, alpha, radiance)) ++reached;
   }
   return reached;
@@ -326,7 +345,7 @@ int Microbuffer::splatCluster(const Vec3f& centroid, float projectedArea, const 
 }
 
 int Microbuffer::diskRect(int f, const PixelRect& r, const Vec3f& toCenter, const Vec3f& normal,
-                          float radius, const Rgb& radiance, int* inside) {
+                          float radius, const Rgb& radiance) {
   // The centre ray w hits the disk's plane at t = dot(c - o, n) / dot(w, n); the disk faces
   // the origin, so only rays with dot(w, n) < 0 reach its front.
   const float planeDistance = dot(toCenter, normal);  // < 0: the origin is in front
@@ -340,7 +359,6 @@ int Microbuffer::diskRect(int f, const PixelRect& r, const Vec3f& toCenter, cons
       if (!(denom < 0.0f)) continue;
       const float t = planeDistance / denom;
       if ((w * t - toCenter).length2() > r2) continue;
-      ++*inside;
       if (compose(k, t, radius, 1.0f, radiance)) ++won;
     }
   }
@@ -348,42 +366,39 @@ int Microbuffer::diskRect(int f, const PixelRect& r, const Vec3f& toCenter, cons
 }
 
 int Microbuffer::splatDisk(const Vec3f& center, const Vec3f& normal, float radius,
-                           const Rgb& radiance) {
+                           const Rgb& radiance, float extent) {
   const Vec3f v = center - origin_;
-  if (!(dot(v, normal) < 0.0f) || !(radius > 0.0f)) return 0;  // seen from behind or edge-on
   const float distance = length(v);
-  const Vec3f dir = v / distance;
-  // Every ray that hits the disk lies in the cone around its centre that holds its
-  // bounding sphere.
-  const float sinAngle = std::min(1.0f, radius / distance);
-  const float cosAngle = safeSqrt(1.0f - sinAngle * sinAngle);
-  int inside = 0, won = 0;
-  for (int f = 0; f < kCubeFaces; ++f) {
-    PixelRect r;
-    if (!faceActive_[f] || !coneRect(f, dir, sinAngle, cosAngle, &r)) continue;
-    won += diskRect(f, r, v, normal, radius, radiance, &inside);
-  }
-  if (inside == 0) {
-    // Smaller than a pixel: the fraction of the pixel its projected solid angle makes.
-    const int k = pixelIndex(dir);
-    const float projected = kPi * radius * radius * -dot(dir, normal) / (distance * distance);
-    if (compose(k, distance, radius, std::min(1.0f, projected / solidAngles_[k]), radiance)) {
-      ++won;
-    }
-  }
-  return won;
+  if (!(distance > 0.0f) || !(radius > 0.0f)) return 0;
+  const float facing = -dot(v, normal) / distance;
+  if (!(facing > 0.0f)) return 0;  // seen from behind or edge-on
+  // The solid angle of a disk seen face-on, 2 pi (1 - d / sqrt(d^2 + r^2)) (written without
+  // the cancellation), times the cosine it is seen at.
+  const float s = std::sqrt(distance * distance + radius * radius);
+  const float solidAngle = 2.0f * kPi * radius * radius * facing / (s * (s + distance));
+  return splatFootprint(v / distance, distance, solidAngle, radiance, extent);
 }
 
 int Microbuffer::rayCastDisk(const Vec3f& center, const Vec3f& normal, float radius,
                              const Rgb& radiance) {
   const Vec3f v = center - origin_;
-  if (!(dot(v, normal) < 0.0f) || !(radius > 0.0f)) return 0;
+  if (!(dot(v, normal) < 0.0f) || !(radius > 0.0f)) return 0;  // seen from behind or edge-on
+  const float distance = length(v);
+  // Every ray that hits the disk lies in the cone around its centre that holds its bounding
+  // sphere, when the origin is outside that sphere.
+  const float sinAngle = std::min(1.0f, radius / distance);
+  const float cosAngle = safeSqrt(1.0f - sinAngle * sinAngle);
+  const Vec3f dir = v / distance;
   const PixelRect full{0, n_ - 1, 0, n_ - 1};
-  int inside = 0, won = 0;
+  int reached = 0;
   for (int f = 0; f < kCubeFaces; ++f) {
-    if (faceActive_[f]) won += diskRect(f, full, v, normal, radius, radiance, &inside);
+    PixelRect r = full;
+    if (!faceActive_[f] || (sinAngle < 1.0f && !coneRect(f, dir, sinAngle, cosAngle, &r))) {
+      continue;
+    }
+    reached += diskRect(f, r, v, normal, radius, radiance);
   }
-  return won;
+  return reached;
 }
 
 Rgb Microbuffer::irradiance(const Vec3f& normal) const {
@@ -394,7 +409,7 @@ Rgb Microbuffer::irradiance(const Vec3f& normal) const {
     if (!faceActive_[f]) continue;
     for (int k = f * facePixels; k < (f + 1) * facePixels; ++k) {
       const float c = dot(vectorSolidAngles_[k], normal);
-      if (c > 0.0f) sum += radiance_[k] * c;
+      if (c > 0.0f) sum += radiance(k) * c;
     }
   }
   return sum;
@@ -408,7 +423,7 @@ int Microbuffer::coveredPixels() const {
 
 float Microbuffer::coveredSolidAngle() const {
   double sum = 0.0;
-  for (int k = 0; k < pixelCount(); ++k) sum += coverage_[k] * solidAngles_[k];
+  for (int k = 0; k < pixelCount(); ++k) sum += coverage(k) * solidAngles_[k];
   return static_cast<float>(sum);
 }
 

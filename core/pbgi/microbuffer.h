@@ -8,24 +8,27 @@
 // v along (a + 2) % 3, u0 = -1 + 2 i / N; pixel index (f N + j) N + i. Each pixel is sampled
 // at its centre direction and weighted by its exact solid angle.
 //
-// Coverage. A pixel holds the depth of the nearest surface in it, a coverage (the fraction
-// of the pixel that surface and what lies behind it fill) and the coverage-weighted radiance.
-// Every splat covers pixels with a fraction alpha in (0, 1]: 1 where a disk's exact hit or
-// a footprint's interior holds the pixel centre, less on a footprint's rim and for splats
-// smaller than a pixel, scaled so that a splat adds exactly its own solid angle. That keeps
-// both a lone far cluster (one pixel, a fraction of it) and a surface tiled by clusters (round
-// footprints that overlap and leave gaps) right in energy, where point-sampled all-or-nothing
-// coverage is off by the gaps or by whole pixels. Splats then compose per pixel by depth,
-// each with an extent (how far in depth it reaches: its bounding radius):
-//   - in front (nearer by more than both extents): it hides alpha of what was there; a
-//     solid splat (alpha 1) replaces it, which is the depth test, closer wins;
-//   - behind: it only fills what is still open, 1 - coverage;
-//   - overlapping in depth: pieces of one surface, their coverages add up to 1.
-// This is exact for one surface and for solid occluders, and approximate (order-dependent)
-// only for several partly covered layers in one pixel.
+// Coverage. Every splat covers pixels with a fraction alpha in (0, 1]: 1 where a ray-cast
+// disk's exact hit or a footprint's interior holds the pixel centre, less on a footprint's rim and
+// for splats smaller than a pixel, scaled so that a splat adds exactly its own solid angle. That
+// keeps both a lone far cluster (a fraction of one pixel) and a surface tiled by clusters
+// (round footprints that overlap and leave gaps) right in energy, where point-sampled
+// all-or-nothing coverage is off by the gaps or by whole pixels.
+//
+// Depth. Each splat has a depth range (distance +- extent, about its size). A pixel
+// keeps two layers, each a depth range with a coverage and a coverage-weighted radiance; a
+// splat whose range overlaps a layer's is another piece of that surface and adds to it (so
+// energy is kept where pieces overlap and lost where they leave gaps, on average even).
+// A splat in front of the front layer becomes the front, the old front going over the back;
+// one behind it joins the back layer, or goes over or under it. The pixel shows the front
+// and as much of the back as fits in what the front leaves open: a solid splat (coverage 1)
+// in front hides everything behind, which is the depth test, closer wins; a partly covered
+// pixel shows what lies behind through its open part. Three or more layers in one pixel are
+// approximated.
 //
 // A diffuse receiver only sees the hemisphere above its normal: clear(origin, normal) marks
 // the pixels below it inactive and skips whole faces below it; splats never write there.
+#include <algorithm>
 #include <limits>
 #include <memory>
 #include <vector>
@@ -48,6 +51,7 @@ struct MicrobufferTables {
   std::vector<Vec3f> directions;
   std::vector<float> solidAngles;
   std::vector<float> widths;
+  std::vector<float> inverseWidths;
   std::vector<Vec3f> vectorSolidAngles;
   float maxWidth = 0.0f;
 };
@@ -77,14 +81,16 @@ class Microbuffer {
   // The same for a point at `centroid` covering `projectedArea` (seen from the origin).
   int splatCluster(const Vec3f& centroid, float projectedArea, const Rgb& radiance, float extent);
 
-  // A one-sided disk (surfel), exact: the pixels whose centre ray hits the disk's front side
-  // are covered at the hit distance. Only pixels inside the disk's bounding cone are tried;
-  // a disk that hits no pixel centre covers the fraction of the pixel of its centre that its
-  // projected solid angle makes. Seen from behind a disk is transparent (its back is the
-  // inside of a surface, which the tree's one-sided projected areas make transparent too).
-  int splatDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance);
-  // Near field: the same intersection tried for every active pixel, with no bounding cone
-  // (the origin may be inside the disk's bounding sphere) and no sub-pixel fraction.
+  // A one-sided disk (surfel) in the mid field, as a footprint of its solid angle around the
+  // direction of its centre, reaching `extent` in depth: a disk a few pixels wide or less
+  // is round enough, and the footprint keeps its energy exact where point-sampled exact
+  // coverage would count a disk either as nothing or as whole pixels. Seen from behind a
+  // disk is transparent (its back is the inside of a surface, which the tree's one-sided
+  // projected areas make transparent too).
+  int splatDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance,
+                float extent);
+  // Near field, exact: every pixel whose centre ray hits the disk's front side is covered
+  // (alpha 1) at the hit distance. The origin may be inside the disk's bounding sphere.
   int rayCastDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance);
 
   // Irradiance at the origin for a receiver facing `normal` (unit): the sum over pixels of
@@ -101,7 +107,7 @@ class Microbuffer {
       const int end = (f + 1) * n_ * n_;
       for (int k = f * n_ * n_; k < end; ++k) {
         if (!covered(k)) continue;
-        sum += radiance_[k] * (weight(directions_[k]) * solidAngles_[k]);
+        sum += radiance(k) * (weight(directions_[k]) * solidAngles_[k]);
       }
     }
     return sum;
@@ -110,12 +116,21 @@ class Microbuffer {
   // Pixel access, for convolutions, tests and debugging pictures.
   const Vec3f& direction(int pixel) const { return directions_[pixel]; }
   float solidAngle(int pixel) const { return solidAngles_[pixel]; }
-  float depth(int pixel) const { return depth_[pixel]; }
-  float coverage(int pixel) const { return coverage_[pixel]; }
+  // The front layer's nearest distance (infinite when empty, 0 below the horizon).
+  float depth(int pixel) const { return pixels_[pixel].front.depth; }
+  // The fraction of the pixel covered, front and back layers together (above 1 where
+  // pieces of one surface overlap).
+  float coverage(int pixel) const {
+    const Pixel& p = pixels_[pixel];
+    return p.front.coverage + p.back.coverage * underScale(p.front, p.back);
+  }
   // Coverage-weighted: a pixel half covered by radiance L holds L / 2.
-  const Rgb& radiance(int pixel) const { return radiance_[pixel]; }
-  bool active(int pixel) const { return depth_[pixel] > 0.0f; }
-  bool covered(int pixel) const { return coverage_[pixel] > 0.0f; }
+  Rgb radiance(int pixel) const {
+    const Pixel& p = pixels_[pixel];
+    return p.front.radiance + p.back.radiance * underScale(p.front, p.back);
+  }
+  bool active(int pixel) const { return pixels_[pixel].front.depth > 0.0f; }
+  bool covered(int pixel) const { return coverage(pixel) > 0.0f; }
   // The pixel whose square holds direction `dir` (any length but 0).
   int pixelIndex(const Vec3f& dir) const;
   int coveredPixels() const;
@@ -137,6 +152,24 @@ class Microbuffer {
     int pixel;
     float alpha;
   };
+  struct Layer {
+    float depth = kEmpty;  // nearest distance; 0 for the front layer of an inactive pixel
+    float extent = 0.0f;   // how far the layer reaches in depth beyond `depth`
+    float coverage = 0.0f;
+    Rgb radiance{0.0f};  // coverage-weighted
+  };
+  struct Pixel {
+    Layer front, back;
+  };
+
+  // How much of `under` shows below `top`: all of it if it fits in what top leaves open,
+  // else as much as fits. Pieces of different depth in one pixel are taken to lie side by
+  // side where they can (a surface seen at a grazing angle spans a wide range of depths in
+  // one pixel; its pieces do not hide each other), and one behind the other where they must.
+  static float underScale(const Layer& top, const Layer& under) {
+    const float open = std::max(0.0f, 1.0f - top.coverage);
+    return under.coverage > open ? open / under.coverage : 1.0f;
+  }
 
   // The pixels of face f whose centre can lie within the cone around unit `dir` of half-angle
   // with these sine and cosine; false when the cone misses the face.
@@ -144,21 +177,18 @@ class Microbuffer {
   // Composes alpha of `radiance` at `distance` into pixel k (see the header comment); false
   // when it changed nothing (inactive pixel, or behind a full one).
   bool compose(int k, float distance, float extent, float alpha, const Rgb& radiance);
-  // Exact disk test over the pixels of `rect` on face f; adds to *inside the centres that hit.
+  // Exact disk test over the pixels of `rect` on face f.
   int diskRect(int f, const PixelRect& rect, const Vec3f& toCenter, const Vec3f& normal,
-               float radius, const Rgb& radiance, int* inside);
+               float radius, const Rgb& radiance);
 
   int n_ = 0;
   std::shared_ptr<const MicrobufferTables> tables_;
   const Vec3f* directions_ = nullptr;
   const float* solidAngles_ = nullptr;
-  const float* widths_ = nullptr;
+  const float* inverseWidths_ = nullptr;
   const Vec3f* vectorSolidAngles_ = nullptr;
   Vec3f origin_{0.0f};
-  std::vector<float> depth_;  // 0: inactive, kEmpty: nothing yet
-  std::vector<float> extent_;
-  std::vector<float> coverage_;
-  std::vector<Rgb> radiance_;
+  std::vector<Pixel> pixels_;
   std::vector<Fraction> scratch_;  // a footprint's pixels between its two passes
   bool faceActive_[kCubeFaces] = {};
   int skippedFaces_ = 0;

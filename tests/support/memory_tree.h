@@ -127,8 +127,9 @@ inline std::vector<SortedSurfel> sortSurfels(std::span<const Surfel> surfels) {
 }
 
 // The tree of `surfels` (at least one) as a page source.
-inline absl::StatusOr<std::unique_ptr<MemoryTreeSource>> memoryTree(
-    std::span<const Surfel> surfels, int leafSize = kDefaultLeafSize, int splitDepth = 0) {
+inline absl::StatusOr<std::unique_ptr<MemoryTreeSource>> memoryTree(std::span<const Surfel> surfels,
+                                                                    int leafSize = kDefaultLeafSize,
+                                                                    int splitDepth = 0) {
   TreeBuildOptions options;
   options.leafSize = leafSize;
   const std::vector<SortedSurfel> sorted = sortSurfels(surfels);

@@ -15,8 +15,8 @@ namespace pbgi {
 namespace {
 
 using testing::FailingPageSource;
-using testing::MemoryTreeSource;
 using testing::memoryTree;
+using testing::MemoryTreeSource;
 
 const float kGoldenAngle = kPi * (3.0f - std::sqrt(5.0f));
 
@@ -66,7 +66,8 @@ double diskIrradiance(const Vec3f& p, const Vec3f& n, const Vec3f& center, const
     const double ringArea = std::numbers::pi * (r1 * r1 - r0 * r0) / sectors;
     for (int b = 0; b < sectors; ++b) {
       const double phi = 2.0 * std::numbers::pi * (b + 0.5) / sectors;
-      const Vec3f x = center + frame.toWorld(Vec3f(float(r * std::cos(phi)), float(r * std::sin(phi)), 0));
+      const Vec3f x =
+          center + frame.toWorld(Vec3f(float(r * std::cos(phi)), float(r * std::sin(phi)), 0));
       const Vec3f v = x - p;
       const double d2 = v.length2();
       const double d = std::sqrt(d2);
@@ -114,10 +115,10 @@ TEST(Gather, FurnaceAtSphereCentre) {
     EXPECT_NEAR(e->y / e->x, 0.5f, 1e-5f);
     EXPECT_GT(stats.clustersSplatted, 0u);
     EXPECT_EQ(stats.facesSkipped + stats.pixelsSkipped > 0, true);
-    std::printf("[ measured ] furnace centre n=%s: E/piL = %.4f  %s\n", fmt::format("{}", n).c_str(),
-                e->x / (kPi * radiance.x), stats.toString().c_str());
+    std::printf("[ measured ] furnace centre n=%s: E/piL = %.4f  %s\n",
+                fmt::format("{}", n).c_str(), e->x / (kPi * radiance.x), stats.toString().c_str());
   }
-  EXPECT_LT(worst, 0.03f);
+  EXPECT_LT(worst, 0.01f);
 }
 
 // On the sphere's inner surface the receiver still sees the whole sphere in its hemisphere:
@@ -126,8 +127,8 @@ TEST(Gather, FurnaceOnSphereSurface) {
   const Rgb radiance(1.0f);
   auto tree = treeOf(sphereSurfels(20000, 1.0f, radiance));
   float worst = 0.0f;
-  for (const Vec3f& dir : {normalize(Vec3f(0.3f, 0.2f, 0.9f)), normalize(Vec3f(-1, 0.5f, 0.1f)),
-                           Vec3f(0, 1, 0)}) {
+  for (const Vec3f& dir :
+       {normalize(Vec3f(0.3f, 0.2f, 0.9f)), normalize(Vec3f(-1, 0.5f, 0.1f)), Vec3f(0, 1, 0)}) {
     GatherStats stats;
     auto e = gatherIrradiance(*tree, dir, -dir, GatherOptions{}, &stats);
     ASSERT_TRUE(e.ok()) << e.status();
@@ -136,7 +137,9 @@ TEST(Gather, FurnaceOnSphereSurface) {
     std::printf("[ measured ] furnace surface: E/piL = %.4f  %s\n", e->x / kPi,
                 stats.toString().c_str());
   }
-  EXPECT_LT(worst, 0.05f);
+  // Round footprints of the nearly coplanar neighbours lose their lower halves below the
+  // horizon (2-3 %, measured); the rest is exact.
+  EXPECT_LT(worst, 0.04f);
 }
 
 // A coaxial disk of radiance L and angular radius theta gives E = pi L sin^2(theta).
@@ -150,7 +153,7 @@ TEST(Gather, CoaxialDiskMatchesFormFactor) {
     const float exact = kPi * rho * rho / (h * h + rho * rho);
     std::printf("[ measured ] coaxial disk h=%.2f: E/exact = %.4f  %s\n", h, e->x / exact,
                 stats.toString().c_str());
-    EXPECT_LT(relativeError(e->x, exact), 0.05f) << "h = " << h;
+    EXPECT_LT(relativeError(e->x, exact), 0.02f) << "h = " << h;
   }
 }
 
@@ -161,16 +164,18 @@ TEST(Gather, TiltedReceiverMatchesQuadrature) {
     const Vec3f n(std::sin(radians(tilt)), 0, std::cos(radians(tilt)));
     auto e = gatherIrradiance(*tree, Vec3f(0.0f), n, GatherOptions{}, nullptr);
     ASSERT_TRUE(e.ok()) << e.status();
-    const float exact = static_cast<float>(diskIrradiance(Vec3f(0.0f), n, center, normal, 1.0f, 2.0f));
+    const float exact =
+        static_cast<float>(diskIrradiance(Vec3f(0.0f), n, center, normal, 1.0f, 2.0f));
     std::printf("[ measured ] tilted %.0f deg: E/exact = %.4f\n", tilt, e->x / exact);
-    EXPECT_LT(relativeError(e->x, exact), 0.05f) << "tilt " << tilt;
+    EXPECT_LT(relativeError(e->x, exact), 0.01f) << "tilt " << tilt;
   }
 }
 
 // A black disk between the receiver and an emitter hides the emitter's middle: the depth test
 // at work through the whole gather.
 TEST(Gather, OccluderHidesWhatIsBehindIt) {
-  std::vector<Surfel> surfels = diskSurfels(20000, Vec3f(0, 0, 2), Vec3f(0, 0, -1), 2.0f, Rgb(1.0f));
+  std::vector<Surfel> surfels =
+      diskSurfels(20000, Vec3f(0, 0, 2), Vec3f(0, 0, -1), 2.0f, Rgb(1.0f));
   const std::vector<Surfel> blocker =
       diskSurfels(5000, Vec3f(0, 0, 1), Vec3f(0, 0, -1), 0.5f, Rgb(0.0f));
   surfels.insert(surfels.end(), blocker.begin(), blocker.end());
@@ -179,11 +184,11 @@ TEST(Gather, OccluderHidesWhatIsBehindIt) {
   ASSERT_TRUE(e.ok()) << e.status();
   const float exact = kPi * (4.0f / 8.0f - 0.25f / 1.25f);
   std::printf("[ measured ] occluded disk: E/exact = %.4f\n", e->x / exact);
-  EXPECT_LT(relativeError(e->x, exact), 0.06f);
+  EXPECT_LT(relativeError(e->x, exact), 0.02f);
 }
 
-// A small emitter far away is one cluster of a pixel or two: each gather quantizes its
-// coverage, but over many directions its irradiance should come out right on average.
+// A small emitter far away is one cluster of a pixel or less: it must bring its energy,
+// neither nothing (between pixel centres) nor a whole pixel.
 TEST(Gather, FarClusterIsRightOnAverage) {
   auto tree = treeOf(diskSurfels(64, Vec3f(0.0f), Vec3f(0, 0, 1), 0.5f, Rgb(1.0f)));
   Rng rng(4);
@@ -201,9 +206,10 @@ TEST(Gather, FarClusterIsRightOnAverage) {
     ratio += e->x / exact;
   }
   ratio /= trials;
-  std::printf("[ measured ] far cluster: mean E/exact = %.4f  %s\n", ratio, stats.toString().c_str());
+  std::printf("[ measured ] far cluster: mean E/exact = %.4f  %s\n", ratio,
+              stats.toString().c_str());
   EXPECT_EQ(stats.disksSplatted + stats.nearFieldRayCasts, 0u);
-  EXPECT_NEAR(ratio, 1.0, 0.1);
+  EXPECT_NEAR(ratio, 1.0, 0.02);
 }
 
 TEST(Gather, CoarserThresholdVisitsFewerNodes) {
@@ -217,7 +223,7 @@ TEST(Gather, CoarserThresholdVisitsFewerNodes) {
     ASSERT_TRUE(e.ok()) << e.status();
     EXPECT_LT(stats.nodesVisited, previous) << "maxSolidAngle " << maxSolidAngle;
     previous = stats.nodesVisited;
-    EXPECT_LT(relativeError(e->x, kPi), 0.1f) << "maxSolidAngle " << maxSolidAngle;
+    EXPECT_LT(relativeError(e->x, kPi), 0.02f) << "maxSolidAngle " << maxSolidAngle;
   }
 }
 
@@ -235,7 +241,8 @@ TEST(Gather, ReceiverBehindEverythingGathersZero) {
   e = gatherIrradiance(*tree, Vec3f(0, 0, 2), Vec3f(0, 0, -1), GatherOptions{}, &back);
   ASSERT_TRUE(e.ok()) << e.status();
   EXPECT_EQ(*e, Rgb(0.0f));
-  EXPECT_EQ(back.nodesCulledCone, 1u);
+  EXPECT_GE(back.nodesCulledCone, 1u);
+  EXPECT_EQ(back.clustersSplatted + back.disksSplatted + back.nearFieldRayCasts, 0u);
   // Below it, looking up at its front: not zero (the two above are not zero by accident).
   e = gatherIrradiance(*tree, Vec3f(0, 0, 0), Vec3f(0, 0, 1), GatherOptions{}, nullptr);
   ASSERT_TRUE(e.ok()) << e.status();
@@ -299,6 +306,52 @@ TEST(Gather, DamagedPageFailsTheGather) {
   EXPECT_GT(failed, 1);
 }
 
+// One hand-made page, to feed the gather what no builder makes.
+class OnePageSource : public TreePageSource {
+ public:
+  explicit OnePageSource(std::shared_ptr<const TreePage> page) : page_(std::move(page)) {}
+  NodeRef root() const override { return {0, 0}; }
+  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override { return page_; }
+
+ private:
+  std::shared_ptr<const TreePage> page_;
+};
+
+// A root big enough from the origin to be refined, with one child reference.
+std::shared_ptr<const TreePage> pageWithChild(NodeRef child) {
+  auto page = std::make_shared<TreePage>();
+  TreeNode root;
+  root.attributes.bounds.extend(Vec3f(-1, -1, 1));
+  root.attributes.bounds.extend(Vec3f(1, 1, 2));
+  root.attributes.centroid = Vec3f(0, 0, 1.5f);
+  root.attributes.cone.axis = Vec3f(0, 0, -1);
+  root.attributes.area = 4.0f;
+  root.attributes.pointCount = 1;
+  root.childCount = 1;
+  page->nodes.push_back(root);
+  page->children.push_back(child);
+  return page;
+}
+
+TEST(Gather, DamagedReferencesAreDataLoss) {
+  OnePageSource outside(pageWithChild(NodeRef{0, 7}));
+  auto e = gatherIrradiance(outside, Vec3f(0.0f), Vec3f(0, 0, 1), GatherOptions{}, nullptr);
+  EXPECT_EQ(e.status().code(), absl::StatusCode::kDataLoss) << e.status();
+  EXPECT_NE(e.status().message().find("node 7"), absl::string_view::npos) << e.status();
+  OnePageSource cycle(pageWithChild(NodeRef{0, 0}));
+  e = gatherIrradiance(cycle, Vec3f(0.0f), Vec3f(0, 0, 1), GatherOptions{}, nullptr);
+  EXPECT_EQ(e.status().code(), absl::StatusCode::kDataLoss) << e.status();
+  EXPECT_NE(e.status().message().find("deeper"), absl::string_view::npos) << e.status();
+}
+
+TEST(Gather, NonFiniteRadianceIsDataLoss) {
+  std::vector<Surfel> surfels = diskSurfels(500, Vec3f(0, 0, 1), Vec3f(0, 0, -1), 1.0f, Rgb(1.0f));
+  surfels[17].radiance.y = std::numeric_limits<float>::quiet_NaN();
+  auto tree = treeOf(surfels);
+  auto e = gatherIrradiance(*tree, Vec3f(0.0f), Vec3f(0, 0, 1), GatherOptions{}, nullptr);
+  EXPECT_EQ(e.status().code(), absl::StatusCode::kDataLoss) << e.status();
+}
+
 TEST(Gather, PagesTouchedAreTheSourcesFetches) {
   auto tree = treeOf(sphereSurfels(8000, 1.0f, Rgb(1.0f)), 2);
   GatherStats stats;
@@ -315,10 +368,9 @@ TEST(Gather, RejectsBadReceiversAndOptions) {
                 .status()
                 .code(),
             absl::StatusCode::kInvalidArgument);
-  EXPECT_EQ(gatherIrradiance(*tree, Vec3f(0.0f), Vec3f(0.0f), GatherOptions{}, nullptr)
-                .status()
-                .code(),
-            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(
+      gatherIrradiance(*tree, Vec3f(0.0f), Vec3f(0.0f), GatherOptions{}, nullptr).status().code(),
+      absl::StatusCode::kInvalidArgument);
   GatherOptions bad;
   bad.resolution = 0;
   EXPECT_EQ(gatherIrradiance(*tree, Vec3f(0.0f), Vec3f(0, 0, 1), bad, nullptr).status().code(),
