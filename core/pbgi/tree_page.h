@@ -97,10 +97,14 @@ struct TreePage {
   std::vector<NodeRef> children;
   std::vector<Surfel> surfels;  // triangle and barycentric are not stored: left 0
 
+  // `first` indexes children for interior nodes and surfels for leaves; each accessor is
+  // empty for the other kind (the index would be out of its range).
   std::span<const NodeRef> childrenOf(const TreeNode& n) const {
+    if (n.leaf()) return {};
     return std::span(children).subspan(n.first, n.childCount);
   }
   std::span<const Surfel> surfelsOf(const TreeNode& n) const {
+    if (!n.leaf()) return {};
     return std::span(surfels).subspan(n.first, n.surfelCount);
   }
   // Memory the decoded page holds, what a page cache budgets.

@@ -4,6 +4,7 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 
 #include "tests/support/run_pbgi.h"
 #include "tests/support/surfel_clouds.h"
@@ -145,7 +146,25 @@ const std::vector<Crafted>& craftedTrees() {
   return files;
 }
 
+// Seeds for tests/fuzz/tree_page_fuzz.cpp: pages of small trees in every encoding.
+void makeFuzzSeeds(const fs::path& dir) {
+  fs::create_directories(dir);
+  for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized, TreeEncoding::kQuantized8}) {
+    TreeWriteOptions o = smallTree(e).tree;
+    o.exactFromPoints = 200;
+    auto tree = buildMemoryTree(testing::makeSorted(600, 23), o);
+    ASSERT_TRUE(tree.ok());
+    const auto& pages = (*tree)->payloads();
+    for (size_t i = 0; i < std::min<size_t>(pages.size(), 3); ++i) {
+      std::ofstream(dir / fmt::format("{}_{}.page", treeEncodingName(e), i), std::ios::binary)
+          .write(reinterpret_cast<const char*>(pages[i].data()),
+                 static_cast<std::streamsize>(pages[i].size()));
+    }
+  }
+}
+
 void makeCraftedTrees(const fs::path& dir) {
+  makeFuzzSeeds(dir / "fuzz_corpus");
   const std::vector<uint8_t> leafPage = floatPage(0, {{}});
   writeCrafted((dir / "future_payload.pbgi").string(), {leafPage},
                {{"tree", text(treeSection("99", "float"))}});
