@@ -231,6 +231,11 @@ class TreeWriter::Impl {
       double powerD2, powerN2, areaD2, areaN2;
       bool powerFinite, areaFinite;
     };
+    const uint64_t exactFrom =
+        options_.exactNodes == 0
+            ? 0
+            : std::max(kMinExactPoints, builder_.stats().points / options_.exactNodes);
+    result->exactFromPoints = exactFrom;
     std::vector<PageNode> batch;
     std::vector<uint32_t> childCounts;
     std::vector<Quantized> errors;
@@ -248,7 +253,7 @@ class TreeWriter::Impl {
       tbb::parallel_for(size_t{0}, n, [&](size_t i) {
         PageNode& node = batch[i];
         const NodeAttributes& a = node.attributes;
-        node.exact = options_.exactFromPoints > 0 && a.pointCount >= options_.exactFromPoints;
+        node.exact = exactFrom > 0 && a.pointCount >= exactFrom;
         if (node.exact) {
           float v[Sh9Rgb::kFloats];
           a.powerSh.toFloats(v);
@@ -284,6 +289,7 @@ class TreeWriter::Impl {
         squaredError(av, aq, &errors[i].areaD2, &errors[i].areaN2, &errors[i].areaFinite);
       });
       for (size_t i = 0; i < n; ++i) {
+        if (batch[i].exact) ++result->exactNodeCount;
         powerSums.add(errors[i].powerD2, errors[i].powerN2, errors[i].powerFinite);
         areaSums.add(errors[i].areaD2, errors[i].areaN2, errors[i].areaFinite);
         for (const Surfel& s : batch[i].surfels) {

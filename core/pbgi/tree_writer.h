@@ -30,9 +30,10 @@ struct TreeWriteOptions {
   uint32_t pageSize = 64 * 1024;
   int powerCentres = 254;  // plus the black entry; at most 254 for 8-bit indices
   int areaCentres = 62;
-  // Nodes over at least this many surfels keep their SH in float (few nodes, most of the
-  // light); 0 quantizes every node.
-  uint64_t exactFromPoints = 1024;
+  // The biggest nodes keep their SH in float: few nodes, carrying most of the light. A node
+  // is exact when it holds at least max(kMinExactPoints, points / exactNodes) surfels, which
+  // bounds the exact nodes to about exactNodes per tree level. 0 quantizes every node.
+  uint64_t exactNodes = 4096;
   int kmeansIterations = 10;
   double sampleFraction = 0.1;  // of the nodes, at most maxSample
   size_t maxSample = 50000;
@@ -47,8 +48,12 @@ struct TreeQuantizationReport {
   uint64_t clampedSurfelRadiance = 0;  // surfel radiance beyond half's range, clamped
 };
 
+inline constexpr uint64_t kMinExactPoints = 64;
+
 struct TreeWriteResult {
   NodeRef root;
+  uint64_t exactFromPoints = 0;  // the threshold used (0: none exact)
+  uint64_t exactNodeCount = 0;
   NodeAttributes rootAttributes;  // in float, as built
   TreeBuildStats build;
   TreePagerStats pages;

@@ -109,12 +109,16 @@ absl::StatusOr<TreeWriteResult> TreeFileWriter::finish() {
       {"payload_version", std::to_string(kTreePayloadVersion)},
       {"encoding", std::string(treeEncodingName(options_.tree.encoding))},
       {"leaf_size", std::to_string(options_.tree.build.leafSize)},
-      {"exact_from_points", std::to_string(options_.tree.exactFromPoints)},
+      {"exact_from_points", std::to_string(result->exactFromPoints)},
+      {"exact_nodes", std::to_string(result->exactNodeCount)},
       {"nodes", std::to_string(result->build.nodes)},
       {"leaves", std::to_string(result->build.leaves)},
       {"points", std::to_string(result->build.points)},
       {"power_codebook_entries", std::to_string(result->codebooks.power.size())},
       {"area_codebook_entries", std::to_string(result->codebooks.area.size())},
+      {"power_relative_rms_error", fmt::format("{:.6g}", result->quantization.power.relativeRms)},
+      {"area_relative_rms_error", fmt::format("{:.6g}", result->quantization.area.relativeRms)},
+      {"clamped_surfel_radiance", std::to_string(result->quantization.clampedSurfelRadiance)},
   };
   meta.sections.push_back({std::string(kTreeSection), textBytes(formatKeyValues(tree))});
   if (quantized(options_.tree.encoding)) {
@@ -147,6 +151,7 @@ absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(const std::string& path
   auto entries = parseKeyValues(*treeText, kTreeSection);
   if (!entries.ok()) return withContext(entries.status(), path);
   std::map<std::string, std::string, std::less<>> values(entries->begin(), entries->end());
+  file->treeInfo_ = *entries;
   auto version = parseNumber<uint32_t>(values, "payload_version", path);
   if (!version.ok()) return version.status();
   if (*version != kTreePayloadVersion) {

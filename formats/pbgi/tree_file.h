@@ -76,6 +76,8 @@ class TreeFile : public TreePageSource {
   const PageFileReader& container() const { return *reader_; }
   const TreeFileDescription& description() const { return description_; }
   const TreeCodebooks& codebooks() const { return codebooks_; }
+  // The "tree" section's lines, as written.
+  const std::vector<std::pair<std::string, std::string>>& treeInfo() const { return treeInfo_; }
   // The "bake" section's lines, as written.
   const std::vector<std::pair<std::string, std::string>>& bakeInfo() const { return bakeInfo_; }
 
@@ -84,6 +86,7 @@ class TreeFile : public TreePageSource {
   TreeFileDescription description_;
   TreeCodebooks codebooks_;
   NodeRef root_;
+  std::vector<std::pair<std::string, std::string>> treeInfo_;
   std::vector<std::pair<std::string, std::string>> bakeInfo_;
 };
 

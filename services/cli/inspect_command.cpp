@@ -104,6 +104,11 @@ int inspectTree(const std::string& path) {
                 (*tree)->codebooks().power.size(), kPowerShapeDims,
                 (*tree)->codebooks().area.size(), kAreaShapeDims);
   }
+  for (const auto& [k, v] : (*tree)->treeInfo()) {
+    if (k.find("error") != std::string::npos || k.find("clamped") != std::string::npos) {
+      std::printf("  tree.%s = %s\n", k.c_str(), v.c_str());
+    }
+  }
   for (const auto& [k, v] : (*tree)->bakeInfo()) std::printf("  bake.%s = %s\n", k.c_str(), v.c_str());
 
   if (absl::Status s = file.verifyAll(); !s.ok()) {

@@ -151,7 +151,7 @@ void makeFuzzSeeds(const fs::path& dir) {
   fs::create_directories(dir);
   for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized, TreeEncoding::kQuantized8}) {
     TreeWriteOptions o = smallTree(e).tree;
-    o.exactFromPoints = 200;
+    o.exactNodes = 3;
     auto tree = buildMemoryTree(testing::makeSorted(600, 23), o);
     ASSERT_TRUE(tree.ok());
     const auto& pages = (*tree)->payloads();
