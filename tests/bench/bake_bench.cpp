@@ -67,6 +67,8 @@ struct BenchOptions {
   int threads = 0;
   std::string csvPath;
   std::string traceDir;  // per run, the polled VmRSS over time: <label>.rss.csv
+  int terrainQuads = 1000;  // per side; the scene's own memory grows with it
+  bool skipSponza = false;
 };
 
 struct BakeSpec {
@@ -123,7 +125,7 @@ struct BakeResult {
     return s > 0.0 ? double(surfels) / s : 0.0;
   }
   double buildRate() const {
-    const double s = stageSeconds("sort") + stageSeconds("build");
+    const double s = stageSeconds("sort") + stageSeconds("merge+build");
     return s > 0.0 ? double(surfels) / s : 0.0;
   }
   double bytesPerNode() const { return nodes > 0 ? double(fileBytes) / double(nodes) : 0.0; }
@@ -466,7 +468,7 @@ void printThroughputTable(const std::vector<BakeResult>& results) {
                             "{:>8} {:>7} {:>9} {:>9} {:>10} {:>6.1f} {:>6.1f} {:>7.1f}",
                             r.spec.label, r.spec.lightSamples, r.surfels,
                             r.stageSeconds("sample+shade"), r.shadeRate() / 1e6,
-                            r.stageSeconds("sort") + r.stageSeconds("build"), r.buildRate() / 1e6,
+                            r.stageSeconds("sort") + r.stageSeconds("merge+build"), r.buildRate() / 1e6,
                             r.wroteCloud ? fmt::format("{:.2f}", r.stageSeconds("point cloud"))
                                          : std::string("-"),
                             mibKiB(r.peakRssKiB), mib(r.fileBytes), r.nodes, r.leaves, r.pages,
@@ -497,7 +499,7 @@ void printMemoryTable(const std::vector<BakeResult>& results) {
                     r.overBudget(r.peakRssKiB), mibKiB(r.stagePeakKiB("load")),
                     mibKiB(r.afterLoadPeakKiB), r.overBudget(r.afterLoadPeakKiB),
                     mibKiB(r.stagePeakKiB("sample+shade")), mibKiB(r.stagePeakKiB("sort")),
-                    mibKiB(r.stagePeakKiB("build")), mibKiB(r.stagePeakKiB("point cloud")),
+                    mibKiB(r.stagePeakKiB("merge+build")), mibKiB(r.stagePeakKiB("point cloud")),
                     r.peakStage, r.runsSpilled, mib(r.spillBytes))
             .c_str());
   }
@@ -564,10 +566,10 @@ bool writeCsv(const std::string& path, const std::vector<BakeResult>& results) {
         "{:.0f},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.2f},{},{}\n",
         r.spec.label, r.spec.scene, r.spec.points, r.spec.encoding, r.spec.memBudget,
         r.spec.lightSamples, r.spec.pointCloud, status, r.surfels, r.stageSeconds("load"),
-        r.stageSeconds("sample+shade"), r.stageSeconds("sort"), r.stageSeconds("build"),
+        r.stageSeconds("sample+shade"), r.stageSeconds("sort"), r.stageSeconds("merge+build"),
         r.stageSeconds("point cloud"), r.bakeWallSeconds, r.childSeconds, r.shadeRate(),
         r.buildRate(), r.peakRssKiB, r.polledPeakKiB, r.stagePeakKiB("load"),
-        r.stagePeakKiB("sample+shade"), r.stagePeakKiB("sort"), r.stagePeakKiB("build"),
+        r.stagePeakKiB("sample+shade"), r.stagePeakKiB("sort"), r.stagePeakKiB("merge+build"),
         r.stagePeakKiB("point cloud"), r.afterLoadPeakKiB, r.peakStage, r.fileBytes, r.nodes,
         r.leaves, r.pages, r.bytesPerNode(), r.runsSpilled, r.spillBytes);
   }
@@ -585,6 +587,10 @@ std::optional<BenchOptions> parseOptions(int argc, char** argv) {
       o.quick = true;
     } else if (a == "--skip-50m") {
       o.skip50m = true;
+    } else if (a == "--skip-sponza") {
+      o.skipSponza = true;
+    } else if (a == "--terrain-quads" && i + 1 < argc) {
+      o.terrainQuads = std::max(2, std::atoi(argv[++i]));
     } else if (a == "--csv" && i + 1 < argc) {
       o.csvPath = argv[++i];
     } else if (a == "--trace" && i + 1 < argc) {
@@ -595,7 +601,8 @@ std::optional<BenchOptions> parseOptions(int argc, char** argv) {
       std::fprintf(
           stderr,
           "bake_bench: unknown argument '%s'\n"
-          "usage: bake_bench [--quick] [--skip-50m] [--threads N] [--csv FILE] [--trace DIR]\n",
+          "usage: bake_bench [--quick] [--skip-50m] [--skip-sponza] [--terrain-quads N] [--threads N]\n"
+          "                  [--csv FILE] [--trace DIR]\n",
           a.c_str());
       return std::nullopt;
     }
@@ -606,7 +613,7 @@ std::optional<BenchOptions> parseOptions(int argc, char** argv) {
 std::vector<BakeSpec> plannedRuns(const BenchOptions& o, const fs::path& terrainShot) {
   std::vector<BakeSpec> runs;
   if (const auto shared = testing::sharedScenesDir();
-      shared && fs::exists(*shared / "sponza/sponza.shot.toml")) {
+      !o.skipSponza && shared && fs::exists(*shared / "sponza/sponza.shot.toml")) {
     const fs::path sponza = *shared / "sponza/sponza.shot.toml";
     runs.push_back({"sponza-1M-quantized", "sponza", sponza, 1'000'000});
     if (!o.quick) {
@@ -647,11 +654,13 @@ int benchMain(int argc, char** argv) {
   const fs::path sceneDir = root / "terrain-scene";
   fs::create_directories(sceneDir);
   const auto t0 = Clock::now();
-  const fs::path terrainShot = writeTerrainShot(sceneDir, 1000);
+  const int quads = options->terrainQuads;
+  const fs::path terrainShot = writeTerrainShot(sceneDir, quads);
   std::printf(
-      "terrain: 1000 x 1000 quads + 4 boxes (%llu triangles), %s MiB OBJ, written in "
+      "terrain: %d x %d quads + 4 boxes (%llu triangles), %s MiB OBJ, written in "
       "%.1f s\n",
-      2ull * 1000 * 1000 + 4 * 12, mib(fs::file_size(sceneDir / "terrain.obj")).c_str(),
+      quads, quads, 2ull * quads * quads + 4 * 12,
+      mib(fs::file_size(sceneDir / "terrain.obj")).c_str(),
       std::chrono::duration<double>(Clock::now() - t0).count());
 
   std::vector<BakeResult> results;
