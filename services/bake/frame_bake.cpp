@@ -215,10 +215,14 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       report.shading.emissive += s.emissive;
       report.shading.discardedSamples += s.discardedSamples;
       report.shading.nonFiniteSurfels += s.nonFiniteSurfels;
-      for (const Surfel& surfel : chunk) {
+      if (keepCloud) cloud.insert(cloud.end(), chunk.begin(), chunk.end());
+      for (Surfel& surfel : chunk) {
+        // The tree carries the light that gathers are for: reflected light. Emitters are
+        // lights that renderers and bounces sample directly, so an emissive surfel sends
+        // nothing from the tree (it still occludes); the point cloud keeps its emission.
+        if (surfel.materialClass == MaterialClass::kEmissive) surfel.radiance = Rgb(0.0f);
         if (auto st = sorter.add(mortonKey(surfel.position, cube), surfel); !st.ok()) return st;
       }
-      if (keepCloud) cloud.insert(cloud.end(), chunk.begin(), chunk.end());
       shadedSoFar += chunk.size();
       chunk.clear();
       if (request.progress) request.progress("shade", shadedSoFar, plan.surfels);

@@ -4,6 +4,10 @@
 // memory budget and swept into the paged, quantized PBGI tree (`.pbgi`). `pbgi bake` runs
 // it; the renderer and the farm's bake tasks share it.
 //
+// The tree holds reflected light only: emitters are lights, sampled directly by the renderer
+// and by the bounces, so emissive surfels enter the tree black (they still occlude) while
+// the point cloud shows their emission.
+//
 // Bounces (Christensen's multi-pass): the sorted surfels are kept in a spill with their
 // direct light; each bounce gathers irradiance for every diffuse surfel from the previous
 // bounce's tree (read through a page cache of a quarter of the budget) and builds the next.
