@@ -146,3 +146,58 @@ TEST(BakeCli, BouncesAddLessAndLessLight) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+TEST(BakeCli, EmittersAreInTheCloudButSendNothingFromTheTree) {
+  const fs::path dir = testing::makeTempDir("bake-cli-emissive");
+  // A floor and a small emissive panel above it, both from one OBJ.
+  std::ofstream(dir / "scene.obj") << "mtllib scene.mtl\n"
+                                      "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\n"
+                                      "v -0.2 1 -0.2\nv 0.2 1 -0.2\nv 0.2 1 0.2\nv -0.2 1 0.2\n"
+                                      "usemtl floor\nf 1 3 2\nf 1 4 3\n"
+                                      "usemtl lamp\nf 5 6 7\nf 5 7 8\n";
+  std::ofstream(dir / "scene.mtl") << "newmtl floor\nKd 0.5 0.5 0.5\nnewmtl lamp\nKd 0 0 0\n";
+  std::ofstream(dir / "scene.shot.toml")
+      << "version = 1\n[shot]\nname = \"lamp\"\nframes = [1, 1]\nresolution = [16, 16]\n"
+         "output = \"out/lamp.#.exr\"\n[camera]\nposition = [0.0, 0.5, -3.0]\n"
+         "look_at = [0.0, 0.5, 0.0]\nup = [0.0, 1.0, 0.0]\nfov_y_deg = 40.0\n"
+         "[[geometry]]\nfile = \"scene.obj\"\n"
+         "[[material]]\nname = \"floor\"\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n"
+         "[[material]]\nname = \"lamp\"\ntype = \"emissive\"\nradiance = [5.0, 5.0, 5.0]\n"
+         "[render]\nintegrator = \"path\"\nspp = 1\nseed = 0\n";
+  const testing::RunResult r =
+      runPbgi("bake " + shellQuote((dir / "scene.shot.toml").string()) + " --out " +
+              shellQuote(dir.string()) + " --points 4000 --point-cloud always");
+  ASSERT_EQ(r.exitCode, 0) << r.output();
+  auto cloud = readSurfelVdb((dir / "lamp.1.vdb").string());
+  ASSERT_TRUE(cloud.ok()) << cloud.status();
+  size_t emissive = 0;
+  for (const Surfel& s : *cloud) {
+    if (s.materialClass != MaterialClass::kEmissive) continue;
+    ++emissive;
+    EXPECT_NEAR(s.radiance.x, 5.0f, 1e-5f);
+  }
+  EXPECT_GT(emissive, 0u);
+  auto tree = TreeFile::open((dir / "lamp.1.pbgi").string());
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  size_t treeEmissive = 0, litFloor = 0;
+  for (uint32_t id = 0; id < (*tree)->container().info().pageCount; ++id) {
+    auto page = (*tree)->page(id);
+    ASSERT_TRUE(page.ok());
+    for (const Surfel& s : (*page)->surfels) {
+      if (s.materialClass == MaterialClass::kEmissive) {
+        ++treeEmissive;
+        EXPECT_EQ(s.radiance, Rgb(0.0f));
+      } else if (s.radiance.x > 0.0f) {
+        ++litFloor;
+      }
+    }
+  }
+  EXPECT_EQ(treeEmissive, emissive);
+  EXPECT_GT(litFloor, 0u) << "the panel lights the floor";
+}
+
+}  // namespace
+}  // namespace pbgi
