@@ -19,6 +19,7 @@
 
 #include "core/pbgi/external_sort.h"
 #include "core/util/check.h"
+#include "core/util/fd_io.h"
 #include "core/util/status.h"
 
 namespace pbgi::sort_runs {
@@ -99,10 +100,6 @@ struct Run {
   uint64_t id = 0;  // creation order; breaks ties when choosing runs to merge
 };
 
-absl::Status errnoStatus(int error, const std::string& what, const std::string& path) {
-  return absl::ErrnoToStatus(error, fmt::format("{} {}", what, path));
-}
-
 class RunWriter {
  public:
   RunWriter(std::string path, size_t bufferBytes, MemoryMeter* meter, uint64_t* bytesWritten)
@@ -121,7 +118,7 @@ class RunWriter {
   absl::Status open() {
     std::string path = path_;
     fd_ = ::mkostemps(path.data(), 4, O_CLOEXEC);
-    if (fd_ < 0) return errnoStatus(errno, "creating sort run file", path_);
+    if (fd_ < 0) return errnoError(errno, "creating sort run file", path_);
     path_ = std::move(path);
     return absl::OkStatus();
   }
@@ -155,23 +152,15 @@ class RunWriter {
     if (absl::Status s = flush(); !s.ok()) return s;
     const int fd = std::exchange(fd_, -1);
     // close() reports delayed write errors (NFS, full disks); they make the run unusable.
-    if (::close(fd) != 0) return errnoStatus(errno, "closing sort run file", path_);
+    if (::close(fd) != 0) return errnoError(errno, "closing sort run file", path_);
     buffer_.reset();
     return records_;
   }
 
  private:
   absl::Status flush() {
-    const uint8_t* p = buffer_.data();
-    size_t left = used_;
-    while (left > 0) {
-      const ssize_t n = ::write(fd_, p, left);
-      if (n < 0) {
-        if (errno == EINTR) continue;
-        return errnoStatus(errno, "writing sort run file", path_);
-      }
-      p += n;
-      left -= static_cast<size_t>(n);
+    if (auto s = writeAll(fd_, buffer_.data(), used_); !s.ok()) {
+      return withContext(s, fmt::format("writing sort run file {}", path_));
     }
     *bytesWritten_ += used_;
     used_ = 0;
@@ -204,7 +193,7 @@ class RunReader {
   // Opens the file and loads the first record.
   absl::Status open() {
     fd_ = ::open(run_.path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd_ < 0) return errnoStatus(errno, "opening sort run file", run_.path);
+    if (fd_ < 0) return errnoError(errno, "opening sort run file", run_.path);
 #ifdef POSIX_FADV_SEQUENTIAL
     ::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);
 #endif
@@ -248,20 +237,14 @@ class RunReader {
     const uint64_t wantRecords =
         std::min<uint64_t>(buffer_.size() / kSurfelRecordBytes, run_.records - delivered_);
     const size_t want = wantRecords * kSurfelRecordBytes;
-    size_t got = 0;
-    while (got < want) {
-      const ssize_t n = ::read(fd_, buffer_.data() + got, want - got);
-      if (n < 0) {
-        if (errno == EINTR) continue;
-        return errnoStatus(errno, "reading sort run file", run_.path);
-      }
-      if (n == 0) {
-        return absl::DataLossError(fmt::format(
-            "sort run file {} is truncated: expected {} records ({} bytes), it ends at byte {}",
-            run_.path, run_.records, run_.records * kSurfelRecordBytes,
-            delivered_ * kSurfelRecordBytes + got));
-      }
-      got += static_cast<size_t>(n);
+    auto read = readFull(fd_, buffer_.data(), want);
+    if (!read.ok()) return withContext(read.status(), fmt::format("reading sort run file {}", run_.path));
+    const size_t got = *read;
+    if (got < want) {
+      return absl::DataLossError(fmt::format(
+          "sort run file {} is truncated: expected {} records ({} bytes), it ends at byte {}",
+          run_.path, run_.records, run_.records * kSurfelRecordBytes,
+          delivered_ * kSurfelRecordBytes + got));
     }
     *bytesRead_ += got;
     pos_ = 0;
@@ -271,12 +254,9 @@ class RunReader {
 
   absl::Status checkAtEnd() {
     uint8_t extra;
-    ssize_t n;
-    do {
-      n = ::read(fd_, &extra, 1);
-    } while (n < 0 && errno == EINTR);
-    if (n < 0) return errnoStatus(errno, "reading sort run file", run_.path);
-    if (n > 0) {
+    auto n = readFull(fd_, &extra, 1);
+    if (!n.ok()) return withContext(n.status(), fmt::format("reading sort run file {}", run_.path));
+    if (*n > 0) {
       return absl::DataLossError(
           fmt::format("sort run file {} is longer than the {} records ({} bytes) written to it",
                       run_.path, run_.records, run_.records * kSurfelRecordBytes));

@@ -11,14 +11,10 @@
 #include <fmt/format.h>
 
 #include "core/util/check.h"
+#include "core/util/fd_io.h"
+#include "core/util/status.h"
 
 namespace pbgi {
-
-namespace {
-absl::Status errnoStatus(int error, const std::string& what, const std::string& name) {
-  return absl::ErrnoToStatus(error, fmt::format("{} {}", what, name));
-}
-}  // namespace
 
 absl::StatusOr<SpillFile> SpillFile::create(const std::string& dir, const std::string& prefix,
                                             size_t bufferBytes) {
@@ -30,7 +26,7 @@ absl::StatusOr<SpillFile> SpillFile::create(const std::string& dir, const std::s
   }
   std::string path = (folder / fmt::format("{}-{}-XXXXXX", prefix, ::getpid())).string();
   const int fd = ::mkostemp(path.data(), O_CLOEXEC);
-  if (fd < 0) return errnoStatus(errno, "creating spill file in", folder.string());
+  if (fd < 0) return errnoError(errno, "creating spill file in", folder.string());
   ::unlink(path.c_str());
   return SpillFile(fd, path, std::max<size_t>(bufferBytes, 4096));
 }
@@ -59,16 +55,8 @@ SpillFile::~SpillFile() {
 }
 
 absl::Status SpillFile::flush() {
-  const uint8_t* p = buffer_.data();
-  size_t left = used_;
-  while (left > 0) {
-    const ssize_t n = ::write(fd_, p, left);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return errnoStatus(errno, "writing spill file", name_);
-    }
-    p += n;
-    left -= static_cast<size_t>(n);
+  if (auto s = writeAll(fd_, buffer_.data(), used_); !s.ok()) {
+    return withContext(s, fmt::format("spill file {}", name_));
   }
   used_ = 0;
   return absl::OkStatus();
@@ -93,7 +81,7 @@ absl::Status SpillFile::rewind() {
   if (!reading_) {
     if (auto s = flush(); !s.ok()) return s;
   }
-  if (::lseek(fd_, 0, SEEK_SET) != 0) return errnoStatus(errno, "rewinding spill file", name_);
+  if (::lseek(fd_, 0, SEEK_SET) != 0) return errnoError(errno, "rewinding spill file", name_);
 #ifdef POSIX_FADV_SEQUENTIAL
   ::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);
 #endif
@@ -106,17 +94,14 @@ absl::Status SpillFile::read(std::span<uint8_t> bytes) {
   PBGI_CHECK(reading_);
   while (!bytes.empty()) {
     if (used_ == filled_) {
-      ssize_t n;
-      do {
-        n = ::read(fd_, buffer_.data(), buffer_.size());
-      } while (n < 0 && errno == EINTR);
-      if (n < 0) return errnoStatus(errno, "reading spill file", name_);
-      if (n == 0) {
+      auto n = readFull(fd_, buffer_.data(), buffer_.size());
+      if (!n.ok()) return withContext(n.status(), fmt::format("spill file {}", name_));
+      if (*n == 0) {
         return absl::DataLossError(
             fmt::format("spill file {} ended {} bytes early", name_, bytes.size()));
       }
       used_ = 0;
-      filled_ = static_cast<size_t>(n);
+      filled_ = *n;
     }
     const size_t n = std::min(bytes.size(), filled_ - used_);
     std::memcpy(bytes.data(), buffer_.data() + used_, n);

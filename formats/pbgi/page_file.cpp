@@ -1,4 +1,6 @@
 #include "formats/pbgi/page_file.h"
+
+#include "core/util/fd_io.h"
 #include "formats/util/atomic_file.h"
 
 #include <fcntl.h>
@@ -30,36 +32,6 @@ using namespace page_file_internal;
 struct ZstdCCtxDeleter {
   void operator()(ZSTD_CCtx* c) const { ZSTD_freeCCtx(c); }
 };
-
-// Reads up to `size` bytes at `offset`; fewer only at the end of the file.
-absl::StatusOr<size_t> preadAll(int fd, uint8_t* data, size_t size, uint64_t offset) {
-  size_t done = 0;
-  while (done < size) {
-    const ssize_t n = ::pread(fd, data + done, size - done, static_cast<off_t>(offset + done));
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return absl::ErrnoToStatus(
-          errno, fmt::format("cannot read {} bytes at offset {}", size - done, offset + done));
-    }
-    if (n == 0) break;
-    done += static_cast<size_t>(n);
-  }
-  return done;
-}
-
-absl::Status pwriteAll(int fd, const uint8_t* data, size_t size, uint64_t offset) {
-  size_t done = 0;
-  while (done < size) {
-    const ssize_t n = ::pwrite(fd, data + done, size - done, static_cast<off_t>(offset + done));
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return absl::ErrnoToStatus(
-          errno, fmt::format("cannot write {} bytes at offset {}", size - done, offset + done));
-    }
-    done += static_cast<size_t>(n);
-  }
-  return absl::OkStatus();
-}
 
 std::vector<uint8_t> encodeSections(const std::vector<PageFileSection>& sections) {
   std::vector<uint8_t> out;
