@@ -2,7 +2,6 @@
 
 #include <malloc.h>
 
-#include <chrono>
 #include <filesystem>
 #include <optional>
 
@@ -25,11 +24,6 @@ namespace pbgi {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double secondsSince(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
 
 // Surfels shaded per batch: enough to keep every core busy, small next to any budget.
 constexpr size_t kChunkSurfels = 64 * 1024;
@@ -120,7 +114,6 @@ std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) 
 
 absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                                               const FrameBakeRequest& request) {
-  const auto wallStart = Clock::now();
   if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
     return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
                                              shot.path, request.frame, shot.firstFrame,
@@ -155,10 +148,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
   absl::StatusOr<FrameBakeReport> result;
   auto work = [&] {
     FrameBakeReport report;
-    auto stage = [&](const char* name, Clock::time_point t0) {
-      report.stages.push_back({name, secondsSince(t0)});
-    };
-    auto t0 = Clock::now();
+    StageClock clock(&report.stages);
     auto frameScene = loadFrameScene(shot, request.frame);
     if (!frameScene.ok()) return result = frameScene.status(), void();
     report.warnings = frameScene->warnings;
@@ -167,7 +157,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     // them mapped, and how much depends on heap layout; give them back so that what stays
     // resident is the scene itself, the same from run to run.
     ::malloc_trim(0);
-    stage("load", t0);
+    clock.lap("load");
 
     SurfelSamplingOptions sampling;
     sampling.targetCount = request.points > 0 ? request.points : kDefaultBakePoints;
@@ -199,7 +189,6 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     }
 
     // Sample, shade and sort, a chunk at a time.
-    t0 = Clock::now();
     ExternalSurfelSorter sorter(sortOptions);
     const MortonCube cube(scene.bounds());
     std::vector<Surfel> chunk, cloud;
@@ -237,13 +226,11 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         &report.sampling);
     if (sampled.ok() && !chunk.empty()) sampled = flush();
     if (!sampled.ok()) return result = sampled, void();
-    stage("sample+shade", t0);
+    clock.lap("sample+shade");
 
-    t0 = Clock::now();
     if (auto s = sorter.finish(); !s.ok()) return result = s, void();
-    stage("sort", t0);
+    clock.lap("sort");
 
-    t0 = Clock::now();
     treeOptions.sceneBounds = scene.bounds();
     treeOptions.sceneHash = bakeHash(shot, request, report.sampling.surfels);
     treeOptions.bakeInfo = {
@@ -292,22 +279,20 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     if (!tree.ok()) return result = tree.status(), void();
     report.tree = *tree;
     // The sorter merges its runs lazily, as the build pulls surfels: both are in this stage.
-    stage("merge+build", t0);
+    clock.lap("merge+build");
 
     for (int bounce = 1; bounce <= request.bounces; ++bounce) {
-      t0 = Clock::now();
       auto lit = bakeBounce(bounceTreePath(bounce - 1), bounceTreePath(bounce), *sorted,
                             treeOptions, request, report.sampling.surfels, &report.gather);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
       if (!lit.ok()) return result = lit.status(), void();
       report.tree = *lit;
-      stage(fmt::format("bounce {}", bounce).c_str(), t0);
+      clock.lap(fmt::format("bounce {}", bounce));
     }
     report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
 
     if (keepCloud) {
-      t0 = Clock::now();
       report.pointCloudPath = stem + ".vdb";
       SurfelVdbOptions vdb;
       vdb.metadata.shot = shot.name;
@@ -317,9 +302,9 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       if (auto s = writeSurfelVdb(report.pointCloudPath, cloud, vdb); !s.ok()) {
         return result = s, void();
       }
-      stage("point cloud", t0);
+      clock.lap("point cloud");
     }
-    report.wallSeconds = secondsSince(wallStart);
+    report.wallSeconds = clock.totalSeconds();
     result = std::move(report);
   };
   if (arena) {

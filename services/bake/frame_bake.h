@@ -29,6 +29,7 @@
 #include "core/pbgi/gather.h"
 #include "core/pbgi/tree_writer.h"
 #include "core/scene/shot.h"
+#include "services/util/stage_time.h"
 
 namespace pbgi {
 
@@ -53,11 +54,6 @@ struct FrameBakeRequest {
 inline constexpr uint64_t kDefaultBakePoints = 1'000'000;
 inline constexpr int kMaxBakeBounces = 16;
 
-struct BakeStage {
-  std::string name;
-  double seconds = 0.0;
-};
-
 struct FrameBakeReport {
   std::string treePath;
   std::string pointCloudPath;  // empty when none was written
@@ -67,7 +63,7 @@ struct FrameBakeReport {
   TreeWriteResult tree;
   GatherStats gather;  // of the bounces
   uint64_t treeFileBytes = 0;
-  std::vector<BakeStage> stages;
+  std::vector<StageTime> stages;
   std::vector<std::string> warnings;
   double wallSeconds = 0.0;
 };

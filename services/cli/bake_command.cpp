@@ -101,7 +101,7 @@ int runBake(const BakeOptions& o) {
   }
   std::printf("  sort: %s\n", report->sort.toString().c_str());
   if (request.bounces > 0) std::printf("  bounces: %s\n", report->gather.toString().c_str());
-  for (const BakeStage& s : report->stages) std::printf("  %-13s %8.3f s\n", s.name.c_str(), s.seconds);
+  std::printf("%s", formatStages(report->stages).c_str());
   std::printf("wall time %.3f s\n", report->wallSeconds);
   return kExitOk;
 }

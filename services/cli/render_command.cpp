@@ -44,7 +44,7 @@ int runRender(const RenderOptions& o) {
   for (const std::string& w : report->warnings) std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
   std::printf("wrote %s\n", report->exrPath.c_str());
   if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
-  for (const StageTime& s : report->stages) std::printf("  %-8s %8.3f s\n", s.stage.c_str(), s.seconds);
+  std::printf("%s", formatStages(report->stages).c_str());
   const RenderCounters& c = report->counters;
   std::printf("  samples %llu, discarded (NaN/Inf) %llu, pixels that see nothing %llu\n",
               static_cast<unsigned long long>(c.cameraSamples),

@@ -1,6 +1,5 @@
 #include "services/render/frame_render.h"
 
-#include <chrono>
 
 #include <fmt/format.h>
 
@@ -13,12 +12,6 @@
 namespace pbgi {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double secondsSince(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
 
 std::string previewPathFor(const std::string& exrPath) {
   const size_t dot = exrPath.find_last_of('.');
@@ -38,8 +31,8 @@ const std::vector<std::string>& availableIntegrators() {
 
 absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                                                   const FrameRenderRequest& request) {
-  const auto wallStart = Clock::now();
   FrameRenderReport report;
+  StageClock clock(&report.stages);
   if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
     return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
                                              shot.path, request.frame, shot.firstFrame,
@@ -55,11 +48,10 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
         fmt::join(names, ", ")));
   }
 
-  auto t0 = Clock::now();
   auto frameScene = loadFrameScene(shot, request.frame);
   if (!frameScene.ok()) return frameScene.status();
   report.warnings = frameScene->warnings;
-  report.stages.push_back({"load", secondsSince(t0)});
+  clock.lap("load");
 
   PathTracerSettings pt;
   pt.maxDepth = settings.maxDepth;
@@ -70,11 +62,10 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   options.threads = request.threads;
   options.tileSize = request.tileSize;
   options.progress = request.progress;
-  t0 = Clock::now();
   Image image = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
                             &report.counters);
-  const double renderSeconds = secondsSince(t0);
-  report.stages.push_back({"render", renderSeconds});
+  clock.lap("render");
+  const double renderSeconds = report.stages.back().seconds;
 
   image.setMetadata("pbgi/shot", shot.name);
   image.setMetadata("pbgi/shotFile", shot.path);
@@ -91,7 +82,6 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                        ? outputPathForFrame(shot.output, request.frame,
                                             shot.lastFrame > shot.firstFrame)
                        : request.outPath;
-  t0 = Clock::now();
   if (absl::Status s = writeExr(image, report.exrPath); !s.ok()) return s;
   if (request.preview) {
     const std::string config =
@@ -102,8 +92,8 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
       report.previewPath.clear();
     }
   }
-  report.stages.push_back({"write", secondsSince(t0)});
-  report.wallSeconds = secondsSince(wallStart);
+  clock.lap("write");
+  report.wallSeconds = clock.totalSeconds();
   return report;
 }
 

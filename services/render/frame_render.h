@@ -10,6 +10,7 @@
 
 #include "core/render/renderer.h"
 #include "core/scene/shot.h"
+#include "services/util/stage_time.h"
 
 namespace pbgi {
 
@@ -23,11 +24,6 @@ struct FrameRenderRequest {
   bool preview = true;     // write a PNG preview beside the EXR
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int tilesDone, int tilesTotal)> progress;
-};
-
-struct StageTime {
-  std::string stage;
-  double seconds = 0.0;
 };
 
 struct FrameRenderReport {
