@@ -165,45 +165,27 @@ ShRotation ShRotation::toLocal(const Frame& frame) {
   return r;
 }
 
-Sh9 ShRotation::apply(const Sh9& sh) const {
-  Sh9 out;
+namespace {
+
+// out = M in, or M^T in (the inverse): the same loop for scalar and RGB coefficients.
+template <typename Coefficients, typename Value>
+Coefficients rotate(const float (&m)[kShCoefficients][kShCoefficients], const Coefficients& in,
+                    bool transpose, Value zero) {
+  Coefficients out;
   for (int i = 0; i < kShCoefficients; ++i) {
-    float v = 0.0f;
-    for (int k = 0; k < kShCoefficients; ++k) v += m[i][k] * sh.c[k];
+    Value v = zero;
+    for (int k = 0; k < kShCoefficients; ++k) v += (transpose ? m[k][i] : m[i][k]) * in.c[k];
     out.c[i] = v;
   }
   return out;
 }
 
-Sh9 ShRotation::applyInverse(const Sh9& sh) const {
-  Sh9 out;
-  for (int k = 0; k < kShCoefficients; ++k) {
-    float v = 0.0f;
-    for (int i = 0; i < kShCoefficients; ++i) v += m[i][k] * sh.c[i];
-    out.c[k] = v;
-  }
-  return out;
-}
+}  // namespace
 
-Sh9Rgb ShRotation::apply(const Sh9Rgb& sh) const {
-  Sh9Rgb out;
-  for (int i = 0; i < kShCoefficients; ++i) {
-    Rgb v(0.0f);
-    for (int k = 0; k < kShCoefficients; ++k) v += m[i][k] * sh.c[k];
-    out.c[i] = v;
-  }
-  return out;
-}
-
-Sh9Rgb ShRotation::applyInverse(const Sh9Rgb& sh) const {
-  Sh9Rgb out;
-  for (int k = 0; k < kShCoefficients; ++k) {
-    Rgb v(0.0f);
-    for (int i = 0; i < kShCoefficients; ++i) v += m[i][k] * sh.c[i];
-    out.c[k] = v;
-  }
-  return out;
-}
+Sh9 ShRotation::apply(const Sh9& sh) const { return rotate(m, sh, false, 0.0f); }
+Sh9 ShRotation::applyInverse(const Sh9& sh) const { return rotate(m, sh, true, 0.0f); }
+Sh9Rgb ShRotation::apply(const Sh9Rgb& sh) const { return rotate(m, sh, false, Rgb(0.0f)); }
+Sh9Rgb ShRotation::applyInverse(const Sh9Rgb& sh) const { return rotate(m, sh, true, Rgb(0.0f)); }
 
 Sh9 projectNumerically(const std::function<float(const Vec3f&)>& f, int zNodes, int phiNodes) {
   PBGI_CHECK_GT(zNodes, 0);

@@ -552,7 +552,6 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
       float power[Sh9Rgb::kFloats];
       for (float& c : power) c = e.f32();
       a.powerSh = Sh9Rgb::fromFloats(power);
-      (void)dc;
       continue;
     }
     if (powerIndex >= static_cast<uint32_t>(codebooks->power.size()) ||
