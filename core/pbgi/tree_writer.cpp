@@ -255,15 +255,11 @@ class TreeWriter::Impl {
         const NodeAttributes& a = node.attributes;
         node.exact = exactFrom > 0 && a.pointCount >= exactFrom;
         if (node.exact) {
+          // Stored as built: no error, but its size counts towards the relative error.
           float v[Sh9Rgb::kFloats];
           a.powerSh.toFloats(v);
-          double n2 = 0.0;
-          bool finite = true;
-          for (float x : v) {
-            n2 += double(x) * double(x);
-            finite = finite && std::isfinite(x);
-          }
-          errors[i] = Quantized{0.0, n2, 0.0, 0.0, finite, true};
+          squaredError(v, v, &errors[i].powerD2, &errors[i].powerN2, &errors[i].powerFinite);
+          errors[i].areaFinite = true;
           return;
         }
         const ShRotation rotation = shapeRotation(a.cone.axis);

@@ -44,6 +44,13 @@ std::string_view treeEncodingName(TreeEncoding encoding) {
   return "unknown";
 }
 
+std::optional<TreeEncoding> parseTreeEncoding(std::string_view name) {
+  for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized, TreeEncoding::kQuantized8}) {
+    if (name == treeEncodingName(e)) return e;
+  }
+  return std::nullopt;
+}
+
 std::string formatKeyValues(const std::vector<std::pair<std::string, std::string>>& entries) {
   std::string out;
   for (const auto& [k, v] : entries) out += fmt::format("{} = {}\n", k, v);
@@ -160,12 +167,8 @@ absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(const std::string& path
         kTreePayloadVersion));
   }
   const std::string encoding = values.count("encoding") ? values["encoding"] : "";
-  if (encoding == "float") {
-    file->description_.encoding = TreeEncoding::kFloat;
-  } else if (encoding == "quantized") {
-    file->description_.encoding = TreeEncoding::kQuantized;
-  } else if (encoding == "quantized8") {
-    file->description_.encoding = TreeEncoding::kQuantized8;
+  if (const auto e = parseTreeEncoding(encoding)) {
+    file->description_.encoding = *e;
   } else {
     return absl::DataLossError(fmt::format(
         "{}: section \"tree\": encoding \"{}\", expected float, quantized or quantized8", path,

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -96,5 +97,7 @@ absl::StatusOr<std::vector<std::pair<std::string, std::string>>> parseKeyValues(
     std::string_view text, std::string_view sectionName);
 
 std::string_view treeEncodingName(TreeEncoding encoding);
+// The encoding a name (as treeEncodingName writes it) stands for; nullopt for any other.
+std::optional<TreeEncoding> parseTreeEncoding(std::string_view name);
 
 }  // namespace pbgi

@@ -53,13 +53,11 @@ int runBake(const BakeOptions& o) {
   request.tree.pageSize = static_cast<uint32_t>(*pageSize);
   request.tree.build.leafSize = o.leafSize;
   request.tree.powerCentres = o.powerCentres;
-  if (o.encoding == "float") {
-    request.tree.encoding = TreeEncoding::kFloat;
-  } else if (o.encoding == "quantized") {
-    request.tree.encoding = TreeEncoding::kQuantized;
-  } else {
-    request.tree.encoding = TreeEncoding::kQuantized8;
-    request.tree.powerCentres = std::min(request.tree.powerCentres, 254);
+  // CLI11 has already checked the name against the same list.
+  request.tree.encoding = parseTreeEncoding(o.encoding).value_or(TreeEncoding::kQuantized);
+  if (request.tree.encoding == TreeEncoding::kQuantized8) {
+    request.tree.powerCentres =
+        std::min(request.tree.powerCentres, maxCodebookEntries(TreeEncoding::kQuantized8) - 1);
   }
   request.pointCloud = o.pointCloud == "always"  ? PointCloudMode::kAlways
                        : o.pointCloud == "never" ? PointCloudMode::kNever

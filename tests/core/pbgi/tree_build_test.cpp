@@ -127,7 +127,6 @@ int checkStructure(const std::vector<InMemoryNode>& nodes, int m, size_t n) {
 
 TEST(TreeBuild, PostOrderStreamFormsOneTreeWithBoundedLeaves) {
   const auto sorted = makeSorted(30000, 3);
-  TreeBuilder* builderPtr = nullptr;
   std::vector<InMemoryNode> nodes;
   TreeBuildOptions options;
   options.leafSize = 16;
@@ -135,8 +134,7 @@ TEST(TreeBuild, PostOrderStreamFormsOneTreeWithBoundedLeaves) {
     nodes.push_back({n.attributes, n.childCount, {n.surfels.begin(), n.surfels.end()}});
     return absl::OkStatus();
   });
-  builderPtr = &builder;
-  for (const auto& p : sorted) ASSERT_TRUE(builderPtr->add(p).ok());
+  for (const auto& p : sorted) ASSERT_TRUE(builder.add(p).ok());
   ASSERT_TRUE(builder.finish().ok());
   const int depth = checkStructure(nodes, 16, sorted.size());
   EXPECT_GT(depth, 2);
