@@ -30,7 +30,8 @@
 //    40   8  sections size in bytes (u64, at most kMaxPageFileSectionsSize)
 //    48   8  sections checksum: XXH3-64 of the sections' bytes
 //    56   4  root page id (u32)
-//    60   4  root offset within the root page's uncompressed bytes (u32)
+//    60   4  root position within the root page, as its payload addresses things (u32;
+//            tree pages: the root node's index)
 //    64  24  scene bounds: min x, y, z, max x, y, z (f32, no NaN; min > max means empty)
 //    88   8  point count (u64)
 //    96   8  node count (u64)
@@ -107,7 +108,8 @@ struct PageFileMetadata {
   uint64_t nodeCount = 0;
   uint64_t leafCount = 0;
   uint64_t sceneHash = 0;
-  // Where a traversal starts: a page id and a byte offset in that page's uncompressed bytes.
+  // Where a traversal starts: a page id and a position in that page as its payload addresses
+  // things (a tree page: a node index).
   uint32_t rootPage = 0;
   uint32_t rootOffset = 0;
   std::vector<PageFileSection> sections;
