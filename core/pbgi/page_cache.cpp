@@ -19,8 +19,13 @@ std::string PageCacheCounters::toString() const {
 PageCache::PageCache(TreePageSource& source, const PageCacheOptions& options)
     : source_(source) {
   PBGI_CHECK_GE(options.shards, 1);
-  shardBudget_ = options.budgetBytes / static_cast<size_t>(options.shards);
-  for (int i = 0; i < options.shards; ++i) shards_.push_back(std::make_unique<Shard>());
+  // Each shard gets an equal share of the budget, so a small budget split many ways would
+  // hold less than a page per shard and evict everything: fewer shards, never under
+  // kMinShardBudget each (one shard below that).
+  const size_t shards = std::clamp<size_t>(options.budgetBytes / kMinShardBudget, 1,
+                                           static_cast<size_t>(options.shards));
+  shardBudget_ = options.budgetBytes / shards;
+  for (size_t i = 0; i < shards; ++i) shards_.push_back(std::make_unique<Shard>());
 }
 
 void PageCache::evict(Shard& shard) {

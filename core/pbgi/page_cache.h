@@ -28,8 +28,11 @@ namespace pbgi {
 
 struct PageCacheOptions {
   size_t budgetBytes = size_t{256} << 20;
-  int shards = 16;
+  int shards = 16;  // at most; fewer when the budget is small (kMinShardBudget each)
 };
+
+// The smallest share of the budget a shard gets: a few decoded pages.
+inline constexpr size_t kMinShardBudget = size_t{4} << 20;
 
 struct PageCacheCounters {
   uint64_t hits = 0;

@@ -62,7 +62,7 @@ Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& fr
 }
 
 PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
-                     const PathTracerSettings& settings) {
+                     const PathTracerSettings& settings, SurfaceHit* firstHit) {
   PathSample out;
   Rgb beta(1.0f);
   Ray ray = cameraRay;
@@ -93,6 +93,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       out.hit = true;
       out.depth = hit.t;
       out.normal = hit.ns;
+      if (firstHit) *firstHit = hit;
     }
     const Vec3f wo = -ray.dir;
     if (hit.light >= 0) {

@@ -43,7 +43,9 @@ Rgb sampleIrradiance(const Scene& scene, const Vec3f& p, const Vec3f& n, const V
 Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
                       const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng);
 
+// One camera path. `firstHit`, when given, receives the primary ray's hit (untouched when
+// the ray escapes): what an integrator that replaces the indirect light shades from.
 PathSample tracePath(const Scene& scene, const Ray& ray, Rng& rng,
-                     const PathTracerSettings& settings);
+                     const PathTracerSettings& settings, SurfaceHit* firstHit = nullptr);
 
 }  // namespace pbgi

@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include <absl/status/statusor.h>
+
 #include "core/render/image.h"
 #include "core/render/integrator.h"
 #include "core/scene/camera.h"
@@ -19,17 +21,6 @@ struct TileRect {
   int x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // half-open pixel bounds in the (mosaic) image
   int width() const { return x1 - x0; }
   int height() const { return y1 - y0; }
-};
-
-struct RenderCounters {
-  uint64_t cameraSamples = 0;
-  uint64_t discardedSamples = 0;  // NaN or Inf radiance, dropped from the pixel's average
-  uint64_t pixelsWithoutHit = 0;  // primary rays found no geometry in any sample
-  void add(const RenderCounters& o) {
-    cameraSamples += o.cameraSamples;
-    discardedSamples += o.discardedSamples;
-    pixelsWithoutHit += o.pixelsWithoutHit;
-  }
 };
 
 struct FrameRenderOptions {
@@ -44,13 +35,17 @@ const std::vector<std::string>& frameChannels();
 // Tiles covering width x height, in Morton (Z) order of their grid positions.
 std::vector<TileRect> makeTiles(int width, int height, int tileSize);
 
-// Renders the pixels of `tile` into `image` (which has frameChannels() and the full size).
-RenderCounters renderTile(const Integrator& integrator, const Camera& camera,
-                          const RenderSettings& settings, int frame, const TileRect& tile,
-                          Image& image);
+// Renders the pixels of `tile` into `image` (which has frameChannels() and the full size),
+// pixel by pixel in Morton order, adding to `counters`. `scratch` is the integrator's
+// (newScratch()) for this thread. The integrator's errors come back naming the tile.
+absl::Status renderTile(const Integrator& integrator, IntegratorScratch* scratch,
+                        const Camera& camera, const RenderSettings& settings, int frame,
+                        const TileRect& tile, Image& image, RenderCounters* counters);
 
-Image renderFrame(const Integrator& integrator, const Camera& camera,
-                  const RenderSettings& settings, int frame, const FrameRenderOptions& options,
-                  RenderCounters* counters);
+// Every tile, in parallel. The first tile that fails (in tile order) fails the frame; tiles
+// not yet started are then skipped.
+absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& camera,
+                                  const RenderSettings& settings, int frame,
+                                  const FrameRenderOptions& options, RenderCounters* counters);
 
 }  // namespace pbgi

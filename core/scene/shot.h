@@ -113,6 +113,15 @@ struct RenderSettings {
   // Project-defined settings (README: "Render settings").
   int tileSize = 32;
   int rouletteDepth = 3;  // Russian roulette starts after this many bounces
+  // The PBGI integrator: its gather, its page cache, and the bake it renders from.
+  std::string quality = "default";  // gather preset: draft | default | high
+  float maxSolidAngle = 0.0f;       // sr; 0: the preset's
+  int microbufferResolution = 0;    // pixels per cube face side; 0: the preset's
+  int gathersPerPixel = 4;          // most gathers a pixel's samples make
+  int cacheMb = 256;                // tree page cache budget
+  uint64_t bakePoints = 0;          // surfels per frame; 0: the baker's default
+  int bakeBounces = 1;              // indirect bounces baked into the tree
+  std::string bakeQuality = "draft";  // gather preset of those bounces
 };
 
 struct ShotDesc {

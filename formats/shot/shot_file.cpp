@@ -57,6 +57,12 @@ constexpr Range kSppRange{1.0, 1 << 20, false, false};
 constexpr Range kDepthRange{1.0, 65536.0, false, false};
 constexpr Range kFilterWidthRange{0.0, 32.0, true, false};
 constexpr Range kTileSizeRange{4.0, 1024.0, false, false};
+constexpr Range kSolidAngleRange{0.0, 4.0 * 3.14159265358979, true, false};
+constexpr Range kMicrobufferRange{1.0, 64.0, false, false};
+constexpr Range kGathersPerPixelRange{1.0, 64.0, false, false};
+constexpr Range kCacheMbRange{1.0, 1 << 24, false, false};
+constexpr Range kBakePointsRange{1000.0, 1e11, false, false};
+constexpr Range kBakeBouncesRange{0.0, 16.0, false, false};
 
 // Rejects two keys at the same frame, which would silently drop one of them.
 absl::Status checkUniqueFrame(std::map<int, int>& seen, int frame, const Section& key) {
@@ -477,8 +483,10 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
 // --- [render] ----------------------------------------------------------------------------
 
 absl::Status parseRender(const Section& s, RenderSettings& r) {
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly({"integrator", "spp", "seed", "max_depth", "filter",
-                                         "filter_width", "tile_size", "roulette_depth"}));
+  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly(
+      {"integrator", "spp", "seed", "max_depth", "filter", "filter_width", "tile_size",
+       "roulette_depth", "quality", "max_solid_angle", "microbuffer_resolution",
+       "gathers_per_pixel", "cache_mb", "bake_points", "bake_bounces", "bake_quality"}));
   PBGI_TOML_ASSIGN_OR_RETURN(r.integrator, s.getOr<std::string>("integrator", r.integrator));
   if (r.integrator.empty()) {
     return s.error(*s.find("integrator"),
@@ -501,6 +509,29 @@ absl::Status parseRender(const Section& s, RenderSettings& r) {
   PBGI_TOML_ASSIGN_OR_RETURN(r.tileSize, s.getOr<int>("tile_size", r.tileSize, kTileSizeRange));
   PBGI_TOML_ASSIGN_OR_RETURN(r.rouletteDepth,
                              s.getOr<int>("roulette_depth", r.rouletteDepth, kDepthRange));
+  const std::vector<std::pair<std::string_view, std::string>> presets = {
+      {"draft", "draft"}, {"default", "default"}, {"high", "high"}};
+  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<std::string> quality,
+                             s.choice<std::string>("quality", "gather quality preset", presets));
+  r.quality = quality.value_or(r.quality);
+  PBGI_TOML_ASSIGN_OR_RETURN(r.maxSolidAngle,
+                             s.getOr<float>("max_solid_angle", r.maxSolidAngle, kSolidAngleRange));
+  PBGI_TOML_ASSIGN_OR_RETURN(r.microbufferResolution,
+                             s.getOr<int>("microbuffer_resolution", r.microbufferResolution,
+                                          kMicrobufferRange));
+  PBGI_TOML_ASSIGN_OR_RETURN(
+      r.gathersPerPixel, s.getOr<int>("gathers_per_pixel", r.gathersPerPixel, kGathersPerPixelRange));
+  PBGI_TOML_ASSIGN_OR_RETURN(r.cacheMb, s.getOr<int>("cache_mb", r.cacheMb, kCacheMbRange));
+  PBGI_TOML_ASSIGN_OR_RETURN(const int64_t bakePoints,
+                             s.getOr<int64_t>("bake_points", static_cast<int64_t>(r.bakePoints),
+                                              kBakePointsRange));
+  r.bakePoints = static_cast<uint64_t>(bakePoints);
+  PBGI_TOML_ASSIGN_OR_RETURN(r.bakeBounces,
+                             s.getOr<int>("bake_bounces", r.bakeBounces, kBakeBouncesRange));
+  PBGI_TOML_ASSIGN_OR_RETURN(
+      const std::optional<std::string> bakeQuality,
+      s.choice<std::string>("bake_quality", "gather quality preset", presets));
+  r.bakeQuality = bakeQuality.value_or(r.bakeQuality);
   return absl::OkStatus();
 }
 

@@ -62,14 +62,25 @@ struct FrameBakeReport {
   SortStats sort;
   TreeWriteResult tree;
   GatherStats gather;  // of the bounces
+  uint64_t sharedGathers = 0;  // bounce receivers that took a neighbour's gather
   uint64_t treeFileBytes = 0;
   std::vector<StageTime> stages;
   std::vector<std::string> warnings;
   double wallSeconds = 0.0;
 };
 
+// The bake a shot's [render] settings ask for (bake_points, bake_bounces, bake_quality) of
+// `frame`, as `pbgi bake` and the PBGI renderer both start from it, so that one reuses the
+// other's bake. InvalidArgument for an unknown bake_quality.
+absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame);
+
 // Where a frame's bake goes: `<outDir or the image's folder>/<image stem>.pbgi` and `.vdb`.
 std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request);
+
+// What a bake is made from: the shot file's bytes and every request field that changes the
+// tree (the requested point count, not the count sampled). The tree file's header keeps it,
+// so a renderer can tell whether a bake on disk is the one it would make.
+uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request);
 
 absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                                               const FrameBakeRequest& request);

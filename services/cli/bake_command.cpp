@@ -19,9 +19,9 @@ struct BakeOptions {
   std::string shot;
   std::optional<int> frame;
   std::string out;
-  uint64_t points = 0;
+  std::optional<uint64_t> points;
   std::string memBudget = "1G";
-  int bounces = 0;
+  std::optional<int> bounces;
   int lightSamples = 16;
   int threads = 0;
   int leafSize = kDefaultLeafSize;
@@ -30,16 +30,18 @@ struct BakeOptions {
   int powerCentres = TreeWriteOptions{}.powerCentres;
   std::string pointCloud = "auto";
   std::string tempDir;
-  std::string bounceQuality = "default";
+  std::optional<std::string> bounceQuality;
 };
 
 int runBake(const BakeOptions& o) {
   auto shot = loadShotFile(o.shot);
   if (!shot.ok()) return reportError(shot.status());
-  FrameBakeRequest request;
-  request.frame = o.frame.value_or(shot->firstFrame);
+  // The shot's bake settings, then the flags over them.
+  auto shotRequest = shotBakeRequest(*shot, o.frame.value_or(shot->firstFrame));
+  if (!shotRequest.ok()) return reportError(shotRequest.status());
+  FrameBakeRequest request = *shotRequest;
   request.outDir = o.out;
-  request.points = o.points;
+  if (o.points) request.points = *o.points;
   auto budget = parseByteSize(o.memBudget, "--mem-budget");
   if (!budget.ok()) return reportError(budget.status());
   request.memoryBudget = *budget;
@@ -62,14 +64,15 @@ int runBake(const BakeOptions& o) {
   request.pointCloud = o.pointCloud == "always"  ? PointCloudMode::kAlways
                        : o.pointCloud == "never" ? PointCloudMode::kNever
                                                  : PointCloudMode::kAuto;
-  request.bounces = o.bounces;
-  auto gather = gatherPreset(o.bounceQuality);
-  if (!gather.ok()) return reportError(gather.status());
-  request.gather = *gather;
+  if (o.bounces) request.bounces = *o.bounces;
+  if (o.bounceQuality) {
+    auto gather = gatherPreset(*o.bounceQuality);
+    if (!gather.ok()) return reportError(gather.status());
+    request.gather = *gather;
+  }
   request.lightSamples = o.lightSamples;
   request.threads = o.threads;
   request.tempDir = o.tempDir;
-  request.pbgiVersion = versionString();
   Progress progress(fmt::format("bake {} frame {}", shot->name, request.frame));
   request.progress = [&](const std::string&, uint64_t done, uint64_t total) {
     progress.update(static_cast<int>(total > 0 ? done * 1000 / total : 1000), 1000);
@@ -98,7 +101,11 @@ int runBake(const BakeOptions& o) {
         t.quantization.area.relativeRms, t.quantization.power.maxRelative);
   }
   std::printf("  sort: %s\n", report->sort.toString().c_str());
-  if (request.bounces > 0) std::printf("  bounces: %s\n", report->gather.toString().c_str());
+  if (request.bounces > 0) {
+    std::printf("  bounces: %s, receivers sharing a neighbour's gather %llu\n",
+                report->gather.toString().c_str(),
+                static_cast<unsigned long long>(report->sharedGathers));
+  }
   std::printf("%s", formatStages(report->stages).c_str());
   std::printf("wall time %.3f s\n", report->wallSeconds);
   return kExitOk;
@@ -114,14 +121,16 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
   cmd->add_option("--frame", options->frame, "Frame to bake (default: the shot's first)");
   cmd->add_option("--out", options->out, "Output folder (default: beside the frame's image)");
   cmd->add_option("--points", options->points,
-                  fmt::format("Surfel count (default: {})", kDefaultBakePoints))
+                  fmt::format("Surfel count (default: the shot's bake_points, else {})",
+                              kDefaultBakePoints))
       ->check(CLI::PositiveNumber);
   cmd->add_option("--mem-budget", options->memBudget,
                   "Memory budget, e.g. 256M or 2G (default: 1G)");
-  cmd->add_option("--bounces", options->bounces, "Indirect bounces baked into the surfels")
+  cmd->add_option("--bounces", options->bounces, "Indirect bounces baked into the surfels (default: the shot's bake_bounces)")
       ->check(CLI::NonNegativeNumber);
   cmd->add_option("--bounce-quality", options->bounceQuality,
-                  "Gather preset for the bounces: draft, default, high")
+                  "Gather preset for the bounces: draft, default, high (default: the shot's "
+                  "bake_quality)")
       ->check(CLI::IsMember({"draft", "default", "high"}));
   cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")
       ->check(CLI::PositiveNumber);

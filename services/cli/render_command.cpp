@@ -23,7 +23,38 @@ struct RenderOptions {
   int tileSize = 0;
   std::string out;
   bool noPreview = false;
+  std::string quality;
+  float maxSolidAngle = 0.0f;
+  int resolution = 0;
+  int cacheMb = 0;
+  std::string tree;
+  std::string bakeDir;
+  bool rebake = false;
 };
+
+std::string percent(uint64_t part, uint64_t whole) {
+  return whole > 0 ? fmt::format("{:.1f} %", 100.0 * double(part) / double(whole)) : "-";
+}
+
+void printTreeReport(const TreeReadReport& t, const RenderCounters& c) {
+  std::printf("tree %s (%s)\n", t.treePath.c_str(), t.baked ? "baked now" : "reused");
+  if (t.baked) std::printf("%s", formatStages(t.bakeStages).c_str());
+  std::printf("  gather: %s\n", t.gather.c_str());
+  std::printf("  cache: budget %.1f MiB, %s\n", t.cacheBudget / 1048576.0, t.cache.toString().c_str());
+  std::printf("  pages read %llu of %llu in the file (%s)\n",
+              static_cast<unsigned long long>(t.pagesRead),
+              static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
+  std::printf("  gathers %llu (%llu glossy), samples sharing a gather %llu\n",
+              static_cast<unsigned long long>(c.gathers),
+              static_cast<unsigned long long>(c.glossyGathers),
+              static_cast<unsigned long long>(c.gatherReuses));
+  std::printf("  skipped: pixels that see nothing %llu, black receivers %llu; path traced "
+              "(mirror, glass) %llu\n",
+              static_cast<unsigned long long>(c.pixelsWithoutHit),
+              static_cast<unsigned long long>(c.blackReceivers),
+              static_cast<unsigned long long>(c.pathTracedReceivers));
+  std::printf("  traversal: %s\n", c.gather.toString().c_str());
+}
 
 int runRender(const RenderOptions& o) {
   auto shot = loadShotFile(o.shot);
@@ -36,8 +67,23 @@ int runRender(const RenderOptions& o) {
   request.tileSize = o.tileSize;
   request.outPath = o.out;
   request.preview = !o.noPreview;
+  request.quality = o.quality;
+  request.maxSolidAngle = o.maxSolidAngle;
+  request.microbufferResolution = o.resolution;
+  request.cacheBytes = static_cast<size_t>(o.cacheMb) << 20;
+  request.treePath = o.tree;
+  request.bakeDir = o.bakeDir;
+  request.rebake = o.rebake;
   Progress progress(fmt::format("render {} frame {}", shot->name, request.frame));
-  request.progress = [&](int done, int total) { progress.update(done, total); };
+  Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, request.frame));
+  request.bakeProgress = [&](const std::string&, uint64_t done, uint64_t total) {
+    bakeProgress.update(static_cast<int>(total > 0 ? done * 1000 / total : 1000), 1000);
+  };
+  request.progress = [&](int done, int total) {
+    if (done == 1) bakeProgress.finish();
+    progress.update(done, total);
+  };
+
   auto report = renderShotFrame(*shot, request);
   progress.finish();
   if (!report.ok()) return reportError(report.status());
@@ -45,6 +91,7 @@ int runRender(const RenderOptions& o) {
   std::printf("wrote %s\n", report->exrPath.c_str());
   if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
   std::printf("%s", formatStages(report->stages).c_str());
+  if (report->tree) printTreeReport(*report->tree, report->counters);
   const RenderCounters& c = report->counters;
   std::printf("  samples %llu, discarded (NaN/Inf) %llu, pixels that see nothing %llu\n",
               static_cast<unsigned long long>(c.cameraSamples),
@@ -71,6 +118,22 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(4, 1024));
   cmd->add_option("--out", options->out, "Output EXR (default: the shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
+  cmd->add_option("--quality", options->quality,
+                  "PBGI gather preset: draft, default, high (default: the shot's quality)")
+      ->check(CLI::IsMember({"draft", "default", "high"}));
+  cmd->add_option("--max-solid-angle", options->maxSolidAngle,
+                  "PBGI: largest solid angle (sr) splatted as one cluster (default: the preset's)")
+      ->check(CLI::Range(1e-6, 12.566));
+  cmd->add_option("--microbuffer-resolution", options->resolution,
+                  "PBGI: microbuffer pixels per cube face side (default: the preset's)")
+      ->check(CLI::Range(1, kMaxMicrobufferResolution));
+  cmd->add_option("--cache-mb", options->cacheMb,
+                  "PBGI: tree page cache budget in MiB (default: the shot's cache_mb, 256)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--tree", options->tree, "PBGI: render from this .pbgi tree instead of the frame's bake");
+  cmd->add_option("--bake-dir", options->bakeDir,
+                  "PBGI: where the frame's bake is found or written (default: beside the image)");
+  cmd->add_flag("--rebake", options->rebake, "PBGI: bake again even when a matching bake exists");
   cmd->callback([options, &action] { action = [options] { return runRender(*options); }; });
 }
 

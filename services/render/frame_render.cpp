@@ -3,7 +3,12 @@
 
 #include <fmt/format.h>
 
+#include <filesystem>
+
 #include "core/render/integrator.h"
+#include "core/render/pbgi_integrator.h"
+#include "formats/pbgi/tree_file.h"
+#include "services/bake/frame_bake.h"
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
@@ -22,11 +27,53 @@ std::string previewPathFor(const std::string& exrPath) {
   return exrPath.substr(0, dot) + ".png";
 }
 
+// The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
+// the same shot bytes and bake settings is on disk, else a new bake.
+absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
+                                                    const FrameRenderRequest& request,
+                                                    TreeReadReport* report) {
+  if (!request.treePath.empty()) {
+    report->treePath = request.treePath;
+    return TreeFile::open(request.treePath);
+  }
+  auto bake = shotBakeRequest(shot, request.frame);
+  if (!bake.ok()) return bake.status();
+  bake->outDir = request.bakeDir;
+  bake->threads = request.threads;
+  bake->progress = request.bakeProgress;
+  report->treePath = bakeTreePath(shot, *bake);
+  if (!request.rebake && std::filesystem::exists(report->treePath)) {
+    auto existing = TreeFile::open(report->treePath);
+    if (existing.ok() && (*existing)->container().info().sceneHash == bakeHash(shot, *bake)) {
+      return existing;
+    }
+  }
+  auto baked = bakeShotFrame(shot, *bake);
+  if (!baked.ok()) return baked.status();
+  report->baked = true;
+  report->bakeStages = baked->stages;
+  return TreeFile::open(report->treePath);
+}
+
 }  // namespace
 
 const std::vector<std::string>& availableIntegrators() {
-  static const std::vector<std::string> names = {"path"};
+  static const std::vector<std::string> names = {"path", "pbgi"};
   return names;
+}
+
+absl::StatusOr<GatherOptions> pbgiGatherOptions(const RenderSettings& settings,
+                                                const FrameRenderRequest& request) {
+  auto options = gatherPreset(request.quality.empty() ? settings.quality : request.quality);
+  if (!options.ok()) return options.status();
+  const float solidAngle =
+      request.maxSolidAngle > 0.0f ? request.maxSolidAngle : settings.maxSolidAngle;
+  if (solidAngle > 0.0f) options->maxSolidAngle = solidAngle;
+  const int resolution = request.microbufferResolution > 0 ? request.microbufferResolution
+                                                           : settings.microbufferResolution;
+  if (resolution > 0) options->resolution = resolution;
+  if (absl::Status s = options->validate(); !s.ok()) return s;
+  return *options;
 }
 
 absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
@@ -56,38 +103,69 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   PathTracerSettings pt;
   pt.maxDepth = settings.maxDepth;
   pt.rouletteDepth = settings.rouletteDepth;
-  const PathIntegrator integrator(*frameScene->scene, pt);
-
   FrameRenderOptions options;
   options.threads = request.threads;
   options.tileSize = request.tileSize;
   options.progress = request.progress;
-  Image image = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
-                            &report.counters);
+
+  std::optional<Image> image;
+  if (settings.integrator == "pbgi") {
+    auto gather = pbgiGatherOptions(settings, request);
+    if (!gather.ok()) return gather.status();
+    TreeReadReport& tree = report.tree.emplace();
+    tree.gather = gather->toString();
+    auto file = frameTree(shot, request, &tree);
+    if (!file.ok()) return file.status();
+    clock.lap(tree.baked ? "bake" : "tree");
+    tree.cacheBudget = request.cacheBytes > 0 ? request.cacheBytes
+                                              : static_cast<size_t>(settings.cacheMb) << 20;
+    PageCache cache(**file, {.budgetBytes = tree.cacheBudget});
+    PbgiIntegratorSettings pbgiSettings{.gather = *gather,
+                                        .maxGathersPerPixel = settings.gathersPerPixel,
+                                        .pathTracer = pt};
+    const PbgiIntegrator integrator(*frameScene->scene, cache, pbgiSettings);
+    auto rendered = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
+                                &report.counters);
+    if (!rendered.ok()) return rendered.status();
+    image = std::move(*rendered);
+    tree.cache = cache.counters();
+    tree.pagesRead = cache.distinctPagesLoaded();
+    tree.pagesInFile = (*file)->container().directory().size();
+  } else {
+    const PathIntegrator integrator(*frameScene->scene, pt);
+    auto rendered = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
+                                &report.counters);
+    if (!rendered.ok()) return rendered.status();
+    image = std::move(*rendered);
+  }
   clock.lap("render");
   const double renderSeconds = report.stages.back().seconds;
 
-  image.setMetadata("pbgi/shot", shot.name);
-  image.setMetadata("pbgi/shotFile", shot.path);
-  image.setMetadata("pbgi/frame", request.frame);
-  image.setMetadata("pbgi/integrator", settings.integrator);
-  image.setMetadata("pbgi/spp", settings.spp);
-  image.setMetadata("pbgi/seed", std::to_string(settings.seed));
-  image.setMetadata("pbgi/maxDepth", settings.maxDepth);
-  image.setMetadata("pbgi/renderSeconds", static_cast<float>(renderSeconds));
-  image.setMetadata("pbgi/discardedSamples", static_cast<int>(report.counters.discardedSamples));
-  image.setMetadata("pbgi/version", std::string(PBGI_VERSION));
+  image->setMetadata("pbgi/shot", shot.name);
+  image->setMetadata("pbgi/shotFile", shot.path);
+  image->setMetadata("pbgi/frame", request.frame);
+  image->setMetadata("pbgi/integrator", settings.integrator);
+  image->setMetadata("pbgi/spp", settings.spp);
+  image->setMetadata("pbgi/seed", std::to_string(settings.seed));
+  image->setMetadata("pbgi/maxDepth", settings.maxDepth);
+  image->setMetadata("pbgi/renderSeconds", static_cast<float>(renderSeconds));
+  image->setMetadata("pbgi/discardedSamples", static_cast<int>(report.counters.discardedSamples));
+  image->setMetadata("pbgi/version", std::string(PBGI_VERSION));
+  if (report.tree) {
+    image->setMetadata("pbgi/tree", report.tree->treePath);
+    image->setMetadata("pbgi/gather", report.tree->gather);
+  }
 
   report.exrPath = request.outPath.empty()
                        ? outputPathForFrame(shot.output, request.frame,
                                             shot.lastFrame > shot.firstFrame)
                        : request.outPath;
-  if (absl::Status s = writeExr(image, report.exrPath); !s.ok()) return s;
+  if (absl::Status s = writeExr(*image, report.exrPath); !s.ok()) return s;
   if (request.preview) {
     const std::string config =
         request.ocioConfig.empty() ? defaultOcioConfigPath() : request.ocioConfig;
     report.previewPath = previewPathFor(report.exrPath);
-    if (absl::Status s = writePreviewPng(image, report.previewPath, config); !s.ok()) {
+    if (absl::Status s = writePreviewPng(*image, report.previewPath, config); !s.ok()) {
       report.warnings.push_back(fmt::format("no preview: {}", s.message()));
       report.previewPath.clear();
     }

@@ -3,11 +3,13 @@
 // `pbgi render` and, later, the farm's workers share this.
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <absl/status/statusor.h>
 
+#include "core/pbgi/page_cache.h"
 #include "core/render/renderer.h"
 #include "core/scene/shot.h"
 #include "services/util/stage_time.h"
@@ -24,6 +26,28 @@ struct FrameRenderRequest {
   bool preview = true;     // write a PNG preview beside the EXR
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int tilesDone, int tilesTotal)> progress;
+
+  // The PBGI integrator (0 or empty: the shot's [render] settings).
+  std::string quality;         // gather preset
+  float maxSolidAngle = 0.0f;  // sr
+  int microbufferResolution = 0;
+  size_t cacheBytes = 0;       // page cache budget
+  std::string treePath;        // render from this tree; empty: the frame's bake (below)
+  std::string bakeDir;         // the frame's bake lives here; empty: beside the image
+  bool rebake = false;         // bake even when a matching bake is on disk
+  std::function<void(const std::string& stage, uint64_t done, uint64_t total)> bakeProgress;
+};
+
+// What a PBGI render read: its tree, its bake, its page cache.
+struct TreeReadReport {
+  std::string treePath;
+  bool baked = false;          // false: a bake on disk was reused, or treePath was given
+  std::vector<StageTime> bakeStages;
+  size_t cacheBudget = 0;
+  PageCacheCounters cache;
+  uint64_t pagesRead = 0;      // distinct pages the render loaded
+  uint64_t pagesInFile = 0;
+  std::string gather;          // the gather options, as text
 };
 
 struct FrameRenderReport {
@@ -32,12 +56,22 @@ struct FrameRenderReport {
   std::vector<StageTime> stages;
   double wallSeconds = 0.0;
   RenderCounters counters;
+  std::optional<TreeReadReport> tree;  // PBGI renders only
   std::vector<std::string> warnings;
 };
 
 // The integrators this build can run, by name.
 const std::vector<std::string>& availableIntegrators();
 
+// The PBGI integrator's gather options from the shot's settings and the request's overrides;
+// InvalidArgument naming the value that is out of range.
+absl::StatusOr<GatherOptions> pbgiGatherOptions(const RenderSettings& settings,
+                                                const FrameRenderRequest& request);
+
+// Renders one frame. For the PBGI integrator, bakes the frame's tree first unless a bake made
+// from the same shot bytes and bake settings is already on disk (or request.treePath names
+// one). Errors: the shot's, the bake's, and a tile's (a damaged tree page fails the frame
+// naming the tile, the file and the page; nothing is written).
 absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                                                   const FrameRenderRequest& request);
 

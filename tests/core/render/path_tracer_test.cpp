@@ -51,7 +51,7 @@ TEST(PathTracerTest, WhiteFurnaceClosedEmissiveSphere) {
   RenderSettings settings;
   settings.spp = 256;
   RenderCounters counters;
-  const Image image = renderFrame(integrator, camera, settings, 1, {}, &counters);
+  const Image image = *renderFrame(integrator, camera, settings, 1, {}, &counters);
   const Rgb mean = meanRgb(image);
   EXPECT_NEAR(mean.x, 2.0f, 0.02f);
   EXPECT_NEAR(mean.y, 4.0f, 0.04f);
@@ -72,7 +72,7 @@ TEST(PathTracerTest, BlackFurnaceShowsEmissionOnly) {
   const Camera camera(CameraParams{}, 8, 8);
   RenderSettings settings;
   settings.spp = 4;
-  const Image image = renderFrame(integrator, camera, settings, 1, {}, nullptr);
+  const Image image = *renderFrame(integrator, camera, settings, 1, {}, nullptr);
   for (int y = 0; y < 8; ++y)
     for (int x = 0; x < 8; ++x) EXPECT_FLOAT_EQ(image.at(x, y, 0), 0.7f);
 }
@@ -92,14 +92,14 @@ TEST(PathTracerTest, TileAndThreadInvarianceBitForBit) {
   FrameRenderOptions b;
   b.threads = 2;
   b.tileSize = 64;
-  const Image ia = renderFrame(integrator, camera, settings, 3, a, nullptr);
-  const Image ib = renderFrame(integrator, camera, settings, 3, b, nullptr);
+  const Image ia = *renderFrame(integrator, camera, settings, 3, a, nullptr);
+  const Image ib = *renderFrame(integrator, camera, settings, 3, b, nullptr);
   ASSERT_EQ(ia.pixels().size(), ib.pixels().size());
   EXPECT_EQ(0, std::memcmp(ia.pixels().data(), ib.pixels().data(), ia.pixels().size() * sizeof(float)));
   // And the image is not trivially black: the test would pass vacuously otherwise.
   EXPECT_GT(meanRgb(ia).x, 0.01f);
   // A different frame number draws different random numbers.
-  const Image ic = renderFrame(integrator, camera, settings, 4, a, nullptr);
+  const Image ic = *renderFrame(integrator, camera, settings, 4, a, nullptr);
   EXPECT_NE(0, std::memcmp(ia.pixels().data(), ic.pixels().data(), ia.pixels().size() * sizeof(float)));
 }
 
@@ -110,7 +110,7 @@ TEST(PathTracerTest, DirectPlusIndirectIsTotalAndMaxDepthOneHasNoIndirect) {
   RenderSettings settings;
   settings.spp = 16;
   const PathIntegrator full(*scene, PathTracerSettings{64, 3});
-  const Image image = renderFrame(full, camera, settings, 1, {}, nullptr);
+  const Image image = *renderFrame(full, camera, settings, 1, {}, nullptr);
   const int direct = image.channelIndex("direct.R"), indirect = image.channelIndex("indirect.R");
   double indirectSum = 0.0;
   for (int y = 0; y < 24; ++y) {
@@ -122,7 +122,7 @@ TEST(PathTracerTest, DirectPlusIndirectIsTotalAndMaxDepthOneHasNoIndirect) {
   }
   EXPECT_GT(indirectSum, 0.0);
   const PathIntegrator directOnly(*scene, PathTracerSettings{1, 3});
-  const Image d = renderFrame(directOnly, camera, settings, 1, {}, nullptr);
+  const Image d = *renderFrame(directOnly, camera, settings, 1, {}, nullptr);
   for (int y = 0; y < 24; ++y)
     for (int x = 0; x < 24; ++x) EXPECT_EQ(d.at(x, y, indirect), 0.0f);
 }
@@ -159,7 +159,7 @@ TEST(PathTracerTest, HostileGeometryRendersWithoutNaN) {
   RenderSettings settings;
   settings.spp = 4;
   RenderCounters counters;
-  const Image image = renderFrame(integrator, camera, settings, 1, {}, &counters);
+  const Image image = *renderFrame(integrator, camera, settings, 1, {}, &counters);
   for (float v : image.pixels()) ASSERT_TRUE(std::isfinite(v));
   EXPECT_EQ(counters.discardedSamples, 0u);
   // The floor is lit: cos-weighted sun on albedo 0.6 gives 3 * 0.6/pi * cos.

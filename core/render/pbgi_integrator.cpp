@@ -1,0 +1,134 @@
+#include "core/render/pbgi_integrator.h"
+
+#include <cmath>
+#include <numbers>
+#include <vector>
+
+#include "core/scene/material.h"
+
+namespace pbgi {
+
+namespace {
+
+// How near a sample's first hit must lie to an earlier gather of its pixel to share it, as
+// fractions of that gather's distance from the camera: along the gather's normal (the same
+// plane), and in all (the same neighbourhood; a pixel spans about 1/500 of its distance).
+constexpr float kReusePlaneFraction = 0.005f;
+constexpr float kReuseDistanceFraction = 0.05f;
+constexpr float kReuseNormalCos = 0.95f;
+constexpr float kReuseViewCos = 0.999f;
+
+// What one gather found at a shading point of the pixel: irradiance for a diffuse receiver
+// (material kNoMaterial: any diffuse material shares it), or the reflected radiance of a
+// glossy one (its own material, its own view direction).
+struct GatherRecord {
+  Vec3f p;
+  Vec3f n;
+  Vec3f wo;
+  float distance;
+  uint32_t material;
+  Rgb value;
+};
+
+class PbgiScratch final : public IntegratorScratch {
+ public:
+  explicit PbgiScratch(const GatherOptions& options) : gatherer(options) {}
+  Gatherer gatherer;
+  std::vector<GatherRecord> records;
+};
+
+const GatherRecord* findRecord(const std::vector<GatherRecord>& records, const Vec3f& p,
+                               const Vec3f& n, const Vec3f& wo, uint32_t material) {
+  for (const GatherRecord& r : records) {
+    if (r.material != material || dot(r.n, n) < kReuseNormalCos) continue;
+    const Vec3f d = p - r.p;
+    if (std::abs(dot(d, r.n)) > kReusePlaneFraction * r.distance) continue;
+    if (length(d) > kReuseDistanceFraction * r.distance) continue;
+    if (material != kNoMaterial && dot(r.wo, wo) < kReuseViewCos) continue;
+    return &r;
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+PbgiIntegrator::PbgiIntegrator(const Scene& scene, TreePageSource& tree,
+                               const PbgiIntegratorSettings& settings)
+    : scene_(scene), tree_(tree), settings_(settings) {}
+
+std::unique_ptr<IntegratorScratch> PbgiIntegrator::newScratch() const {
+  return std::make_unique<PbgiScratch>(settings_.gather);
+}
+
+absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
+                                        std::span<PathSample> out, IntegratorScratch* scratch,
+                                        RenderCounters* counters) const {
+  auto& state = static_cast<PbgiScratch&>(*scratch);
+  state.records.clear();
+  PathTracerSettings directOnly = settings_.pathTracer;
+  directOnly.maxDepth = 1;
+  for (size_t s = 0; s < rays.size(); ++s) {
+    const Rng start = rngs[s];
+    SurfaceHit hit;
+    out[s] = tracePath(scene_, rays[s], rngs[s], directOnly, &hit);
+    if (!out[s].hit) continue;
+    if (hit.material == kNoMaterial || isBlack(out[s].albedo)) {
+      ++counters->blackReceivers;
+      continue;
+    }
+    const Material& material = scene_.material(hit.material);
+    const Bsdf bsdf(material, out[s].albedo);
+    if (bsdf.isBlack()) {
+      ++counters->blackReceivers;
+      continue;
+    }
+    if (bsdf.isDelta() || material.type == MaterialType::kDielectric) {
+      // The same path as the path tracer's, from the same random numbers: its direct light
+      // is the one just computed, and its indirect light is path traced.
+      rngs[s] = start;
+      out[s] = tracePath(scene_, rays[s], rngs[s], settings_.pathTracer);
+      ++counters->pathTracedReceivers;
+      continue;
+    }
+    // Two-sided surfaces gather on the side the camera sees.
+    const Vec3f wo = -rays[s].dir;
+    const Vec3f n = dot(hit.ng, wo) >= 0.0f ? hit.ns : -hit.ns;
+    const bool diffuse = material.type == MaterialType::kDiffuse;
+    const uint32_t key = diffuse ? kNoMaterial : hit.material;
+    Rgb value(0.0f);
+    if (const GatherRecord* r = findRecord(state.records, hit.p, n, wo, key)) {
+      value = r->value;
+      ++counters->gatherReuses;
+    } else {
+      if (diffuse) {
+        absl::StatusOr<Rgb> e = state.gatherer.irradiance(tree_, hit.p, n, &counters->gather);
+        if (!e.ok()) return e.status();
+        value = *e;
+      } else {
+        if (absl::Status st = state.gatherer.rasterize(tree_, hit.p, n, &counters->gather);
+            !st.ok()) {
+          return st;
+        }
+        const Frame frame(n);
+        const Vec3f woLocal = frame.toLocal(wo);
+        value = state.gatherer.microbuffer().convolve([&](const Vec3f& dir) {
+          const Vec3f wi = frame.toLocal(dir);
+          return wi.z > 0.0f ? bsdf.f(woLocal, wi) * wi.z : Rgb(0.0f);
+        });
+        ++counters->glossyGathers;
+      }
+      ++counters->gathers;
+      if (!isFinite(value)) {
+        return absl::DataLossError(
+            "the tree's radiance made a gather non-finite (a damaged or hostile tree)");
+      }
+      if (state.records.size() < static_cast<size_t>(settings_.maxGathersPerPixel)) {
+        state.records.push_back({hit.p, n, wo, hit.t, key, value});
+      }
+    }
+    out[s].indirect = diffuse ? out[s].albedo * value * std::numbers::inv_pi_v<float> : value;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace pbgi

@@ -1,0 +1,384 @@
+// Run time against error (architecture invariant 6): for one shot, a high-spp path-traced
+// reference (cached by the shot's bytes, frame, spp and version), then the path tracer at a
+// sweep of spp and the PBGI integrator at a sweep of quality presets and spp, each measured
+// as render seconds against RMSE and relMSE. Writes:
+//   OUT/<shot>.csv            one row per run
+//   OUT/<shot>.plot.png       relMSE against render seconds, log-log, a series per integrator
+//   OUT/<shot>.<run>.exr      each run's image, and OUT/<shot>.<run>.error.exr |image - ref|
+// and prints, for the path tracer at 256 and 1024 spp (when swept), the render time each PBGI
+// preset needs to reach the same relMSE (log-log interpolated along its spp sweep) and the
+// equal-error speed-up, without and with the bake's time.
+//
+// Then the page cache: the default preset rendered from the same tree with a cache of 5 % and
+// 20 % of the tree's decoded pages and without a limit, reporting hit rates, pages read over
+// pages in the file, and whether the images are bit-identical (they must be).
+//
+// Render seconds are the render stage alone (the scene load, the bake and the EXR write are
+// reported apart). Reports numbers; never fails on time.
+//
+// Run: build/bin/accuracy_bench --shot ../shared/scenes/cornell-box/cornell.shot.toml
+//        [--out DIR] [--cache DIR] [--frame N] [--reference-spp 4096] [--pt-spp 4,16,...]
+//        [--pbgi-spp 1,4,...] [--qualities draft,default,high] [--threads N] [--no-cache-runs]
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#define XXH_INLINE_ALL
+#include <xxhash.h>
+
+#include "formats/image/compare.h"
+#include "formats/image/image_io.h"
+#include "formats/image/plot.h"
+#include "formats/pbgi/tree_file.h"
+#include "formats/shot/shot_file.h"
+#include "services/render/frame_render.h"
+
+namespace pbgi {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Args {
+  std::string shot;
+  std::string out = "accuracy";
+  std::string cache;
+  std::optional<int> frame;
+  int referenceSpp = 4096;
+  std::vector<int> ptSpp = {4, 16, 64, 256, 1024};
+  std::vector<int> pbgiSpp = {1, 4, 16, 64, 256};
+  std::vector<std::string> qualities = {"draft", "default", "high"};
+  int threads = 0;
+  bool cacheRuns = true;
+};
+
+struct Run {
+  std::string integrator;
+  std::string quality;  // PBGI only
+  int spp = 0;
+  double renderSeconds = 0.0;
+  double bakeSeconds = 0.0;  // the PBGI tree's bake (the first PBGI run pays it)
+  ImageMetrics rgb;
+  ImageMetrics direct;
+  ImageMetrics indirect;
+  RenderCounters counters;
+  std::string name() const {
+    return integrator == "path" ? fmt::format("path.spp{}", spp)
+                                : fmt::format("pbgi-{}.spp{}", quality, spp);
+  }
+};
+
+double stageSeconds(const std::vector<StageTime>& stages, const std::string& name) {
+  for (const StageTime& s : stages) {
+    if (s.stage == name) return s.seconds;
+  }
+  return 0.0;
+}
+
+// The three channels `prefix`.R/G/B of an image as a plain RGB image.
+Image layer(const Image& image, const std::string& prefix) {
+  Image out(image.width(), image.height(), {"R", "G", "B"});
+  const int c0 = image.channelIndex(prefix + ".R");
+  for (int y = 0; y < image.height(); ++y) {
+    for (int x = 0; x < image.width(); ++x) {
+      for (int c = 0; c < 3; ++c) out.at(x, y, c) = c0 >= 0 ? image.at(x, y, c0 + c) : 0.0f;
+    }
+  }
+  return out;
+}
+
+std::string readBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& args) {
+  const std::string key = fmt::format("{}|frame={}|spp={}|version={}", readBytes(shot.path),
+                                      frame, args.referenceSpp, PBGI_VERSION);
+  const fs::path dir = args.cache.empty() ? fs::path(args.out) / "reference" : fs::path(args.cache);
+  const std::string path = (dir / fmt::format("{}.{:04d}.path{}.{:016x}.exr", shot.name, frame,
+                                              args.referenceSpp,
+                                              XXH3_64bits(key.data(), key.size())))
+                               .string();
+  if (fs::exists(path)) {
+    std::printf("reference %s (cached)\n", path.c_str());
+    return readImage(path);
+  }
+  std::printf("reference: path tracing %d spp (cached afterwards as %s)\n", args.referenceSpp,
+              path.c_str());
+  std::fflush(stdout);
+  FrameRenderRequest request;
+  request.frame = frame;
+  request.integrator = "path";
+  request.spp = args.referenceSpp;
+  request.threads = args.threads;
+  request.outPath = path;
+  request.preview = false;
+  auto report = renderShotFrame(shot, request);
+  if (!report.ok()) return report.status();
+  std::printf("  %.1f s\n", stageSeconds(report->stages, "render"));
+  return readImage(path);
+}
+
+absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, const Image& ref,
+                            const std::string& outDir, Run run,
+                            std::optional<TreeReadReport>* tree = nullptr) {
+  request.spp = run.spp;
+  request.integrator = run.integrator;
+  request.quality = run.quality;
+  request.preview = false;
+  request.outPath = (fs::path(outDir) / fmt::format("{}.{}.exr", shot.name, run.name())).string();
+  auto report = renderShotFrame(shot, request);
+  if (!report.ok()) return report.status();
+  run.renderSeconds = stageSeconds(report->stages, "render");
+  run.bakeSeconds = stageSeconds(report->stages, "bake");
+  run.counters = report->counters;
+  if (tree) *tree = report->tree;
+  // What was written, read back: the numbers are about the file a user gets.
+  auto image = readImage(request.outPath);
+  if (!image.ok()) return image.status();
+  Image diff;
+  auto rgb = compareImages(*image, ref, &diff);
+  if (!rgb.ok()) return rgb.status();
+  run.rgb = *rgb;
+  auto direct = compareImages(layer(*image, "direct"), layer(ref, "direct"));
+  auto indirect = compareImages(layer(*image, "indirect"), layer(ref, "indirect"));
+  if (!direct.ok()) return direct.status();
+  if (!indirect.ok()) return indirect.status();
+  run.direct = *direct;
+  run.indirect = *indirect;
+  const std::string errorPath =
+      (fs::path(outDir) / fmt::format("{}.{}.error.exr", shot.name, run.name())).string();
+  if (auto s = writeExr(diff, errorPath); !s.ok()) return s;
+  const double meanRatio =
+      (rgb->channels[0].meanImage + rgb->channels[1].meanImage + rgb->channels[2].meanImage) /
+      (rgb->channels[0].meanReference + rgb->channels[1].meanReference +
+       rgb->channels[2].meanReference);
+  std::printf("%-22s %8.3f s  relMSE %.3e (direct %.3e, indirect %.3e)  RMSE %.4f  mean %.4f"
+              "%s\n",
+              run.name().c_str(), run.renderSeconds, rgb->relMse, direct->relMse,
+              indirect->relMse, rgb->rmse, meanRatio,
+              run.bakeSeconds > 0 ? fmt::format("  (bake {:.1f} s)", run.bakeSeconds).c_str() : "");
+  std::fflush(stdout);
+  return run;
+}
+
+// The render seconds at which a series (ascending time) first reaches `error`, interpolated in
+// log-log between the two runs around it; nullopt when it never does.
+std::optional<double> timeToReach(const std::vector<Run>& series, double error) {
+  for (size_t i = 0; i < series.size(); ++i) {
+    if (series[i].rgb.relMse > error) continue;
+    if (i == 0) return series[0].renderSeconds;
+    const Run& a = series[i - 1];
+    const Run& b = series[i];
+    const double t = (std::log(error) - std::log(a.rgb.relMse)) /
+                     (std::log(b.rgb.relMse) - std::log(a.rgb.relMse));
+    return std::exp(std::log(a.renderSeconds) +
+                    t * (std::log(b.renderSeconds) - std::log(a.renderSeconds)));
+  }
+  return std::nullopt;
+}
+
+void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<Run>>& pbgi,
+                   double bakeSeconds) {
+  for (const int spp : {256, 1024}) {
+    auto it = std::find_if(path.begin(), path.end(), [&](const Run& r) { return r.spp == spp; });
+    if (it == path.end()) continue;
+    std::printf("equal error with path %d spp (relMSE %.3e, %.2f s):\n", spp, it->rgb.relMse,
+                it->renderSeconds);
+    for (const auto& series : pbgi) {
+      if (series.empty()) continue;
+      const auto t = timeToReach(series, it->rgb.relMse);
+      double floor = series.front().rgb.relMse;
+      for (const Run& r : series) floor = std::min(floor, r.rgb.relMse);
+      if (!t) {
+        std::printf("  pbgi %-8s not reached (lowest relMSE %.3e)\n", series[0].quality.c_str(),
+                    floor);
+      } else {
+        std::printf("  pbgi %-8s %.2f s: speed-up %.2fx (%.2fx counting the %.1f s bake)\n",
+                    series[0].quality.c_str(), *t, it->renderSeconds / *t,
+                    it->renderSeconds / (*t + bakeSeconds), bakeSeconds);
+      }
+    }
+  }
+}
+
+// The decoded bytes of every page of the tree: what an unlimited cache would hold.
+absl::StatusOr<uint64_t> decodedTreeBytes(const std::string& path) {
+  auto file = TreeFile::open(path);
+  if (!file.ok()) return file.status();
+  uint64_t bytes = 0;
+  for (uint32_t id = 0; id < (*file)->container().directory().size(); ++id) {
+    auto page = (*file)->page(id);
+    if (!page.ok()) return page.status();
+    bytes += (*page)->memoryBytes();
+  }
+  return bytes;
+}
+
+int cacheRuns(const ShotDesc& shot, FrameRenderRequest request, const std::string& treePath,
+              const std::string& outDir, std::FILE* csv) {
+  auto total = decodedTreeBytes(treePath);
+  if (!total.ok()) return std::fprintf(stderr, "%s\n", total.status().ToString().c_str()), 1;
+  std::printf("page cache (default preset, 16 spp, tree %s: %.1f MiB decoded)\n", treePath.c_str(),
+              *total / 1048576.0);
+  request.treePath = treePath;
+  request.integrator = "pbgi";
+  request.quality = "default";
+  request.spp = 16;
+  request.preview = false;
+  std::optional<Image> unlimited;
+  for (const double fraction : {0.0, 0.20, 0.05}) {
+    request.cacheBytes = fraction > 0.0 ? std::max<size_t>(1, static_cast<size_t>(*total * fraction))
+                                        : size_t{1} << 40;
+    const std::string label = fraction > 0.0 ? fmt::format("{:.0f}%", fraction * 100) : "unlimited";
+    request.outPath = (fs::path(outDir) / fmt::format("{}.cache-{}.exr", shot.name,
+                                                      fraction > 0.0 ? int(fraction * 100) : 100))
+                          .string();
+    auto report = renderShotFrame(shot, request);
+    if (!report.ok()) return std::fprintf(stderr, "%s\n", report.status().ToString().c_str()), 1;
+    auto image = readImage(request.outPath);
+    if (!image.ok()) return std::fprintf(stderr, "%s\n", image.status().ToString().c_str()), 1;
+    bool identical = true;
+    if (!unlimited) {
+      unlimited = std::move(*image);
+    } else {
+      identical = image->pixels() == unlimited->pixels();
+    }
+    const TreeReadReport& t = *report->tree;
+    std::printf("  cache %-9s %7.1f MiB: hit rate %.4f (%llu hits, %llu misses, %llu evictions), "
+                "pages read %llu of %llu (%.1f %%), render %.2f s, %s\n",
+                label.c_str(), request.cacheBytes / 1048576.0, t.cache.hitRate(),
+                static_cast<unsigned long long>(t.cache.hits),
+                static_cast<unsigned long long>(t.cache.misses),
+                static_cast<unsigned long long>(t.cache.evictions),
+                static_cast<unsigned long long>(t.pagesRead),
+                static_cast<unsigned long long>(t.pagesInFile),
+                100.0 * double(t.pagesRead) / double(std::max<uint64_t>(1, t.pagesInFile)),
+                stageSeconds(report->stages, "render"),
+                identical ? "bit-identical to unlimited" : "DIFFERS from unlimited");
+    std::fprintf(csv, "cache,%s,%zu,%.6f,%llu,%llu,%llu,%llu,%d\n", label.c_str(),
+                 request.cacheBytes, t.cache.hitRate(), static_cast<unsigned long long>(t.cache.hits),
+                 static_cast<unsigned long long>(t.cache.misses),
+                 static_cast<unsigned long long>(t.pagesRead),
+                 static_cast<unsigned long long>(t.pagesInFile), identical ? 1 : 0);
+    if (!identical) return 1;
+  }
+  return 0;
+}
+
+int runBench(const Args& args) {
+  auto shot = loadShotFile(args.shot);
+  if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+  const int frame = args.frame.value_or(shot->firstFrame);
+  std::error_code ec;
+  fs::create_directories(args.out, ec);
+  auto ref = reference(*shot, frame, args);
+  if (!ref.ok()) return std::fprintf(stderr, "%s\n", ref.status().ToString().c_str()), 1;
+
+  FrameRenderRequest base;
+  base.frame = frame;
+  base.threads = args.threads;
+  base.bakeDir = (fs::path(args.out) / "bake").string();
+
+  std::vector<Run> path;
+  for (const int spp : args.ptSpp) {
+    auto run = measure(*shot, base, *ref, args.out, Run{.integrator = "path", .spp = spp});
+    if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
+    path.push_back(*run);
+  }
+  std::vector<std::vector<Run>> pbgi;
+  double bakeSeconds = 0.0;
+  std::string treePath;
+  for (const std::string& quality : args.qualities) {
+    std::vector<Run>& series = pbgi.emplace_back();
+    for (const int spp : args.pbgiSpp) {
+      std::optional<TreeReadReport> tree;
+      auto run = measure(*shot, base, *ref, args.out,
+                         Run{.integrator = "pbgi", .quality = quality, .spp = spp}, &tree);
+      if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
+      bakeSeconds = std::max(bakeSeconds, run->bakeSeconds);
+      if (tree) treePath = tree->treePath;
+      series.push_back(*run);
+    }
+  }
+
+  const std::string csvPath = (fs::path(args.out) / (shot->name + ".csv")).string();
+  std::FILE* csv = std::fopen(csvPath.c_str(), "w");
+  if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
+  std::fprintf(csv, "integrator,quality,max_solid_angle,resolution,spp,seconds,bake_seconds,rmse,"
+                    "relmse,relmse_direct,relmse_indirect,gathers\n");
+  std::vector<PlotSeries> plot;
+  plot.push_back({.name = "path", .color = Rgb(0.1f, 0.1f, 0.1f)});
+  const Rgb colors[] = {Rgb(0.2f, 0.5f, 0.9f), Rgb(0.9f, 0.4f, 0.1f), Rgb(0.2f, 0.7f, 0.3f),
+                        Rgb(0.7f, 0.2f, 0.7f)};
+  for (size_t i = 0; i < pbgi.size(); ++i) {
+    plot.push_back({.name = "pbgi " + args.qualities[i], .color = colors[i % 4]});
+  }
+  auto row = [&](const Run& r, const GatherOptions* g) {
+    std::fprintf(csv, "%s,%s,%g,%d,%d,%.4f,%.4f,%.6g,%.6g,%.6g,%.6g,%llu\n", r.integrator.c_str(),
+                 r.quality.c_str(), g ? g->maxSolidAngle : 0.0, g ? g->resolution : 0, r.spp,
+                 r.renderSeconds, r.bakeSeconds, r.rgb.rmse, r.rgb.relMse, r.direct.relMse,
+                 r.indirect.relMse, static_cast<unsigned long long>(r.counters.gathers));
+  };
+  for (const Run& r : path) {
+    row(r, nullptr);
+    plot[0].points.push_back({r.renderSeconds, r.rgb.relMse});
+  }
+  for (size_t i = 0; i < pbgi.size(); ++i) {
+    auto preset = gatherPreset(args.qualities[i]);
+    for (const Run& r : pbgi[i]) {
+      row(r, preset.ok() ? &*preset : nullptr);
+      plot[i + 1].points.push_back({r.renderSeconds, r.rgb.relMse});
+    }
+  }
+  std::printf("wrote %s\n", csvPath.c_str());
+  const std::string plotPath = (fs::path(args.out) / (shot->name + ".plot.png")).string();
+  std::string warning;
+  if (auto s = writeLogLogPlot(plot,
+                               {.title = fmt::format("{} frame {}: relMSE against render time "
+                                                     "(reference: path {} spp)",
+                                                     shot->name, frame, args.referenceSpp),
+                                .xLabel = "render seconds",
+                                .yLabel = "relMSE"},
+                               plotPath, &warning);
+      !s.ok()) {
+    std::fprintf(stderr, "%s\n", s.ToString().c_str());
+  } else {
+    std::printf("wrote %s%s%s\n", plotPath.c_str(), warning.empty() ? "" : ": ", warning.c_str());
+  }
+  printSpeedups(path, pbgi, bakeSeconds);
+  int rc = 0;
+  if (args.cacheRuns && !treePath.empty()) rc = cacheRuns(*shot, base, treePath, args.out, csv);
+  std::fclose(csv);
+  return rc;
+}
+
+}  // namespace
+}  // namespace pbgi
+
+int main(int argc, char** argv) {
+  pbgi::Args args;
+  CLI::App app("Run time against error: the path tracer and PBGI against a path-traced reference");
+  app.add_option("--shot", args.shot, "Shot file")->required();
+  app.add_option("--out", args.out, "Output folder (default: ./accuracy)");
+  app.add_option("--cache", args.cache, "Reference cache folder (default: OUT/reference)");
+  app.add_option("--frame", args.frame, "Frame (default: the shot's first)");
+  app.add_option("--reference-spp", args.referenceSpp, "Reference samples per pixel");
+  app.add_option("--pt-spp", args.ptSpp, "Path tracer spp sweep")->delimiter(',');
+  app.add_option("--pbgi-spp", args.pbgiSpp, "PBGI spp sweep")->delimiter(',');
+  app.add_option("--qualities", args.qualities, "PBGI presets")->delimiter(',');
+  app.add_option("--threads", args.threads, "Render threads (default: all cores)");
+  bool noCache = false;
+  app.add_flag("--no-cache-runs", noCache, "Skip the page cache runs");
+  CLI11_PARSE(app, argc, argv);
+  args.cacheRuns = !noCache;
+  return pbgi::runBench(args);
+}
