@@ -1,0 +1,223 @@
+#pragma once
+// What the two gathers share, the cube one (gather.cpp, Christensen 2008) and the
+// importance-warped one (warped_gather.cpp, Ritschel et al. 2009): the traversal's culling
+// tests, how a cluster looks from the receiver, the checks of what a page claims, and the
+// pages a traversal holds. Private to core/pbgi.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+#include <fmt/format.h>
+
+#include "core/math/vec.h"
+#include "core/pbgi/gather.h"
+#include "core/pbgi/sh.h"
+#include "core/pbgi/surfel.h"
+#include "core/pbgi/tree.h"
+#include "core/pbgi/tree_build.h"
+#include "core/pbgi/tree_page.h"
+#include "core/util/check.h"
+
+namespace pbgi::gather_internal {
+
+// A node's bounding sphere may cover this many times the solid angle a cluster may have
+// before the node must be refined, whatever its projected area: a node seen edge-on has a
+// small projected area but spreads across the buffer, and one round footprint would misplace
+// its occlusion.
+inline constexpr float kMaxExtentFactor = 4.0f;
+// Pages held at once by one traversal. Depth-first order leaves a page's subtree before
+// returning to its parent page, so a few suffice; evicting one is safe (it is fetched again).
+inline constexpr size_t kMaxHeldPages = 16;
+// Deeper than any tree the builder makes: a reference cycle in a damaged file stops here.
+inline constexpr uint32_t kMaxGatherDepth = 2 * kMaxTreeLevels;
+// A cluster's splat reaches this many bounding radii in depth: its round footprint spreads
+// past the cluster's true outline (most at grazing views), onto pixels where the same
+// surface lies up to a bounding diameter nearer or farther, and those must count as one
+// surface (coverage adds up) rather than as layers that hide each other. Measured: 1 loses
+// 2-3 % of the light of a surface seen from close by, 4 merges an occluder with what it hides.
+inline constexpr float kLayerExtentFactor = 2.0f;
+// Surfels centred within this fraction of their radius of the receiver's tangent plane
+// (or behind it) are on the receiver's own surface.
+inline constexpr float kCoplanarFraction = 0.01f;
+
+inline float absDotExtent(const Vec3f& n, const Vec3f& half) {
+  return std::abs(n.x) * half.x + std::abs(n.y) * half.y + std::abs(n.z) * half.z;
+}
+
+// True when every surfel under a node with normal cone `cone`, inside the sphere (centre at
+// `distance` from the receiver along -toReceiver, radius `radius`), faces away from the
+// receiver: the angle between the cone's axis and toReceiver (unit) exceeds 90 degrees plus
+// the cone's half-angle plus the angle the sphere subtends.
+inline bool facesAway(const NormalCone& cone, const Vec3f& toReceiver, float distance,
+                      float radius) {
+  const float sinB = radius / distance;
+  const float cosB = safeSqrt(1.0f - sinB * sinB);
+  const float cosG = cone.cosAngle;
+  const float sinG = safeSqrt(1.0f - cosG * cosG);
+  if (cosG * cosB - sinG * sinB <= 0.0f) return false;  // the two angles reach 90 degrees
+  return dot(cone.axis, toReceiver) < -(sinG * cosB + cosG * sinB);
+}
+
+// How the traversal sees a node from the receiver at p with normal n (unit): culled when its
+// bounds lie entirely behind the tangent plane (their largest height above it is at most 0)
+// or, seen from outside its bounding sphere, when its normals all face away.
+enum class NodeCull { kNone, kPlane, kCone };
+struct NodeBounds {
+  float boundRadius2 = 0.0f;     // of the sphere around the bounds' centre
+  float centerDistance2 = 0.0f;  // from the receiver to that centre
+  bool outside() const { return centerDistance2 > boundRadius2; }
+};
+
+inline NodeCull cullNode(const NodeAttributes& a, const Vec3f& p, const Vec3f& n, float planeSlack,
+                         NodeBounds* b) {
+  const Vec3f center = a.bounds.center();
+  const Vec3f half = a.bounds.diagonal() * 0.5f;
+  const Vec3f fromReceiver = center - p;
+  if (a.bounds.empty() || dot(fromReceiver, n) + absDotExtent(n, half) <= planeSlack) {
+    return NodeCull::kPlane;
+  }
+  b->boundRadius2 = half.length2();
+  b->centerDistance2 = fromReceiver.length2();
+  if (b->outside()) {
+    const float centerDistance = std::sqrt(b->centerDistance2);
+    if (facesAway(a.cone, fromReceiver / -centerDistance, centerDistance,
+                  std::sqrt(b->boundRadius2))) {
+      return NodeCull::kCone;
+    }
+  }
+  return NodeCull::kNone;
+}
+
+// How the traversal sees a surfel: skipped when centred on or behind the receiver's tangent
+// plane or when its disk, grown by selfSkipRadius, holds the receiver (the receiver's own
+// surface: it would shadow the receiver with itself); back-facing surfels are transparent.
+// `v` receives the surfel's centre from the receiver and `dist2` its length squared.
+enum class SurfelCull { kNone, kSkipped, kBackFacing };
+
+inline SurfelCull cullSurfel(const Surfel& s, const Vec3f& p, const Vec3f& n, float slack,
+                             float selfSkipRadius, Vec3f* v, float* dist2) {
+  *v = s.position - p;
+  *dist2 = v->length2();
+  if (dot(*v, n) <= kCoplanarFraction * s.radius + slack ||
+      *dist2 <= sqr(selfSkipRadius * s.radius)) {
+    return SurfelCull::kSkipped;
+  }
+  return dot(s.normal, *v) >= 0.0f ? SurfelCull::kBackFacing : SurfelCull::kNone;
+}
+
+// The projected area of a node towards w (unit, from the node to the receiver): its SH
+// estimate held within what the normal cone allows, area * cos(angle to w) between the
+// cone's extremes. Band-2 SH overshoot a clamped cosine by 6 % face-on and ring above 0 past
+// 90 degrees; coverage is energy here, so a flat cluster (narrow cone) must get its exact
+// area * cos, and only a curved one the SH's shape.
+inline float boundedProjectedArea(const NodeAttributes& a, float shArea, const Vec3f& w) {
+  const float cosT = dot(a.cone.axis, w);
+  const float sinT = safeSqrt(1.0f - cosT * cosT);
+  const float cosG = a.cone.cosAngle;
+  const float sinG = safeSqrt(1.0f - cosG * cosG);
+  // Largest n.w over the cone: cos(max(0, angle - half-angle)); smallest: cos(angle +
+  // half-angle) while that stays below 90 degrees, else 0.
+  const float upper = cosT >= cosG ? 1.0f : cosT * cosG + sinT * sinG;
+  const float lower = cosG > 0.0f ? cosT * cosG - sinT * sinG : 0.0f;
+  return std::clamp(shArea, a.area * std::max(0.0f, lower), a.area * std::max(0.0f, upper));
+}
+
+// A node seen from the receiver along unit `dir` (receiver to centroid): the SH basis
+// towards the receiver, the raw SH projected area and the bounded one.
+struct ClusterView {
+  float basis[kShCoefficients];
+  float shArea = 0.0f;
+  float area = 0.0f;
+};
+
+inline void viewCluster(const NodeAttributes& a, const Vec3f& dir, ClusterView* view) {
+  evalShBasis(-dir, view->basis);  // towards the receiver, as the node's functions expect
+  float shArea = 0.0f;
+  for (int i = 0; i < kShCoefficients; ++i) shArea += a.areaSh.c[i] * view->basis[i];
+  view->shArea = shArea;
+  view->area = boundedProjectedArea(a, shArea, -dir);
+}
+
+// The mean radiance the cluster sends the receiver: the SH ratio, in which their common
+// ringing cancels.
+inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view) {
+  Rgb radiance(0.0f);
+  if (view.shArea > 0.0f) {
+    for (int i = 0; i < kShCoefficients; ++i) radiance += a.powerSh.c[i] * view.basis[i];
+    radiance = vmax(radiance, Rgb(0.0f)) / view.shArea;
+  }
+  return radiance;
+}
+
+// The node a reference names, DataLoss when the page has no such node.
+inline absl::StatusOr<const TreeNode*> nodeAt(const TreePage& page, NodeRef ref) {
+  if (ref.index >= page.nodes.size()) {
+    return absl::DataLossError(
+        fmt::format("gather: page {} has {} nodes, a reference names node {}", ref.page,
+                    page.nodes.size(), ref.index));
+  }
+  return &page.nodes[ref.index];
+}
+
+// DataLoss when a leaf's surfels or an interior node's children lie outside its page, or the
+// traversal is deeper than any tree the builder makes.
+inline absl::Status checkLeaf(const TreePage& page, const TreeNode& node, NodeRef ref) {
+  if (uint64_t{node.first} + node.surfelCount > page.surfels.size()) {
+    return absl::DataLossError(
+        fmt::format("gather: page {} node {} names surfels {}..{} of {}", ref.page, ref.index,
+                    node.first, uint64_t{node.first} + node.surfelCount, page.surfels.size()));
+  }
+  return absl::OkStatus();
+}
+
+inline absl::Status checkInterior(const TreePage& page, const TreeNode& node, NodeRef ref,
+                                  uint32_t depth) {
+  if (uint64_t{node.first} + node.childCount > page.children.size()) {
+    return absl::DataLossError(
+        fmt::format("gather: page {} node {} names children {}..{} of {}", ref.page, ref.index,
+                    node.first, uint64_t{node.first} + node.childCount, page.children.size()));
+  }
+  if (depth + 1 > kMaxGatherDepth) {
+    return absl::DataLossError(
+        fmt::format("gather: tree deeper than {} levels at page {} node {} (a reference cycle?)",
+                    kMaxGatherDepth, ref.page, ref.index));
+  }
+  return absl::OkStatus();
+}
+
+// Page `id` from the pages a traversal holds (at most kMaxHeldPages, the least recently used
+// evicted), fetched from the source when not held, so that gathers after the first allocate
+// nothing. `Held` is any struct with fields id, page (shared_ptr) and lastUse; `clock`
+// counts uses.
+template <typename Held>
+absl::StatusOr<const TreePage*> holdPage(std::vector<Held>& held, uint64_t& clock,
+                                         TreePageSource& tree, uint32_t id, GatherStats* stats) {
+  ++clock;
+  for (Held& h : held) {
+    if (h.id == id) {
+      h.lastUse = clock;
+      return h.page.get();
+    }
+  }
+  ++stats->pagesTouched;
+  absl::StatusOr<std::shared_ptr<const TreePage>> page = tree.page(id);
+  if (!page.ok()) return page.status();
+  PBGI_CHECK(*page != nullptr);  // a source returns a page or an error
+  Held* slot;
+  if (held.size() < kMaxHeldPages) {
+    slot = &held.emplace_back();
+  } else {
+    slot = &*std::min_element(held.begin(), held.end(),
+                              [](const Held& a, const Held& b) { return a.lastUse < b.lastUse; });
+  }
+  slot->id = id;
+  slot->page = *std::move(page);
+  slot->lastUse = clock;
+  return slot->page.get();
+}
+
+}  // namespace pbgi::gather_internal
