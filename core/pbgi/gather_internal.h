@@ -31,7 +31,7 @@ namespace pbgi::gather_internal {
 inline constexpr float kMaxExtentFactor = 4.0f;
 // Pages held at once by one traversal. Depth-first order leaves a page's subtree before
 // returning to its parent page, so a few suffice; evicting one is safe (it is fetched again).
-inline constexpr size_t kMaxHeldPages = 16;
+inline constexpr size_t kMaxHeldPages = 4;
 // Deeper than any tree the builder makes: a reference cycle in a damaged file stops here.
 inline constexpr uint32_t kMaxGatherDepth = 2 * kMaxTreeLevels;
 // A cluster's splat reaches this many bounding radii in depth: its round footprint spreads

@@ -1,5 +1,6 @@
 #include "core/render/pbgi_integrator.h"
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <vector>
@@ -32,8 +33,10 @@ struct GatherRecord {
 
 class PbgiScratch final : public IntegratorScratch {
  public:
-  explicit PbgiScratch(const GatherOptions& options) : gatherer(options) {}
+  PbgiScratch(const GatherOptions& options, const WarpedGatherOptions& glossy)
+      : gatherer(options), warped(glossy) {}
   Gatherer gatherer;
+  WarpedGatherer warped;
   std::vector<GatherRecord> records;
 };
 
@@ -52,12 +55,20 @@ const GatherRecord* findRecord(const std::vector<GatherRecord>& records, const V
 
 }  // namespace
 
+WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather) {
+  WarpedGatherOptions o;
+  o.resolution = std::clamp(gather.resolution * 4 / 3, 2, kMaxMicrobufferResolution);
+  o.nearFieldFactor = gather.nearFieldFactor;
+  o.selfSkipRadius = gather.selfSkipRadius;
+  return o;
+}
+
 PbgiIntegrator::PbgiIntegrator(const Scene& scene, TreePageSource& tree,
                                const PbgiIntegratorSettings& settings)
     : scene_(scene), tree_(tree), settings_(settings) {}
 
 std::unique_ptr<IntegratorScratch> PbgiIntegrator::newScratch() const {
-  return std::make_unique<PbgiScratch>(settings_.gather);
+  return std::make_unique<PbgiScratch>(settings_.gather, settings_.glossy);
 }
 
 absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
@@ -105,16 +116,12 @@ absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng
         if (!e.ok()) return e.status();
         value = *e;
       } else {
-        if (absl::Status st = state.gatherer.rasterize(tree_, hit.p, n, &counters->gather);
-            !st.ok()) {
-          return st;
-        }
         const Frame frame(n);
-        const Vec3f woLocal = frame.toLocal(wo);
-        value = state.gatherer.microbuffer().convolve([&](const Vec3f& dir) {
-          const Vec3f wi = frame.toLocal(dir);
-          return wi.z > 0.0f ? bsdf.f(woLocal, wi) * wi.z : Rgb(0.0f);
-        });
+        const Vec2f jitter(rngs[s].uniform(), rngs[s].uniform());
+        absl::StatusOr<Rgb> lo = state.warped.reflect(tree_, hit.p, frame, bsdf,
+                                                      frame.toLocal(wo), jitter, &counters->gather);
+        if (!lo.ok()) return lo.status();
+        value = *lo;
         ++counters->glossyGathers;
       }
       ++counters->gathers;

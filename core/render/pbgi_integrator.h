@@ -8,24 +8,32 @@
 // earlier gather of the same pixel, near it, facing the same way (and, for glossy receivers,
 // of the same material seen from the same direction) takes that gather's result; others
 // gather anew, up to maxGathersPerPixel records. Diffuse receivers reflect albedo / pi times
-// the gathered irradiance; rough conductors convolve the microbuffer with their BRDF.
+// the gathered irradiance. Rough conductors gather into an importance-warped microbuffer
+// (Ritschel et al. 2009, core/pbgi/warped_gather.h) whose pixels follow their BRDF lobe,
+// jittered per sample against banding.
 // Receivers the gather cannot serve (mirrors, glass) are path traced, counted; those that
 // reflect nothing (emitters, black albedo) gather nothing, counted.
 #include <memory>
 
 #include "core/pbgi/gather.h"
 #include "core/pbgi/tree_page.h"
+#include "core/pbgi/warped_gather.h"
 #include "core/render/integrator.h"
 
 namespace pbgi {
 
 struct PbgiIntegratorSettings {
   GatherOptions gather;
+  WarpedGatherOptions glossy;  // glossy receivers' warped microbuffer
   int maxGathersPerPixel = 4;
   // The path tracer's settings: its maxDepth serves the receivers that are path traced;
   // direct light always uses one scattering vertex.
   PathTracerSettings pathTracer;
 };
+
+// The warped microbuffer that goes with a gather preset: a third more pixels a side than the
+// cube's faces (the lobe takes them all), the same near field.
+WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather);
 
 class PbgiIntegrator final : public Integrator {
  public:

@@ -121,6 +121,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                                               : static_cast<size_t>(settings.cacheMb) << 20;
     PageCache cache(**file, {.budgetBytes = tree.cacheBudget});
     PbgiIntegratorSettings pbgiSettings{.gather = *gather,
+                                        .glossy = glossyGatherOptions(*gather),
                                         .maxGathersPerPixel = settings.gathersPerPixel,
                                         .pathTracer = pt};
     const PbgiIntegrator integrator(*frameScene->scene, cache, pbgiSettings);

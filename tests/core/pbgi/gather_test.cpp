@@ -358,7 +358,9 @@ TEST(Gather, PagesTouchedAreTheSourcesFetches) {
   ASSERT_TRUE(gatherIrradiance(*tree, Vec3f(0.0f), Vec3f(0, 0, 1), GatherOptions{}, &stats).ok());
   EXPECT_EQ(stats.pagesTouched, tree->fetches());
   EXPECT_GT(stats.pagesTouched, 2u);
-  EXPECT_LE(stats.pagesTouched, tree->pageCount());
+  // A traversal holds a few pages (kMaxHeldPages, so that pins stay small against a cache's
+  // budget); a page it comes back to after leaving may be fetched again, but not often.
+  EXPECT_LE(stats.pagesTouched, 2 * tree->pageCount());
 }
 
 TEST(Gather, RejectsBadReceiversAndOptions) {

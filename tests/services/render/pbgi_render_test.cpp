@@ -88,7 +88,6 @@ TEST_F(PbgiRender, SmallCachesGiveTheBitsOfAnUnlimitedOne) {
   shot_.height = 24;
   const std::string tree = bake(40000, 0);
   const uint64_t total = decodedBytes(tree);
-  std::printf("tree: %llu decoded bytes\n", static_cast<unsigned long long>(total));
   FrameRenderReport unlimitedReport, smallReport, onePageReport;
   FrameRenderRequest r = request("unlimited", tree);
   r.cacheBytes = size_t{1} << 40;
@@ -109,7 +108,11 @@ TEST_F(PbgiRender, SmallCachesGiveTheBitsOfAnUnlimitedOne) {
   EXPECT_GT(smallReport.tree->cache.evictions, 0u);
   EXPECT_GT(smallReport.tree->cache.misses, unlimitedReport.tree->cache.misses);
   EXPECT_GE(onePageReport.tree->cache.misses, smallReport.tree->cache.misses);
-  std::printf("misses: unlimited %llu, 5%% %llu, one page %llu; pages %llu\n", (unsigned long long)unlimitedReport.tree->cache.misses, (unsigned long long)smallReport.tree->cache.misses, (unsigned long long)onePageReport.tree->cache.misses, (unsigned long long)unlimitedReport.tree->pagesInFile);
+  std::printf("cache misses: unlimited %llu, 5 %% %llu, one page %llu (%llu pages in the file)\n",
+              static_cast<unsigned long long>(unlimitedReport.tree->cache.misses),
+              static_cast<unsigned long long>(smallReport.tree->cache.misses),
+              static_cast<unsigned long long>(onePageReport.tree->cache.misses),
+              static_cast<unsigned long long>(unlimitedReport.tree->pagesInFile));
   EXPECT_EQ(unlimitedReport.tree->cache.misses, unlimitedReport.tree->pagesRead);
   EXPECT_LE(unlimitedReport.tree->pagesRead, unlimitedReport.tree->pagesInFile);
   EXPECT_GT(unlimitedReport.counters.gathers, 0u);
@@ -157,6 +160,65 @@ TEST_F(PbgiRender, CornellBoxIsCloseToThePathTracer) {
   auto withoutIndirect = compareImages(directOnly, path);
   ASSERT_TRUE(withoutIndirect.ok());
   EXPECT_GT(withoutIndirect->relMse, 0.01);
+}
+
+// relMSE (as compareImages) of `image` against `reference` over the pixels whose albedo AOV
+// is `albedo` (every sample on one material); `indirectScale` scales the image's indirect part.
+double relMseWhereAlbedo(const Image& image, const Image& reference, const Rgb& albedo,
+                         float indirectScale, int* pixels) {
+  const int r0 = image.channelIndex("R"), a0 = image.channelIndex("albedo.R");
+  const int i0 = image.channelIndex("indirect.R");
+  double sum = 0.0;
+  *pixels = 0;
+  for (int y = 0; y < image.height(); ++y) {
+    for (int x = 0; x < image.width(); ++x) {
+      const Rgb a(image.at(x, y, a0), image.at(x, y, a0 + 1), image.at(x, y, a0 + 2));
+      if (length(a - albedo) > 1e-4f) continue;
+      ++*pixels;
+      for (int c = 0; c < 3; ++c) {
+        const double v = image.at(x, y, r0 + c) - (1.0f - indirectScale) * image.at(x, y, i0 + c);
+        const double ref = reference.at(x, y, r0 + c);
+        sum += (v - ref) * (v - ref) / (ref * ref + kRelMseEpsilon);
+      }
+    }
+  }
+  return *pixels > 0 ? sum / (3.0 * *pixels) : 0.0;
+}
+
+// The red wall as a rough conductor (GGX 0.2): its receivers gather through the
+// importance-warped microbuffer. Compared on the wall's own pixels only: the light the wall
+// sends to the rest of the box is not in the tree (glossy surfels reflect nothing there until
+// the wavelet stage), which is also most of what is left on the wall itself. Measured: relMSE
+// 0.028 warped, 0.030 with the cube buffer convolved with the BRDF, 0.154 without indirect
+// light, 0.008 for the path tracer at 64 spp.
+TEST_F(PbgiRender, GlossyReceiversGatherThroughTheWarpedBuffer) {
+  const Rgb specular(0.9f, 0.3f, 0.2f);
+  for (MaterialDesc& m : shot_.materials) {
+    if (m.name != "red") continue;
+    m.type = MaterialType::kConductor;
+    m.roughness = 0.2f;
+    m.specular = specular;
+  }
+  const std::string tree = bake(200000, 3);
+  FrameRenderRequest r = request("glossy", tree);
+  r.spp = 64;
+  FrameRenderReport report;
+  const Image pbgi = render(r, &report);
+  FrameRenderRequest p = request("glossy-path", "");
+  p.integrator = "path";
+  p.spp = 1024;
+  const Image path = render(p);
+  EXPECT_GT(report.counters.glossyGathers, 0u);
+  EXPECT_GT(report.counters.gathers, report.counters.glossyGathers);
+  int pixels = 0;
+  const double error = relMseWhereAlbedo(pbgi, path, specular, 1.0f, &pixels);
+  const double withoutIndirect = relMseWhereAlbedo(pbgi, path, specular, 0.0f, &pixels);
+  std::printf("glossy wall (%d pixels): PBGI (64 spp) against path (1024 spp): relMSE %.4g; "
+              "without its indirect light %.4g\n",
+              pixels, error, withoutIndirect);
+  ASSERT_GT(pixels, 50);
+  EXPECT_LT(error, 0.04);
+  EXPECT_GT(withoutIndirect, 3.0 * error);
 }
 
 TEST_F(PbgiRender, ADamagedPageFailsTheTileNamingFileAndPage) {
