@@ -14,20 +14,12 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::checkInterior;
-using gather_internal::checkLeaf;
 using gather_internal::clusterRadiance;
 using gather_internal::ClusterView;
-using gather_internal::cullNode;
 using gather_internal::cullSurfel;
-using gather_internal::holdPage;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
-using gather_internal::kMaxGatherDepth;
-using gather_internal::kMaxHeldPages;
-using gather_internal::nodeAt;
 using gather_internal::NodeBounds;
-using gather_internal::NodeCull;
 using gather_internal::SurfelCull;
 using gather_internal::viewCluster;
 
@@ -132,13 +124,6 @@ std::string GatherStats::toString() const {
 
 Gatherer::Gatherer(const GatherOptions& options)
     : options_(options), buffer_(checkedResolution(options)) {
-  stack_.reserve(8 * kMaxGatherDepth);
-  held_.reserve(kMaxHeldPages);
-}
-
-absl::StatusOr<const TreePage*> Gatherer::pageFor(TreePageSource& tree, uint32_t id,
-                                                  GatherStats* stats) {
-  return holdPage(held_, useClock_, tree, id, stats);
 }
 
 void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p,
@@ -165,66 +150,32 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
 absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
                                 GatherStats* stats) {
   const float maxSolidAngle = options_.maxSolidAngle;
-  const float planeSlack = 1e-6f * maxAbsComponent(p);
-  stack_.clear();
-  stack_.push_back({tree.root(), 0});
-  while (!stack_.empty()) {
-    const StackEntry entry = stack_.back();
-    stack_.pop_back();
-    absl::StatusOr<const TreePage*> pageOr = pageFor(tree, entry.ref.page, stats);
-    if (!pageOr.ok()) return pageOr.status();
-    const TreePage& page = **pageOr;
-    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
-    if (!nodeOr.ok()) return nodeOr.status();
-    const TreeNode& node = **nodeOr;
-    const NodeAttributes& a = node.attributes;
-    ++stats->nodesVisited;
-
-    NodeBounds bounds;
-    const NodeCull cull = cullNode(a, p, n, planeSlack, &bounds);
-    if (cull != NodeCull::kNone) {
-      ++(cull == NodeCull::kPlane ? stats->nodesCulledPlane : stats->nodesCulledCone);
-      continue;
+  auto splat = [&](const NodeAttributes& a, const NodeBounds& bounds) {
+    const Vec3f toCentroid = a.centroid - p;
+    const float distance2 = toCentroid.length2();
+    // The cheap extent test first: it saves the SH evaluation for large nodes.
+    if (!(distance2 > 0.0f) ||
+        kPi * bounds.boundRadius2 > kMaxExtentFactor * maxSolidAngle * bounds.centerDistance2) {
+      return false;
     }
-    const float boundRadius2 = bounds.boundRadius2;
-    const float centerDistance2 = bounds.centerDistance2;
-    if (bounds.outside()) {
-      const Vec3f toCentroid = a.centroid - p;
-      const float distance2 = toCentroid.length2();
-      // The cheap extent test first: it saves the SH evaluation for large nodes.
-      if (distance2 > 0.0f &&
-          kPi * boundRadius2 <= kMaxExtentFactor * maxSolidAngle * centerDistance2) {
-        const float distance = std::sqrt(distance2);
-        const Vec3f dir = toCentroid / distance;
-        ClusterView view;
-        viewCluster(a, dir, &view);
-        const float area = view.area;
-        if (area <= maxSolidAngle * distance2) {
-          if (!(area > 0.0f)) {
-            ++stats->clustersInvisible;
-            continue;
-          }
-          const Rgb radiance = clusterRadiance(a, view);
-          buffer_.splatFootprint(dir, distance, area / distance2, radiance,
-                                 kLayerExtentFactor * std::sqrt(boundRadius2));
-          ++stats->clustersSplatted;
-          continue;
-        }
-      }
+    const float distance = std::sqrt(distance2);
+    const Vec3f dir = toCentroid / distance;
+    ClusterView view;
+    viewCluster(a, dir, &view);
+    const float area = view.area;
+    if (area > maxSolidAngle * distance2) return false;
+    if (!(area > 0.0f)) {
+      ++stats->clustersInvisible;
+      return true;
     }
-
-    if (node.leaf()) {
-      if (absl::Status s = checkLeaf(page, node, entry.ref); !s.ok()) return s;
-      gatherSurfels(page, node, p, n, stats);
-      continue;
-    }
-    if (absl::Status s = checkInterior(page, node, entry.ref, entry.depth); !s.ok()) return s;
-    // Reversed, so that children come off the stack in Morton order: the page is walked
-    // front to back.
-    const std::span<const NodeRef> children = page.childrenOf(node);
-    for (size_t i = children.size(); i-- > 0;) stack_.push_back({children[i], entry.depth + 1});
-  }
-  return absl::OkStatus();
+    buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view),
+                           kLayerExtentFactor * std::sqrt(bounds.boundRadius2));
+    ++stats->clustersSplatted;
+    return true;
+  };
+  return walk_.run(tree, p, n, stats, splat, [&](const TreePage& page, const TreeNode& leaf) {
+    gatherSurfels(page, leaf, p, n, stats);
+  });
 }
 
 absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
@@ -235,7 +186,6 @@ absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, co
   local.gathers = 1;
   buffer_.clear(position, *n);
   absl::Status status = traverse(tree, position, *n, &local);
-  held_.clear();  // pages live no longer than the gather that used them
   local.facesSkipped = static_cast<uint64_t>(buffer_.skippedFaces());
   local.pixelsSkipped = static_cast<uint64_t>(buffer_.skippedPixels());
   if (stats != nullptr) *stats += local;

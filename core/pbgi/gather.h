@@ -31,6 +31,7 @@
 #include "core/math/vec.h"
 #include "core/pbgi/microbuffer.h"
 #include "core/pbgi/tree_page.h"
+#include "core/pbgi/tree_walk.h"
 
 namespace pbgi {
 
@@ -99,26 +100,13 @@ class Gatherer {
   const Microbuffer& microbuffer() const { return buffer_; }
 
  private:
-  struct StackEntry {
-    NodeRef ref;
-    uint32_t depth;
-  };
-  struct HeldPage {
-    uint32_t id = 0;
-    std::shared_ptr<const TreePage> page;
-    uint64_t lastUse = 0;
-  };
-
-  absl::StatusOr<const TreePage*> pageFor(TreePageSource& tree, uint32_t id, GatherStats* stats);
   absl::Status traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n, GatherStats* stats);
   void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
                      GatherStats* stats);
 
   GatherOptions options_;
   Microbuffer buffer_;
-  std::vector<StackEntry> stack_;
-  std::vector<HeldPage> held_;
-  uint64_t useClock_ = 0;
+  TreeWalk walk_;
 };
 
 // One gather with a Gatherer kept per thread (rebuilt when the options change). Invalid

@@ -20,6 +20,7 @@
 #include "core/pbgi/tree.h"
 #include "core/pbgi/tree_build.h"
 #include "core/pbgi/tree_page.h"
+#include "core/pbgi/tree_walk.h"
 #include "core/util/check.h"
 
 namespace pbgi::gather_internal {
@@ -221,3 +222,54 @@ absl::StatusOr<const TreePage*> holdPage(std::vector<Held>& held, uint64_t& cloc
 }
 
 }  // namespace pbgi::gather_internal
+
+namespace pbgi {
+
+template <typename Splat, typename Leaf>
+absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
+                           GatherStats* stats, Splat&& splat, Leaf&& leaf) {
+  using namespace gather_internal;
+  const float planeSlack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
+  stack_.clear();
+  stack_.push_back({tree.root(), 0});
+  absl::Status status;
+  while (!stack_.empty() && status.ok()) {
+    const StackEntry entry = stack_.back();
+    stack_.pop_back();
+    absl::StatusOr<const TreePage*> pageOr = holdPage(held_, useClock_, tree, entry.ref.page, stats);
+    if (!pageOr.ok()) {
+      status = pageOr.status();
+      break;
+    }
+    const TreePage& page = **pageOr;
+    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
+    if (!nodeOr.ok()) {
+      status = nodeOr.status();
+      break;
+    }
+    const TreeNode& node = **nodeOr;
+    ++stats->nodesVisited;
+    NodeBounds bounds;
+    const NodeCull cull = cullNode(node.attributes, p, n, planeSlack, &bounds);
+    if (cull != NodeCull::kNone) {
+      ++(cull == NodeCull::kPlane ? stats->nodesCulledPlane : stats->nodesCulledCone);
+      continue;
+    }
+    if (bounds.outside() && splat(node.attributes, bounds)) continue;
+    if (node.leaf()) {
+      status = checkLeaf(page, node, entry.ref);
+      if (status.ok()) leaf(page, node);
+      continue;
+    }
+    status = checkInterior(page, node, entry.ref, entry.depth);
+    if (!status.ok()) break;
+    // Reversed, so that children come off the stack in Morton order: the page is walked
+    // front to back.
+    const std::span<const NodeRef> children = page.childrenOf(node);
+    for (size_t i = children.size(); i-- > 0;) stack_.push_back({children[i], entry.depth + 1});
+  }
+  held_.clear();  // pages live no longer than the walk that used them
+  return status;
+}
+
+}  // namespace pbgi

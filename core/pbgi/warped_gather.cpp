@@ -15,20 +15,12 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::checkInterior;
-using gather_internal::checkLeaf;
 using gather_internal::clusterRadiance;
 using gather_internal::ClusterView;
-using gather_internal::cullNode;
 using gather_internal::cullSurfel;
-using gather_internal::holdPage;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
-using gather_internal::kMaxGatherDepth;
-using gather_internal::kMaxHeldPages;
-using gather_internal::nodeAt;
 using gather_internal::NodeBounds;
-using gather_internal::NodeCull;
 using gather_internal::SurfelCull;
 using gather_internal::viewCluster;
 
@@ -137,8 +129,6 @@ WarpedGatherer::WarpedGatherer(const WarpedGatherOptions& options)
   bucketPixels_.reserve(8 * pixels);
   pixels_.resize(pixels);
   rayCasts_.reserve(4 * pixels);
-  stack_.reserve(8 * kMaxGatherDepth);
-  held_.reserve(kMaxHeldPages);
 }
 
 absl::Status WarpedGatherer::warp(const Frame& frame, const Bsdf& bsdf, const Vec3f& woLocal,
@@ -502,66 +492,35 @@ void WarpedGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, c
 }
 
 absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, GatherStats* stats) {
-  const Vec3f& n = frame_.n;
-  const float planeSlack = 1e-6f * maxAbsComponent(p);
-  stack_.clear();
-  stack_.push_back({tree.root(), 0});
-  while (!stack_.empty()) {
-    const StackEntry entry = stack_.back();
-    stack_.pop_back();
-    absl::StatusOr<const TreePage*> pageOr =
-        holdPage(held_, useClock_, tree, entry.ref.page, stats);
-    if (!pageOr.ok()) return pageOr.status();
-    const TreePage& page = **pageOr;
-    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
-    if (!nodeOr.ok()) return nodeOr.status();
-    const TreeNode& node = **nodeOr;
-    const NodeAttributes& a = node.attributes;
-    ++stats->nodesVisited;
-
-    NodeBounds bounds;
-    const NodeCull cull = cullNode(a, p, n, planeSlack, &bounds);
-    if (cull != NodeCull::kNone) {
-      ++(cull == NodeCull::kPlane ? stats->nodesCulledPlane : stats->nodesCulledCone);
-      continue;
+  auto splat = [&](const NodeAttributes& a, const NodeBounds& bounds) {
+    const Vec3f toCentroid = a.centroid - p;
+    const float distance2 = toCentroid.length2();
+    const float distance = std::sqrt(distance2);
+    // The pixel the node's centroid falls in sets how small it must be; a node in no pixel
+    // (its centroid below the horizon) is refined.
+    const int k = distance2 > 0.0f ? pixelOfLocal(frame_.toLocal(toCentroid / distance)) : -1;
+    const float omega = k >= 0 ? solidAngle_[k] : 0.0f;
+    if (k < 0 || kPi * bounds.boundRadius2 > kMaxExtentFactor * omega * bounds.centerDistance2) {
+      return false;
     }
-    const float boundRadius2 = bounds.boundRadius2;
-    if (bounds.outside()) {
-      const Vec3f toCentroid = a.centroid - p;
-      const float distance2 = toCentroid.length2();
-      const float distance = std::sqrt(distance2);
-      // The pixel the node's centroid falls in sets how small it must be; a node in no pixel
-      // (its centroid below the horizon) is refined.
-      const int k = distance2 > 0.0f ? pixelOfLocal(frame_.toLocal(toCentroid / distance)) : -1;
-      const float omega = k >= 0 ? solidAngle_[k] : 0.0f;
-      if (k >= 0 && kPi * boundRadius2 <= kMaxExtentFactor * omega * bounds.centerDistance2) {
-        ClusterView view;
-        viewCluster(a, toCentroid / distance, &view);
-        if (view.area <= omega * distance2) {
-          const float nodeOmega = view.area / distance2;
-          if (!(nodeOmega > 0.0f) || !sampled_[k]) {
-            ++stats->clustersInvisible;  // no area towards the receiver, or a black pixel
-            continue;
-          }
-          const float coverage = nodeOmega / omega;
-          compose(k, distance, kLayerExtentFactor * std::sqrt(boundRadius2), coverage,
-                  clusterRadiance(a, view) * coverage);
-          ++stats->clustersSplatted;
-          continue;
-        }
-      }
+    ClusterView view;
+    viewCluster(a, toCentroid / distance, &view);
+    if (view.area > omega * distance2) return false;
+    const float nodeOmega = view.area / distance2;
+    if (!(nodeOmega > 0.0f) || !sampled_[k]) {
+      ++stats->clustersInvisible;  // no area towards the receiver, or a black pixel
+      return true;
     }
-
-    if (node.leaf()) {
-      if (absl::Status s = checkLeaf(page, node, entry.ref); !s.ok()) return s;
-      gatherSurfels(page, node, p, stats);
-      continue;
-    }
-    if (absl::Status s = checkInterior(page, node, entry.ref, entry.depth); !s.ok()) return s;
-    const std::span<const NodeRef> children = page.childrenOf(node);
-    for (size_t i = children.size(); i-- > 0;) stack_.push_back({children[i], entry.depth + 1});
-  }
-  return absl::OkStatus();
+    const float coverage = nodeOmega / omega;
+    compose(k, distance, kLayerExtentFactor * std::sqrt(bounds.boundRadius2), coverage,
+            clusterRadiance(a, view) * coverage);
+    ++stats->clustersSplatted;
+    return true;
+  };
+  return walk_.run(tree, p, frame_.n, stats, splat,
+                   [&](const TreePage& page, const TreeNode& leaf) {
+                     gatherSurfels(page, leaf, p, stats);
+                   });
 }
 
 void WarpedGatherer::rayCast(const Vec3f& p) {
@@ -606,7 +565,6 @@ absl::StatusOr<Rgb> WarpedGatherer::reflect(TreePageSource& tree, const Vec3f& p
   if (local.pixelsSkipped < static_cast<uint64_t>(pixels)) {
     rayCasts_.clear();
     absl::Status status = traverse(tree, position, &local);
-    held_.clear();  // pages live no longer than the gather that used them
     if (!status.ok()) {
       if (stats != nullptr) *stats += local;
       return status;

@@ -47,6 +47,7 @@
 #include "core/math/vec.h"
 #include "core/pbgi/gather.h"
 #include "core/pbgi/tree_page.h"
+#include "core/pbgi/tree_walk.h"
 #include "core/scene/material.h"
 
 namespace pbgi {
@@ -117,15 +118,6 @@ class WarpedGatherer {
   struct Pixel {
     Layer front, back;
   };
-  struct StackEntry {
-    NodeRef ref;
-    uint32_t depth;
-  };
-  struct HeldPage {
-    uint32_t id = 0;
-    std::shared_ptr<const TreePage> page;
-    uint64_t lastUse = 0;
-  };
   // A surfel to ray-cast after the traversal.
   struct Disk {
     Vec3f center, normal;
@@ -176,9 +168,7 @@ class WarpedGatherer {
   // Buffer and traversal.
   std::vector<Pixel> pixels_;
   std::vector<Disk> rayCasts_;
-  std::vector<StackEntry> stack_;
-  std::vector<HeldPage> held_;
-  uint64_t useClock_ = 0;
+  TreeWalk walk_;
 };
 
 }  // namespace pbgi

@@ -79,20 +79,43 @@ absl::Status writeLogLogPlot(const std::vector<PlotSeries>& series, const PlotOp
                                              (std::log10(yr.hi) - std::log10(yr.lo)) * (y1 - y0)));
   };
 
-  // Text, where a font can be found.
+  // Text, where a font can be found: each string is rasterized on its own (OIIO sizes the
+  // buffer to it) and blended in with bounds checks, so text near an edge is clipped.
   std::string font;
   for (const char* candidate : kFonts) {
-    OIIO::ImageBuf probe;
-    if (IBA::render_text(probe, 0, 0, "x", kFontSize, candidate)) {
+    if (IBA::text_size("x", kFontSize, candidate).defined()) {
       font = candidate;
       break;
     }
   }
   if (font.empty() && warning) *warning = "no TrueType font found (install fonts-dejavu-core): plot has no labels";
-  auto text = [&](int x, int y, const std::string& s, IBA::TextAlignX ax, IBA::TextAlignY ay,
-                  const float* color = nullptr) {
-    if (!font.empty()) IBA::render_text(buf, x, y, s, kFontSize, font,
-                                        OIIO::cspan<float>(color ? color : black, 3), ax, ay);
+  auto text = [&](int x, int y, const std::string& s, IBA::TextAlignX ax, IBA::TextAlignY ay) {
+    if (font.empty() || s.empty()) return;
+    // The string's extent around its origin, then a one-channel buffer just that size.
+    const OIIO::ROI extent = IBA::text_size(s, kFontSize, font);
+    if (!extent.defined() || extent.width() <= 0 || extent.height() <= 0) return;
+    const int gw = extent.width(), gh = extent.height();
+    OIIO::ImageBuf glyphs(OIIO::ImageSpec(gw, gh, 1, OIIO::TypeDesc::FLOAT));
+    const float one = 1.0f;
+    if (!IBA::render_text(glyphs, -extent.xbegin, -extent.ybegin, s, kFontSize, font,
+                          OIIO::cspan<float>(&one, 1))) {
+      return;
+    }
+    const int left = ax == IBA::TextAlignX::Left ? x : ax == IBA::TextAlignX::Right ? x - gw : x - gw / 2;
+    const int top = ay == IBA::TextAlignY::Top ? y : ay == IBA::TextAlignY::Bottom ? y - gh : y - gh / 2;
+    float value[4] = {0, 0, 0, 0}, pixel[3];
+    for (int j = 0; j < gh; ++j) {
+      for (int i = 0; i < gw; ++i) {
+        const int px = left + i, py = top + j;
+        if (px < 0 || py < 0 || px >= w || py >= h) continue;
+        glyphs.getpixel(i, j, value, 1);
+        const float a = std::clamp(value[0], 0.0f, 1.0f);
+        if (a <= 0.0f) continue;
+        buf.getpixel(px, py, pixel, 3);
+        for (float& c : pixel) c *= 1.0f - a;  // black text
+        buf.setpixel(px, py, pixel, 3);
+      }
+    }
   };
 
   for (double d = xr.lo; d <= xr.hi * 1.0001; d *= 10.0) {

@@ -19,6 +19,7 @@
 // Run: build/bin/accuracy_bench --shot ../shared/scenes/cornell-box/cornell.shot.toml
 //        [--out DIR] [--cache DIR] [--frame N] [--reference-spp 4096] [--pt-spp 4,16,...]
 //        [--pbgi-spp 1,4,...] [--qualities draft,default,high] [--threads N] [--no-cache-runs]
+//        [--bake-points N] [--bake-bounces K]
 
 #include <algorithm>
 #include <cmath>
@@ -56,6 +57,8 @@ struct Args {
   std::vector<int> pbgiSpp = {1, 4, 16, 64, 256};
   std::vector<std::string> qualities = {"draft", "default", "high"};
   int threads = 0;
+  uint64_t bakePoints = 0;  // 0: the shot's bake_points
+  int bakeBounces = -1;     // -1: the shot's bake_bounces
   bool cacheRuns = true;
 };
 
@@ -277,6 +280,11 @@ int cacheRuns(const ShotDesc& shot, FrameRenderRequest request, const std::strin
 int runBench(const Args& args) {
   auto shot = loadShotFile(args.shot);
   if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+  if (args.bakePoints > 0) shot->render.bakePoints = args.bakePoints;
+  if (args.bakeBounces >= 0) shot->render.bakeBounces = args.bakeBounces;
+  std::printf("bake: %llu surfels (0: the baker's default), %d bounces (%s)\n",
+              static_cast<unsigned long long>(shot->render.bakePoints), shot->render.bakeBounces,
+              shot->render.bakeQuality.c_str());
   const int frame = args.frame.value_or(shot->firstFrame);
   std::error_code ec;
   fs::create_directories(args.out, ec);
@@ -376,6 +384,8 @@ int main(int argc, char** argv) {
   app.add_option("--pbgi-spp", args.pbgiSpp, "PBGI spp sweep")->delimiter(',');
   app.add_option("--qualities", args.qualities, "PBGI presets")->delimiter(',');
   app.add_option("--threads", args.threads, "Render threads (default: all cores)");
+  app.add_option("--bake-points", args.bakePoints, "Surfels of the PBGI bake (default: the shot's)");
+  app.add_option("--bake-bounces", args.bakeBounces, "Bounces of the PBGI bake (default: the shot's)");
   bool noCache = false;
   app.add_flag("--no-cache-runs", noCache, "Skip the page cache runs");
   CLI11_PARSE(app, argc, argv);
