@@ -139,6 +139,13 @@ inline absl::StatusOr<std::unique_ptr<MemoryTreeSource>> memoryTree(std::span<co
   return std::make_unique<MemoryTreeSource>(*nodes, splitDepth);
 }
 
+// memoryTree for surfels known to make a tree (tests' own shapes): the source itself.
+inline std::unique_ptr<MemoryTreeSource> treeOf(std::span<const Surfel> surfels, int splitDepth = 0) {
+  auto tree = memoryTree(surfels, kDefaultLeafSize, splitDepth);
+  PBGI_CHECK(tree.ok());
+  return *std::move(tree);
+}
+
 // Another source with one page that fails, as a damaged page in a file does.
 class FailingPageSource : public TreePageSource {
  public:

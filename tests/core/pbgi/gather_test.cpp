@@ -10,6 +10,7 @@
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
 #include "tests/support/memory_tree.h"
+#include "tests/support/surfel_shapes.h"
 
 namespace pbgi {
 namespace {
@@ -17,41 +18,9 @@ namespace {
 using testing::FailingPageSource;
 using testing::memoryTree;
 using testing::MemoryTreeSource;
-
-const float kGoldenAngle = kPi * (3.0f - std::sqrt(5.0f));
-
-// Surfels on a sphere (a Fibonacci lattice, nearly uniform), facing inwards, with equal disks
-// whose areas sum to the sphere's.
-std::vector<Surfel> sphereSurfels(int n, float radius, const Rgb& radiance) {
-  std::vector<Surfel> surfels(n);
-  for (int i = 0; i < n; ++i) {
-    const float z = 1.0f - (2.0f * i + 1.0f) / n;
-    const float r = safeSqrt(1.0f - z * z);
-    const float phi = i * kGoldenAngle;
-    const Vec3f dir(r * std::cos(phi), r * std::sin(phi), z);
-    surfels[i].position = radius * dir;
-    surfels[i].normal = -dir;
-    surfels[i].radius = 2.0f * radius / std::sqrt(static_cast<float>(n));
-    surfels[i].radiance = radiance;
-  }
-  return surfels;
-}
-
-// Surfels on a disk (Vogel's sunflower), facing `normal`, with areas summing to the disk's.
-std::vector<Surfel> diskSurfels(int n, const Vec3f& center, const Vec3f& normal, float radius,
-                                const Rgb& radiance) {
-  const Frame frame(normal);
-  std::vector<Surfel> surfels(n);
-  for (int i = 0; i < n; ++i) {
-    const float r = radius * std::sqrt((i + 0.5f) / n);
-    const float phi = i * kGoldenAngle;
-    surfels[i].position = center + frame.toWorld(Vec3f(r * std::cos(phi), r * std::sin(phi), 0));
-    surfels[i].normal = normal;
-    surfels[i].radius = radius / std::sqrt(static_cast<float>(n));
-    surfels[i].radiance = radiance;
-  }
-  return surfels;
-}
+using testing::treeOf;
+using testing::diskSurfels;
+using testing::sphereSurfels;
 
 // Irradiance at `p` (normal n) from a uniform one-sided disk emitter, by quadrature over the
 // disk: the reference for receivers that are not coaxial.
@@ -76,12 +45,6 @@ double diskIrradiance(const Vec3f& p, const Vec3f& n, const Vec3f& center, const
     }
   }
   return sum;
-}
-
-std::unique_ptr<MemoryTreeSource> treeOf(const std::vector<Surfel>& surfels, int splitDepth = 0) {
-  auto tree = memoryTree(surfels, kDefaultLeafSize, splitDepth);
-  PBGI_CHECK(tree.ok());
-  return *std::move(tree);
 }
 
 float relativeError(float value, float expected) { return std::abs(value / expected - 1.0f); }
