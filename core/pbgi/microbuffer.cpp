@@ -216,58 +216,8 @@ bool Microbuffer::coneRect(int f, const Vec3f& dir, float sinAngle, float cosAng
   return range(dir[axes.b], &rect->i0, &rect->i1) && range(dir[axes.c], &rect->j0, &rect->j1);
 }
 
-namespace {
-
-bool overlaps(float distance, float extent, float depth, float layerExtent) {
-  return std::abs(distance - depth) <= extent + layerExtent;
-}
-
-}  // namespace
-
 bool Microbuffer::compose(int k, float distance, float extent, float alpha, const Rgb& radiance) {
-  Pixel& p = pixels_[k];
-  Layer& front = p.front;
-  if (!(front.depth > 0.0f)) return false;  // below the horizon
-  const Layer piece{distance, extent, alpha, radiance * alpha};
-  // Adds a piece of the same surface to a layer.
-  auto add = [&](Layer& layer) {
-    layer.depth = std::min(layer.depth, distance);
-    layer.extent = std::max(layer.extent, extent);
-    layer.coverage += alpha;
-    layer.radiance += piece.radiance;
-  };
-  // Puts `top` over `under`: under shows through what top leaves open.
-  auto over = [](const Layer& top, const Layer& under) {
-    const float scale = underScale(top, under);
-    return Layer{top.depth, top.extent, top.coverage + under.coverage * scale,
-                 top.radiance + under.radiance * scale};
-  };
-  if (front.depth == kEmpty) {
-    front = piece;
-    return true;
-  }
-  if (overlaps(distance, extent, front.depth, front.extent)) {
-    add(front);
-    return true;
-  }
-  if (distance < front.depth) {
-    p.back = p.back.depth == kEmpty ? front : over(front, p.back);
-    front = piece;
-    return true;
-  }
-  if (!(front.coverage < 1.0f)) return false;  // hidden behind a full front layer
-  Layer& back = p.back;
-  if (back.depth == kEmpty) {
-    back = piece;
-  } else if (overlaps(distance, extent, back.depth, back.extent)) {
-    add(back);
-  } else if (distance < back.depth) {
-    back = over(piece, back);
-  } else {
-    if (!(back.coverage < 1.0f)) return false;
-    back = over(back, piece);
-  }
-  return true;
+  return pixels_[k].compose(distance, extent, alpha, radiance * alpha);
 }
 
 int Microbuffer::splatFootprint(const Vec3f& dir, float distance, float solidAngle,

@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "core/math/vec.h"
+#include "core/pbgi/layered_pixel.h"
 
 namespace pbgi {
 
@@ -121,13 +122,11 @@ class Microbuffer {
   // The fraction of the pixel covered, front and back layers together (above 1 where
   // pieces of one surface overlap).
   float coverage(int pixel) const {
-    const Pixel& p = pixels_[pixel];
-    return p.front.coverage + p.back.coverage * underScale(p.front, p.back);
+    return pixels_[pixel].coverage();
   }
   // Coverage-weighted: a pixel half covered by radiance L holds L / 2.
   Rgb radiance(int pixel) const {
-    const Pixel& p = pixels_[pixel];
-    return p.front.radiance + p.back.radiance * underScale(p.front, p.back);
+    return pixels_[pixel].radiance();
   }
   bool active(int pixel) const { return pixels_[pixel].front.depth > 0.0f; }
   bool covered(int pixel) const { return coverage(pixel) > 0.0f; }
@@ -143,7 +142,8 @@ class Microbuffer {
   int skippedPixels() const { return skippedPixels_; }
 
  private:
-  static constexpr float kEmpty = std::numeric_limits<float>::infinity();
+  static constexpr float kEmpty = DepthLayer::kEmpty;
+  using Pixel = LayeredPixel;
 
   struct PixelRect {
     int i0, i1, j0, j1;  // inclusive
@@ -152,25 +152,6 @@ class Microbuffer {
     int pixel;
     float alpha;
   };
-  struct Layer {
-    float depth = kEmpty;  // nearest distance; 0 for the front layer of an inactive pixel
-    float extent = 0.0f;   // how far the layer reaches in depth beyond `depth`
-    float coverage = 0.0f;
-    Rgb radiance{0.0f};  // coverage-weighted
-  };
-  struct Pixel {
-    Layer front, back;
-  };
-
-  // How much of `under` shows below `top`: all of it if it fits in what top leaves open,
-  // else as much as fits. Pieces of different depth in one pixel are taken to lie side by
-  // side where they can (a surface seen at a grazing angle spans a wide range of depths in
-  // one pixel; its pieces do not hide each other), and one behind the other where they must.
-  static float underScale(const Layer& top, const Layer& under) {
-    const float open = std::max(0.0f, 1.0f - top.coverage);
-    return under.coverage > open ? open / under.coverage : 1.0f;
-  }
-
   // The pixels of face f whose centre can lie within the cone around unit `dir` of half-angle
   // with these sine and cosine; false when the cone misses the face.
   bool coneRect(int f, const Vec3f& dir, float sinAngle, float cosAngle, PixelRect* rect) const;

@@ -25,7 +25,6 @@ using gather_internal::SurfelCull;
 using gather_internal::viewCluster;
 
 constexpr int kMinResolution = 2;  // one pixel would have no corner inside the hemisphere
-constexpr float kEmpty = std::numeric_limits<float>::infinity();
 // Warped corners this close to the horizon (z below it) are put on it: the cosine warp's rim
 // lands there up to float rounding, and the pixels' regions must tile the hemisphere up to
 // its very edge for their solid angles to add up.
@@ -71,11 +70,6 @@ Vec2f chart(const Vec3f& w) { return Vec2f(w.x, w.y) / (1.0f + w.z); }
 // positive when abc turn counter-clockwise seen from outside the sphere.
 float triangleSolidAngle(const Vec3f& a, const Vec3f& b, const Vec3f& c) {
   return 2.0f * std::atan2(dot(a, cross(b, c)), 1.0f + dot(a, b) + dot(b, c) + dot(c, a));
-}
-
-float underScale(float topCoverage, float underCoverage) {
-  const float open = std::max(0.0f, 1.0f - topCoverage);
-  return underCoverage > open ? open / underCoverage : 1.0f;
 }
 
 int checkedResolution(const WarpedGatherOptions& options) {
@@ -414,46 +408,12 @@ int WarpedGatherer::pixelOfLocal(const Vec3f& w) const {
 }
 
 Rgb WarpedGatherer::pixelRadiance(int k) const {
-  const Pixel& p = pixels_[k];
-  return p.front.radiance + p.back.radiance * underScale(p.front.coverage, p.back.coverage);
+  return pixels_[k].radiance();
 }
 
 void WarpedGatherer::compose(int k, float distance, float extent, float coverage,
                              const Rgb& radiance) {
-  Pixel& p = pixels_[k];
-  const Layer piece{distance, extent, coverage, radiance};
-  auto overlaps = [&](const Layer& layer) {
-    return std::abs(distance - layer.depth) <= extent + layer.extent;
-  };
-  auto add = [&](Layer& layer) {
-    layer.depth = std::min(layer.depth, distance);
-    layer.extent = std::max(layer.extent, extent);
-    layer.coverage += coverage;
-    layer.radiance += radiance;
-  };
-  auto over = [](const Layer& top, const Layer& under) {
-    const float scale = underScale(top.coverage, under.coverage);
-    return Layer{top.depth, top.extent, top.coverage + under.coverage * scale,
-                 top.radiance + under.radiance * scale};
-  };
-  if (p.front.depth == kEmpty) {
-    p.front = piece;
-  } else if (overlaps(p.front)) {
-    add(p.front);
-  } else if (distance < p.front.depth) {
-    p.back = p.back.depth == kEmpty ? p.front : over(p.front, p.back);
-    p.front = piece;
-  } else if (p.front.coverage < 1.0f) {
-    if (p.back.depth == kEmpty) {
-      p.back = piece;
-    } else if (overlaps(p.back)) {
-      add(p.back);
-    } else if (distance < p.back.depth) {
-      p.back = over(piece, p.back);
-    } else if (p.back.coverage < 1.0f) {
-      p.back = over(p.back, piece);
-    }
-  }
+  pixels_[k].compose(distance, extent, coverage, radiance);
 }
 
 void WarpedGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p,

@@ -46,6 +46,7 @@
 
 #include "core/math/vec.h"
 #include "core/pbgi/gather.h"
+#include "core/pbgi/layered_pixel.h"
 #include "core/pbgi/tree_page.h"
 #include "core/pbgi/tree_walk.h"
 #include "core/scene/material.h"
@@ -109,15 +110,7 @@ class WarpedGatherer {
   Rgb pixelRadiance(int k) const;
 
  private:
-  struct Layer {
-    float depth = std::numeric_limits<float>::infinity();  // nearest distance
-    float extent = 0.0f;
-    float coverage = 0.0f;
-    Rgb radiance{0.0f};  // coverage-weighted
-  };
-  struct Pixel {
-    Layer front, back;
-  };
+  using Pixel = LayeredPixel;
   // A surfel to ray-cast after the traversal.
   struct Disk {
     Vec3f center, normal;

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <memory>
+#include <set>
 #include <span>
 #include <vector>
 
@@ -145,6 +146,21 @@ inline std::unique_ptr<MemoryTreeSource> treeOf(std::span<const Surfel> surfels,
   PBGI_CHECK(tree.ok());
   return *std::move(tree);
 }
+
+// Every page it was asked for, to know which pages a gather touches.
+class RecordingSource : public TreePageSource {
+ public:
+  explicit RecordingSource(TreePageSource* inner) : inner_(inner) {}
+  NodeRef root() const override { return inner_->root(); }
+  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override {
+    ids.insert(id);
+    return inner_->page(id);
+  }
+  std::set<uint32_t> ids;
+
+ private:
+  TreePageSource* inner_;
+};
 
 // Another source with one page that fails, as a damaged page in a file does.
 class FailingPageSource : public TreePageSource {

@@ -18,6 +18,7 @@ namespace {
 using testing::FailingPageSource;
 using testing::memoryTree;
 using testing::MemoryTreeSource;
+using testing::RecordingSource;
 using testing::treeOf;
 using testing::diskSurfels;
 using testing::sphereSurfels;
@@ -48,21 +49,6 @@ double diskIrradiance(const Vec3f& p, const Vec3f& n, const Vec3f& center, const
 }
 
 float relativeError(float value, float expected) { return std::abs(value / expected - 1.0f); }
-
-// Every page it was asked for, to know which pages a gather touches.
-class RecordingSource : public TreePageSource {
- public:
-  explicit RecordingSource(TreePageSource* inner) : inner_(inner) {}
-  NodeRef root() const override { return inner_->root(); }
-  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override {
-    ids.insert(id);
-    return inner_->page(id);
-  }
-  std::set<uint32_t> ids;
-
- private:
-  TreePageSource* inner_;
-};
 
 // A receiver at the centre of a closed emitting sphere sees radiance L everywhere: pi L.
 TEST(Gather, FurnaceAtSphereCentre) {

@@ -21,6 +21,7 @@ namespace {
 using testing::FailingPageSource;
 using testing::memoryTree;
 using testing::MemoryTreeSource;
+using testing::RecordingSource;
 using testing::treeOf;
 using testing::diskSurfels;
 using testing::sphereSurfels;
@@ -380,21 +381,6 @@ TEST(WarpedGather, RejectsBadOptionsAndReceivers) {
   EXPECT_EQ(*unit, *longer);
   EXPECT_GT(unit->x, 0.0f);
 }
-
-// Every page it was asked for, to know which pages a gather touches.
-class RecordingSource : public TreePageSource {
- public:
-  explicit RecordingSource(TreePageSource* inner) : inner_(inner) {}
-  NodeRef root() const override { return inner_->root(); }
-  absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override {
-    ids.insert(id);
-    return inner_->page(id);
-  }
-  std::set<uint32_t> ids;
-
- private:
-  TreePageSource* inner_;
-};
 
 TEST(WarpedGather, DamagedPageFailsTheGather) {
   auto tree = treeOf(sphereSurfels(8000, 1.0f, Rgb(1.0f)), 2);
