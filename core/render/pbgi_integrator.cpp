@@ -5,6 +5,7 @@
 #include <numbers>
 #include <vector>
 
+#include "core/pbgi/gather_reuse.h"
 #include "core/scene/material.h"
 
 namespace pbgi {
@@ -19,39 +20,18 @@ constexpr float kReuseDistanceFraction = 0.05f;
 constexpr float kReuseNormalCos = 0.95f;
 constexpr float kReuseViewCos = 0.999f;
 
-// What one gather found at a shading point of the pixel: irradiance for a diffuse receiver
-// (material kNoMaterial: any diffuse material shares it), or the reflected radiance of a
-// glossy one (its own material, its own view direction).
-struct GatherRecord {
-  Vec3f p;
-  Vec3f n;
-  Vec3f wo;
-  float distance;
-  uint32_t material;
-  Rgb value;
-};
-
 class PbgiScratch final : public IntegratorScratch {
  public:
-  PbgiScratch(const GatherOptions& options, const WarpedGatherOptions& glossy)
-      : gatherer(options), warped(glossy) {}
+  PbgiScratch(const PbgiIntegratorSettings& settings)
+      : gatherer(settings.gather),
+        warped(settings.glossy),
+        shared(kReuseNormalCos, kReuseViewCos, static_cast<size_t>(settings.maxGathersPerPixel)) {}
   Gatherer gatherer;
   WarpedGatherer warped;
-  std::vector<GatherRecord> records;
+  // The pixel's gathers: irradiance for diffuse receivers (key kNoMaterial: any diffuse
+  // material shares it), reflected radiance for glossy ones (their own material and view).
+  GatherReuse shared;
 };
-
-const GatherRecord* findRecord(const std::vector<GatherRecord>& records, const Vec3f& p,
-                               const Vec3f& n, const Vec3f& wo, uint32_t material) {
-  for (const GatherRecord& r : records) {
-    if (r.material != material || dot(r.n, n) < kReuseNormalCos) continue;
-    const Vec3f d = p - r.p;
-    if (std::abs(dot(d, r.n)) > kReusePlaneFraction * r.distance) continue;
-    if (length(d) > kReuseDistanceFraction * r.distance) continue;
-    if (material != kNoMaterial && dot(r.wo, wo) < kReuseViewCos) continue;
-    return &r;
-  }
-  return nullptr;
-}
 
 }  // namespace
 
@@ -68,14 +48,14 @@ PbgiIntegrator::PbgiIntegrator(const Scene& scene, TreePageSource& tree,
     : scene_(scene), tree_(tree), settings_(settings) {}
 
 std::unique_ptr<IntegratorScratch> PbgiIntegrator::newScratch() const {
-  return std::make_unique<PbgiScratch>(settings_.gather, settings_.glossy);
+  return std::make_unique<PbgiScratch>(settings_);
 }
 
 absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
                                         std::span<PathSample> out, IntegratorScratch* scratch,
                                         RenderCounters* counters) const {
   auto& state = static_cast<PbgiScratch&>(*scratch);
-  state.records.clear();
+  state.shared.clear();
   PathTracerSettings directOnly = settings_.pathTracer;
   directOnly.maxDepth = 1;
   for (size_t s = 0; s < rays.size(); ++s) {
@@ -107,7 +87,7 @@ absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng
     const bool diffuse = material.type == MaterialType::kDiffuse;
     const uint32_t key = diffuse ? kNoMaterial : hit.material;
     Rgb value(0.0f);
-    if (const GatherRecord* r = findRecord(state.records, hit.p, n, wo, key)) {
+    if (const SharedGather* r = state.shared.find(hit.p, n, wo, key)) {
       value = r->value;
       ++counters->gatherReuses;
     } else {
@@ -129,9 +109,13 @@ absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng
         return absl::DataLossError(
             "the tree's radiance made a gather non-finite (a damaged or hostile tree)");
       }
-      if (state.records.size() < static_cast<size_t>(settings_.maxGathersPerPixel)) {
-        state.records.push_back({hit.p, n, wo, hit.t, key, value});
-      }
+      state.shared.add({.p = hit.p,
+                        .n = n,
+                        .reach = kReuseDistanceFraction * hit.t,
+                        .planeReach = kReusePlaneFraction * hit.t,
+                        .key = key,
+                        .wo = diffuse ? Vec3f(0.0f) : wo,
+                        .value = value});
     }
     out[s].indirect = diffuse ? out[s].albedo * value * std::numbers::inv_pi_v<float> : value;
   }

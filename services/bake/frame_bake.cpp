@@ -13,6 +13,7 @@
 #include <xxhash.h>
 
 #include "core/pbgi/gather.h"
+#include "core/pbgi/gather_reuse.h"
 #include "core/pbgi/morton.h"
 #include "core/pbgi/page_cache.h"
 #include "core/util/spill_file.h"
@@ -98,7 +99,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   tbb::enumerable_thread_specific<Gatherer> gatherers(
       [&] { return Gatherer(request.gather); });
   tbb::enumerable_thread_specific<GatherStats> stats;
-  std::atomic<uint64_t> shared{0};
+  std::atomic<uint64_t> sharedCount{0};
   std::vector<SortedSurfel> batch;
   std::vector<absl::Status> errors;
   std::vector<uint8_t> bytes;
@@ -119,28 +120,15 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
     // kBounceGroup in the sorted order, whatever the threads.
     static_assert(kChunkSurfels % kBounceGroup == 0);
     tbb::parallel_for(size_t{0}, (n + kBounceGroup - 1) / kBounceGroup, [&](size_t g) {
-      struct Record {
-        Vec3f p, n;
-        float reach;
-        Rgb e;
-      };
-      Record records[kBounceGroup];
-      size_t recordCount = 0;
+      GatherReuse shared(kBounceReuseCos, 1.0f, kBounceGroup);
       GatherStats& st = stats.local();
       for (size_t i = g * kBounceGroup; i < std::min(n, (g + 1) * kBounceGroup); ++i) {
         Surfel& s = batch[i].surfel;
         if (s.materialClass != MaterialClass::kDiffuse || isBlack(s.albedo)) continue;
-        const Record* found = nullptr;
-        for (size_t r = 0; r < recordCount && !found; ++r) {
-          if (dot(records[r].n, s.normal) >= kBounceReuseCos &&
-              length(records[r].p - s.position) <= records[r].reach) {
-            found = &records[r];
-          }
-        }
         Rgb e(0.0f);
-        if (found) {
-          e = found->e;
-          shared.fetch_add(1, std::memory_order_relaxed);
+        if (const SharedGather* found = shared.find(s.position, s.normal, Vec3f(0.0f), 0)) {
+          e = found->value;
+          sharedCount.fetch_add(1, std::memory_order_relaxed);
         } else {
           auto gathered = gatherers.local().irradiance(cache, s.position, s.normal, &st);
           if (!gathered.ok()) {
@@ -148,7 +136,10 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
             return;
           }
           e = *gathered;
-          records[recordCount++] = {s.position, s.normal, kBounceReuseRadii * s.radius, e};
+          shared.add({.p = s.position,
+                      .n = s.normal,
+                      .reach = kBounceReuseRadii * s.radius,
+                      .value = e});
         }
         s.radiance += s.albedo * kInvPi * e;
       }
@@ -161,7 +152,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
     if (request.progress) request.progress("bounce", done, surfels);
   }
   for (const GatherStats& s : stats) *gatherStats += s;
-  *sharedGathers += shared.load();
+  *sharedGathers += sharedCount.load();
   return (*writer)->finish();
 }
 
