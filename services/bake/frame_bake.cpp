@@ -163,7 +163,8 @@ std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) 
 }
 
 absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
-                                              const FrameBakeRequest& request) {
+                                              const FrameBakeRequest& request,
+                                              const Scene* loadedScene) {
   if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
     return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
                                              shot.path, request.frame, shot.firstFrame,
@@ -199,14 +200,19 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
   auto work = [&] {
     FrameBakeReport report;
     StageClock clock(&report.stages);
-    auto frameScene = loadFrameScene(shot, request.frame);
-    if (!frameScene.ok()) return result = frameScene.status(), void();
-    report.warnings = frameScene->warnings;
-    const Scene& scene = *frameScene->scene;
-    // The importer's and the BVH build's temporaries are freed by now but glibc keeps much of
-    // them mapped, and how much depends on heap layout; give them back so that what stays
-    // resident is the scene itself, the same from run to run.
-    ::malloc_trim(0);
+    std::optional<FrameScene> loaded;
+    if (loadedScene == nullptr) {
+      auto frameScene = loadFrameScene(shot, request.frame);
+      if (!frameScene.ok()) return result = frameScene.status(), void();
+      report.warnings = frameScene->warnings;
+      loaded = std::move(*frameScene);
+      loadedScene = loaded->scene.get();
+      // The importer's and the BVH build's temporaries are freed by now but glibc keeps much
+      // of them mapped, and how much depends on heap layout; give them back so that what
+      // stays resident is the scene itself, the same from run to run.
+      ::malloc_trim(0);
+    }
+    const Scene& scene = *loadedScene;
     clock.lap("load");
 
     SurfelSamplingOptions sampling;

@@ -82,7 +82,10 @@ std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request);
 // so a renderer can tell whether a bake on disk is the one it would make.
 uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request);
 
+// `loadedScene`, when given, is the frame's scene already loaded (a render that bakes first);
+// otherwise the bake loads it.
 absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
-                                              const FrameBakeRequest& request);
+                                              const FrameBakeRequest& request,
+                                              const Scene* loadedScene = nullptr);
 
 }  // namespace pbgi

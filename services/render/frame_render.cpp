@@ -31,7 +31,7 @@ std::string previewPathFor(const std::string& exrPath) {
 // the same shot bytes and bake settings is on disk, else a new bake.
 absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
                                                     const FrameRenderRequest& request,
-                                                    TreeReadReport* report) {
+                                                    const Scene& scene, TreeReadReport* report) {
   if (!request.treePath.empty()) {
     report->treePath = request.treePath;
     return TreeFile::open(request.treePath);
@@ -48,7 +48,7 @@ absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
       return existing;
     }
   }
-  auto baked = bakeShotFrame(shot, *bake);
+  auto baked = bakeShotFrame(shot, *bake, &scene);
   if (!baked.ok()) return baked.status();
   report->baked = true;
   report->bakeStages = baked->stages;
@@ -108,36 +108,38 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   options.tileSize = request.tileSize;
   options.progress = request.progress;
 
-  std::optional<Image> image;
+  // The PBGI integrator reads its frame's tree through a page cache; both outlive the render.
+  std::unique_ptr<TreeFile> treeFile;
+  std::optional<PageCache> cache;
+  std::unique_ptr<Integrator> integrator;
   if (settings.integrator == "pbgi") {
     auto gather = pbgiGatherOptions(settings, request);
     if (!gather.ok()) return gather.status();
     TreeReadReport& tree = report.tree.emplace();
     tree.gather = gather->toString();
-    auto file = frameTree(shot, request, &tree);
+    auto file = frameTree(shot, request, *frameScene->scene, &tree);
     if (!file.ok()) return file.status();
+    treeFile = *std::move(file);
     clock.lap(tree.baked ? "bake" : "tree");
     tree.cacheBudget = request.cacheBytes > 0 ? request.cacheBytes
                                               : static_cast<size_t>(settings.cacheMb) << 20;
-    PageCache cache(**file, {.budgetBytes = tree.cacheBudget});
-    PbgiIntegratorSettings pbgiSettings{.gather = *gather,
-                                        .glossy = glossyGatherOptions(*gather),
-                                        .maxGathersPerPixel = settings.gathersPerPixel,
-                                        .pathTracer = pt};
-    const PbgiIntegrator integrator(*frameScene->scene, cache, pbgiSettings);
-    auto rendered = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
-                                &report.counters);
-    if (!rendered.ok()) return rendered.status();
-    image = std::move(*rendered);
-    tree.cache = cache.counters();
-    tree.pagesRead = cache.distinctPagesLoaded();
-    tree.pagesInFile = (*file)->container().directory().size();
+    cache.emplace(*treeFile, PageCacheOptions{.budgetBytes = tree.cacheBudget});
+    integrator = std::make_unique<PbgiIntegrator>(
+        *frameScene->scene, *cache,
+        PbgiIntegratorSettings{.gather = *gather,
+                               .glossy = glossyGatherOptions(*gather),
+                               .maxGathersPerPixel = settings.gathersPerPixel,
+                               .pathTracer = pt});
   } else {
-    const PathIntegrator integrator(*frameScene->scene, pt);
-    auto rendered = renderFrame(integrator, frameScene->camera, settings, request.frame, options,
-                                &report.counters);
-    if (!rendered.ok()) return rendered.status();
-    image = std::move(*rendered);
+    integrator = std::make_unique<PathIntegrator>(*frameScene->scene, pt);
+  }
+  auto image = renderFrame(*integrator, frameScene->camera, settings, request.frame, options,
+                           &report.counters);
+  if (!image.ok()) return image.status();
+  if (cache) {
+    report.tree->cache = cache->counters();
+    report.tree->pagesRead = cache->distinctPagesLoaded();
+    report.tree->pagesInFile = treeFile->container().directory().size();
   }
   clock.lap("render");
   const double renderSeconds = report.stages.back().seconds;
