@@ -75,7 +75,7 @@ int runBake(const BakeOptions& o) {
   request.tempDir = o.tempDir;
   Progress progress(fmt::format("bake {} frame {}", shot->name, request.frame));
   request.progress = [&](const std::string&, uint64_t done, uint64_t total) {
-    progress.update(static_cast<int>(total > 0 ? done * 1000 / total : 1000), 1000);
+    progress.update(done, total);
   };
   auto report = bakeShotFrame(*shot, request);
   progress.finish();

@@ -2,6 +2,7 @@
 // Progress of long work: a bar redrawn in place on a terminal, plain lines at every tenth
 // otherwise (logs and CI). Thread-safe: renderers report from worker threads.
 
+#include <cstdint>
 #include <mutex>
 #include <string>
 
@@ -10,7 +11,7 @@ namespace pbgi::cli {
 class Progress {
  public:
   explicit Progress(std::string label);
-  void update(int done, int total);
+  void update(uint64_t done, uint64_t total);
   // Ends the bar's line on a terminal.
   void finish();
 

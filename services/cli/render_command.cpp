@@ -48,9 +48,8 @@ void printTreeReport(const TreeReadReport& t, const RenderCounters& c) {
               static_cast<unsigned long long>(c.gathers),
               static_cast<unsigned long long>(c.glossyGathers),
               static_cast<unsigned long long>(c.gatherReuses));
-  std::printf("  skipped: pixels that see nothing %llu, black receivers %llu; path traced "
+  std::printf("  skipped: black receivers %llu (pixels that see nothing: below); path traced "
               "(mirror, glass) %llu\n",
-              static_cast<unsigned long long>(c.pixelsWithoutHit),
               static_cast<unsigned long long>(c.blackReceivers),
               static_cast<unsigned long long>(c.pathTracedReceivers));
   std::printf("  traversal: %s\n", c.gather.toString().c_str());
@@ -77,7 +76,7 @@ int runRender(const RenderOptions& o) {
   Progress progress(fmt::format("render {} frame {}", shot->name, request.frame));
   Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, request.frame));
   request.bakeProgress = [&](const std::string&, uint64_t done, uint64_t total) {
-    bakeProgress.update(static_cast<int>(total > 0 ? done * 1000 / total : 1000), 1000);
+    bakeProgress.update(done, total);
   };
   request.progress = [&](int done, int total) {
     if (done == 1) bakeProgress.finish();
