@@ -41,6 +41,7 @@
 #include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
 #include "services/render/frame_render.h"
+#include "tests/support/tree_files.h"
 
 namespace pbgi {
 namespace {
@@ -213,22 +214,9 @@ void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<R
   }
 }
 
-// The decoded bytes of every page of the tree: what an unlimited cache would hold.
-absl::StatusOr<uint64_t> decodedTreeBytes(const std::string& path) {
-  auto file = TreeFile::open(path);
-  if (!file.ok()) return file.status();
-  uint64_t bytes = 0;
-  for (uint32_t id = 0; id < (*file)->container().directory().size(); ++id) {
-    auto page = (*file)->page(id);
-    if (!page.ok()) return page.status();
-    bytes += (*page)->memoryBytes();
-  }
-  return bytes;
-}
-
 int cacheRuns(const ShotDesc& shot, FrameRenderRequest request, const std::string& treePath,
               const std::string& outDir, std::FILE* csv) {
-  auto total = decodedTreeBytes(treePath);
+  auto total = testing::decodedTreeBytes(treePath);
   if (!total.ok()) return std::fprintf(stderr, "%s\n", total.status().ToString().c_str()), 1;
   std::printf("page cache (default preset, 16 spp, tree %s: %.1f MiB decoded)\n", treePath.c_str(),
               *total / 1048576.0);

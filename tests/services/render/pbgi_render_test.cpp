@@ -13,6 +13,7 @@
 #include "services/bake/frame_bake.h"
 #include "services/render/frame_render.h"
 #include "tests/support/test_paths.h"
+#include "tests/support/tree_files.h"
 
 namespace pbgi {
 namespace {
@@ -72,28 +73,19 @@ class PbgiRender : public ::testing::Test {
   ShotDesc shot_;
 };
 
-uint64_t decodedBytes(const std::string& path) {
-  auto file = TreeFile::open(path);
-  EXPECT_TRUE(file.ok()) << file.status();
-  uint64_t bytes = 0;
-  for (uint32_t id = 0; id < (*file)->container().directory().size(); ++id) {
-    bytes += (*(*file)->page(id))->memoryBytes();
-  }
-  return bytes;
-}
-
 TEST_F(PbgiRender, SmallCachesGiveTheBitsOfAnUnlimitedOne) {
   // Small: with a one-page cache every page a gather reads is read again.
   shot_.width = 24;
   shot_.height = 24;
   const std::string tree = bake(40000, 0);
-  const uint64_t total = decodedBytes(tree);
+  auto total = testing::decodedTreeBytes(tree);
+  ASSERT_TRUE(total.ok()) << total.status();
   FrameRenderReport unlimitedReport, smallReport, onePageReport;
   FrameRenderRequest r = request("unlimited", tree);
   r.cacheBytes = size_t{1} << 40;
   const Image unlimited = render(r, &unlimitedReport);
   r = request("five-percent", tree);
-  r.cacheBytes = total / 20;
+  r.cacheBytes = *total / 20;
   const Image small = render(r, &smallReport);
   // A budget below one page: every page is evicted as soon as nothing holds it.
   r = request("one-page", tree);
