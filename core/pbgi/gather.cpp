@@ -15,6 +15,7 @@ namespace pbgi {
 namespace {
 
 using gather_internal::clusterRadiance;
+using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
 using gather_internal::cullSurfel;
 using gather_internal::kLayerExtentFactor;
@@ -38,14 +39,6 @@ absl::StatusOr<Vec3f> receiverNormal(const Vec3f& position, const Vec3f& normal)
   return normal / len;
 }
 
-// The microbuffer's resolution, once the options are known to be valid: invalid options
-// reaching a Gatherer are a caller bug (users' options go through validate()).
-int checkedResolution(const GatherOptions& options) {
-  if (absl::Status s = options.validate(); !s.ok()) {
-    detail::checkFailed(__FILE__, __LINE__, std::string(s.message()));
-  }
-  return options.resolution;
-}
 
 }  // namespace
 
@@ -59,15 +52,7 @@ absl::Status GatherOptions::validate() const {
         fmt::format("gather options: resolution must be in [{}, {}], got {}",
                     kMinMicrobufferResolution, kMaxMicrobufferResolution, resolution));
   }
-  if (!(nearFieldFactor >= 0.0f && nearFieldFactor <= 1e3f)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "gather options: nearFieldFactor must be in [0, 1000], got {}", nearFieldFactor));
-  }
-  if (!(selfSkipRadius >= 0.0f && selfSkipRadius <= 100.0f)) {
-    return absl::InvalidArgumentError(
-        fmt::format("gather options: selfSkipRadius must be in [0, 100], got {}", selfSkipRadius));
-  }
-  return absl::OkStatus();
+  return gather_internal::validateNearField("gather options", nearFieldFactor, selfSkipRadius);
 }
 
 std::string GatherOptions::toString() const {

@@ -190,6 +190,31 @@ inline absl::Status checkInterior(const TreePage& page, const TreeNode& node, No
   return absl::OkStatus();
 }
 
+// The near-field options both gathers have, checked the same way; `what` names the options
+// in the message.
+inline absl::Status validateNearField(const char* what, float nearFieldFactor,
+                                      float selfSkipRadius) {
+  if (!(nearFieldFactor >= 0.0f && nearFieldFactor <= 1e3f)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "{}: nearFieldFactor must be in [0, 1000], got {}", what, nearFieldFactor));
+  }
+  if (!(selfSkipRadius >= 0.0f && selfSkipRadius <= 100.0f)) {
+    return absl::InvalidArgumentError(
+        fmt::format("{}: selfSkipRadius must be in [0, 100], got {}", what, selfSkipRadius));
+  }
+  return absl::OkStatus();
+}
+
+// A buffer's resolution, once its options are known to be valid: invalid options reaching a
+// gatherer are a caller bug (users' options go through validate()).
+template <typename Options>
+int checkedResolution(const Options& options) {
+  if (absl::Status s = options.validate(); !s.ok()) {
+    detail::checkFailed(__FILE__, __LINE__, std::string(s.message()));
+  }
+  return options.resolution;
+}
+
 // Page `id` from the pages a traversal holds (at most kMaxHeldPages, the least recently used
 // evicted), fetched from the source when not held, so that gathers after the first allocate
 // nothing. `Held` is any struct with fields id, page (shared_ptr) and lastUse; `clock`

@@ -16,6 +16,7 @@ namespace pbgi {
 namespace {
 
 using gather_internal::clusterRadiance;
+using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
 using gather_internal::cullSurfel;
 using gather_internal::kLayerExtentFactor;
@@ -72,12 +73,6 @@ float triangleSolidAngle(const Vec3f& a, const Vec3f& b, const Vec3f& c) {
   return 2.0f * std::atan2(dot(a, cross(b, c)), 1.0f + dot(a, b) + dot(b, c) + dot(c, a));
 }
 
-int checkedResolution(const WarpedGatherOptions& options) {
-  if (absl::Status s = options.validate(); !s.ok()) {
-    detail::checkFailed(__FILE__, __LINE__, std::string(s.message()));
-  }
-  return options.resolution;
-}
 
 }  // namespace
 
@@ -87,15 +82,7 @@ absl::Status WarpedGatherOptions::validate() const {
         fmt::format("warped gather options: resolution must be in [{}, {}], got {}", kMinResolution,
                     kMaxMicrobufferResolution, resolution));
   }
-  if (!(nearFieldFactor >= 0.0f && nearFieldFactor <= 1e3f)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "warped gather options: nearFieldFactor must be in [0, 1000], got {}", nearFieldFactor));
-  }
-  if (!(selfSkipRadius >= 0.0f && selfSkipRadius <= 100.0f)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "warped gather options: selfSkipRadius must be in [0, 100], got {}", selfSkipRadius));
-  }
-  return absl::OkStatus();
+  return gather_internal::validateNearField("warped gather options", nearFieldFactor, selfSkipRadius);
 }
 
 std::string WarpedGatherOptions::toString() const {
