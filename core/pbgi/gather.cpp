@@ -17,6 +17,7 @@ namespace {
 using gather_internal::clusterRadiance;
 using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
+using gather_internal::clusterDepthExtent;
 using gather_internal::cullSurfel;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
@@ -154,7 +155,7 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
       return true;
     }
     buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view),
-                           kLayerExtentFactor * std::sqrt(bounds.boundRadius2));
+                           clusterDepthExtent(a, dir));
     ++stats->clustersSplatted;
     return true;
   };

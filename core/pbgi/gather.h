@@ -35,6 +35,10 @@
 
 namespace pbgi {
 
+// Changes whenever a gather's result for the same tree and options changes (a bake whose
+// bounces gathered with another revision is stale): 2 gave clusters their bounding box's depth.
+inline constexpr int kGatherRevision = 2;
+
 struct GatherOptions {
   // A node whose projected solid angle from the receiver is at most this (sr) is splatted as
   // a cluster; Christensen uses 0.02 to 0.03.

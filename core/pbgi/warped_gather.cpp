@@ -18,6 +18,7 @@ namespace {
 using gather_internal::clusterRadiance;
 using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
+using gather_internal::clusterDepthExtent;
 using gather_internal::cullSurfel;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
@@ -459,7 +460,7 @@ absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, Gath
       return true;
     }
     const float coverage = nodeOmega / omega;
-    compose(k, distance, kLayerExtentFactor * std::sqrt(bounds.boundRadius2), coverage,
+    compose(k, distance, clusterDepthExtent(a, toCentroid / distance), coverage,
             clusterRadiance(a, view) * coverage);
     ++stats->clustersSplatted;
     return true;

@@ -120,7 +120,7 @@ struct RenderSettings {
   int gathersPerPixel = 4;          // most gathers a pixel's samples make
   int cacheMb = 256;                // tree page cache budget
   uint64_t bakePoints = 0;          // surfels per frame; 0: the baker's default
-  int bakeBounces = 2;              // indirect bounces baked into the tree
+  int bakeBounces = 3;              // indirect bounces baked into the tree
   std::string bakeQuality = "draft";  // gather preset of those bounces
 };
 

@@ -74,7 +74,9 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_gather={}|encoding={}|leaf={}"
       "|page={}|power={}|area={}|exact={}|bounce_group={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
-      request.bounces > 0 ? request.gather.toString() : "", treeEncodingName(request.tree.encoding),
+      request.bounces > 0 ? fmt::format("{} revision {}", request.gather.toString(), kGatherRevision)
+                          : "",
+      treeEncodingName(request.tree.encoding),
       request.tree.build.leafSize, request.tree.pageSize, request.tree.powerCentres,
       request.tree.areaCentres, request.tree.exactNodes, kBounceGroup, request.pbgiVersion);
   return XXH3_64bits(text.data(), text.size());

@@ -37,6 +37,7 @@
 
 #include "formats/image/compare.h"
 #include "formats/image/image_io.h"
+#include "formats/image/ocio_config.h"
 #include "formats/image/plot.h"
 #include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
@@ -96,6 +97,50 @@ Image layer(const Image& image, const std::string& prefix) {
     }
   }
   return out;
+}
+
+// Where a run is biased: the signed difference of indirect light from the reference's,
+// averaged over blocks of kBiasBlock^2 pixels (which averages the noise away and leaves the
+// bias), relative to the reference's total light in the block. Red is too bright, blue too
+// dark; full colour at kBiasScale. The mean indirect ratio is returned.
+constexpr int kBiasBlock = 8;
+constexpr float kBiasScale = 0.25f;
+
+double writeBiasMap(const Image& image, const Image& ref, const std::string& path) {
+  const Image indirect = layer(image, "indirect");
+  const Image refIndirect = layer(ref, "indirect");
+  auto lum = [](const Image& im, int x, int y) {
+    return 0.2126 * im.at(x, y, 0) + 0.7152 * im.at(x, y, 1) + 0.0722 * im.at(x, y, 2);
+  };
+  Image map(image.width(), image.height(), {"R", "G", "B"});
+  double sumImage = 0.0, sumRef = 0.0;
+  for (int by = 0; by < image.height(); by += kBiasBlock) {
+    for (int bx = 0; bx < image.width(); bx += kBiasBlock) {
+      const int x1 = std::min(bx + kBiasBlock, image.width());
+      const int y1 = std::min(by + kBiasBlock, image.height());
+      double diff = 0.0, total = 0.0;
+      for (int y = by; y < y1; ++y) {
+        for (int x = bx; x < x1; ++x) {
+          diff += lum(indirect, x, y) - lum(refIndirect, x, y);
+          total += lum(ref, x, y);
+          sumImage += lum(indirect, x, y);
+          sumRef += lum(refIndirect, x, y);
+        }
+      }
+      const float v = total > 0.0 ? static_cast<float>(diff / total) / kBiasScale : 0.0f;
+      const Rgb colour = v > 0.0f ? Rgb(std::min(v, 1.0f), 0.0f, 0.0f)
+                                  : Rgb(0.0f, 0.0f, std::min(-v, 1.0f));
+      for (int y = by; y < y1; ++y) {
+        for (int x = bx; x < x1; ++x) {
+          for (int c = 0; c < 3; ++c) map.at(x, y, c) = colour[c];
+        }
+      }
+    }
+  }
+  if (auto s = writePreviewPng(map, path, defaultOcioConfigPath()); !s.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(s.message()).c_str());
+  }
+  return sumRef > 0.0 ? sumImage / sumRef : 0.0;
 }
 
 std::string readBytes(const std::string& path) {
@@ -161,14 +206,17 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
   const std::string errorPath =
       (fs::path(outDir) / fmt::format("{}.{}.error.exr", shot.name, run.name())).string();
   if (auto s = writeExr(diff, errorPath); !s.ok()) return s;
+  const double indirectRatio = writeBiasMap(
+      *image, ref,
+      (fs::path(outDir) / fmt::format("{}.{}.bias.png", shot.name, run.name())).string());
   const double meanRatio =
       (rgb->channels[0].meanImage + rgb->channels[1].meanImage + rgb->channels[2].meanImage) /
       (rgb->channels[0].meanReference + rgb->channels[1].meanReference +
        rgb->channels[2].meanReference);
   std::printf("%-22s %8.3f s  relMSE %.3e (direct %.3e, indirect %.3e)  RMSE %.4f  mean %.4f"
-              "%s\n",
+              " (indirect %.4f)%s\n",
               run.name().c_str(), run.renderSeconds, rgb->relMse, direct->relMse,
-              indirect->relMse, rgb->rmse, meanRatio,
+              indirect->relMse, rgb->rmse, meanRatio, indirectRatio,
               run.bakeSeconds > 0 ? fmt::format("  (bake {:.1f} s)", run.bakeSeconds).c_str() : "");
   std::fflush(stdout);
   return run;
