@@ -1,0 +1,150 @@
+#pragma once
+// The coordinator's durable state: jobs, their tasks, workers and per-(job, worker) failure
+// counts, behind one interface so that a farm can swap the embedded SQLite store for
+// PostgreSQL. Every call is one transaction, committed before it returns: a task is leased
+// in the database before the worker that leased it hears about it (ARCHITECTURE invariant 3).
+//
+// A job is a shot plus overrides. It becomes, per frame: bake(frame) when the integrator needs
+// a tree, tile(frame, t) for every tile (each waits on its frame's bake), and assemble(frame)
+// (waits on every tile of its frame). Tasks move
+//   blocked -> ready -> leased -> done
+//                 ^       |
+//                 +-------+  fail or lease expiry: retried after a back-off, until the cap;
+//                         v
+//                       dead  (its last error kept; the job reports the frame as failed)
+// and cancel moves every unfinished task to cancelled. A lease carries an attempt number:
+// heartbeats, completions and failures are accepted only from the current attempt of a
+// leased task, so a worker that lost its lease can never commit a result.
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+namespace pbgi::farm {
+
+enum class TaskKind { kBake = 0, kTile = 1, kAssemble = 2 };
+enum class TaskState { kBlocked = 0, kReady = 1, kLeased = 2, kDone = 3, kDead = 4, kCancelled = 5 };
+enum class JobState { kActive = 0, kDone = 1, kFailed = 2, kCancelled = 3 };
+
+std::string toString(TaskKind kind);
+std::string toString(TaskState state);
+std::string toString(JobState state);
+
+// Times are seconds since the Unix epoch as doubles, passed in by the caller (the tests drive
+// a clock of their own; the coordinator passes the wall clock).
+using Seconds = double;
+
+struct RetryPolicy {
+  int maxAttempts = 3;            // a task that failed this many times is dead
+  Seconds backoffBase = 2.0;      // ready again after base * 2^(failures - 1) seconds...
+  Seconds backoffMax = 60.0;      // ...at most this
+  int blocklistAfter = 3;         // failures of one job on one worker that blocklist the worker
+};
+
+struct JobSpec {
+  std::string name;          // the shot's name
+  std::string shotPath;      // absolute path of the shot file, as the workers will read it
+  std::string shotText;      // the shot file's bytes at submission (the job renders these)
+  std::string overrides;     // "key=value" lines (integrator, spp, ...), applied by workers
+  std::string outputPattern; // absolute; '#' runs are the frame number
+  int priority = 0;          // higher first
+  std::vector<int> frames;   // in order
+  int tileCount = 0;         // tiles per frame (> 0)
+  bool needsBake = false;    // a bake task per frame, which the frame's tiles wait on
+};
+
+struct TaskRef {
+  int64_t job = 0;
+  TaskKind kind = TaskKind::kTile;
+  int frame = 0;
+  int tile = -1;  // tiles only
+  std::string toString() const;  // "job 3 frame 12 tile 7" / "job 3 frame 12 bake"
+};
+
+struct Lease {
+  int64_t task = 0;
+  int attempt = 0;  // 1 for the first lease of the task
+  TaskRef ref;
+  Seconds expires = 0;
+};
+
+struct TaskInfo {
+  int64_t id = 0;
+  TaskRef ref;
+  TaskState state = TaskState::kBlocked;
+  int attempt = 0;    // leases so far
+  int failures = 0;   // failed attempts (explicit failures and expired leases)
+  std::string worker; // the current or last lease's worker
+  std::string lastError;
+  double progress = 0.0;  // 0..1, from heartbeats of the current attempt
+};
+
+struct JobInfo {
+  int64_t id = 0;
+  JobSpec spec;
+  JobState state = JobState::kActive;
+  Seconds submitted = 0;
+  // Tasks by state, indexed by TaskState.
+  std::array<int, 6> tasksByState{};
+  // Dead tasks with their last errors: the frames that failed and why.
+  std::vector<TaskInfo> dead;
+};
+
+struct WorkerInfo {
+  std::string id;
+  std::string host;
+  int cores = 0;
+  uint64_t memoryBytes = 0;
+  uint64_t cacheBytes = 0;
+  Seconds lastSeen = 0;
+};
+
+class JobStore {
+ public:
+  virtual ~JobStore() = default;
+
+  virtual absl::StatusOr<int64_t> submit(const JobSpec& spec, Seconds now) = 0;
+  virtual absl::StatusOr<JobInfo> job(int64_t job) = 0;
+  virtual absl::StatusOr<std::vector<JobInfo>> jobs() = 0;
+  virtual absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) = 0;
+
+  virtual absl::Status registerWorker(const WorkerInfo& worker) = 0;
+  virtual absl::StatusOr<std::vector<WorkerInfo>> workers() = 0;
+
+  // The most urgent ready task (priority, then job age, then frame, kind, tile) whose back-off
+  // has passed and whose job has not blocklisted `worker`, leased until now + leaseSeconds;
+  // nullopt when there is none.
+  virtual absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
+                                                     Seconds leaseSeconds) = 0;
+  // Extends the lease to now + leaseSeconds and records progress. FailedPrecondition when
+  // the attempt is not the task's current leased one (the lease was lost).
+  virtual absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
+                                 Seconds leaseSeconds) = 0;
+  // The task is done; its dependents become ready when all they wait on is done; the job is
+  // done when every task is. FailedPrecondition from a stale attempt (nothing changes).
+  virtual absl::Status complete(int64_t task, int attempt, Seconds now) = 0;
+  // The attempt failed with `error`: ready again after the back-off, or dead at the cap.
+  // Counts the failure against (job, worker) for the blocklist. FailedPrecondition when stale.
+  virtual absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now) = 0;
+  // Leases that expired by `now` count as failures ("lease expired: worker W stopped
+  // heartbeating"). Returns how many expired.
+  virtual absl::StatusOr<int> expireLeases(Seconds now) = 0;
+
+  virtual absl::Status cancel(int64_t job) = 0;
+  // Dead and cancelled tasks of the job (of one frame, or one tile of it) become ready again
+  // with their failures reset; the job becomes active.
+  virtual absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
+                             Seconds now) = 0;
+  virtual absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) = 0;
+};
+
+// The embedded store: one SQLite file in WAL mode (created with its schema when missing).
+absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& path,
+                                                            const RetryPolicy& policy);
+
+}  // namespace pbgi::farm

@@ -1,0 +1,781 @@
+// The embedded job store: one SQLite file in WAL mode, one connection behind a mutex. Each
+// public call is one transaction, so a crash between two calls loses nothing a caller heard
+// about, and a crash inside one loses the whole call and nothing else.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <set>
+#include <string_view>
+#include <unordered_map>
+#include <utility>
+
+#include <absl/strings/ascii.h>
+#include <absl/strings/numbers.h>
+#include <absl/strings/str_split.h>
+#include <fmt/format.h>
+
+#include "services/coordinator/job_store.h"
+#include "services/coordinator/sqlite_query.h"
+
+// One column list for every task query, so that readTask() and the SELECTs cannot drift apart.
+#define PBGI_TASK_COLUMNS \
+  "id, job, kind, frame, tile, state, attempt, failures, worker, last_error, progress"
+#define PBGI_JOB_COLUMNS                                                                      \
+  "id, name, shot_path, shot_text, overrides, output_pattern, priority, frames, tile_count, " \
+  "needs_bake, state, submitted"
+
+namespace pbgi::farm {
+namespace {
+
+// Bumped with every schema change: a file written by a newer coordinator is refused rather
+// than misread.
+constexpr int kSchemaVersion = 1;
+// An operator's sqlite3 shell or a backup may hold the write lock for a moment; waiting that
+// long beats failing a lease.
+constexpr int kBusyTimeoutMs = 5000;
+
+// The SQL spells kinds and states as the enums' numbers (and the schema's CHECKs keep stored
+// values in range, which is why rows are cast back without a test).
+static_assert(static_cast<int>(TaskKind::kBake) == 0 && static_cast<int>(TaskKind::kTile) == 1 &&
+              static_cast<int>(TaskKind::kAssemble) == 2);
+static_assert(static_cast<int>(TaskState::kBlocked) == 0 &&
+              static_cast<int>(TaskState::kReady) == 1 &&
+              static_cast<int>(TaskState::kLeased) == 2 &&
+              static_cast<int>(TaskState::kDone) == 3 && static_cast<int>(TaskState::kDead) == 4 &&
+              static_cast<int>(TaskState::kCancelled) == 5);
+static_assert(static_cast<int>(JobState::kActive) == 0 && static_cast<int>(JobState::kDone) == 1 &&
+              static_cast<int>(JobState::kFailed) == 2 &&
+              static_cast<int>(JobState::kCancelled) == 3);
+
+// AUTOINCREMENT so that ids are never reused: a worker still holding a task id from before
+// some clean-up must never address a different task.
+constexpr const char* kSchema = R"sql(
+CREATE TABLE jobs (
+  id INTEGER PRIMARY KEY AUTOINCREMENT,
+  name TEXT NOT NULL,
+  shot_path TEXT NOT NULL,
+  shot_text BLOB NOT NULL,
+  overrides TEXT NOT NULL,
+  output_pattern TEXT NOT NULL,
+  priority INTEGER NOT NULL,
+  frames TEXT NOT NULL,  -- frame numbers in submission order, space separated
+  tile_count INTEGER NOT NULL CHECK (tile_count > 0),
+  needs_bake INTEGER NOT NULL CHECK (needs_bake IN (0, 1)),
+  state INTEGER NOT NULL CHECK (state BETWEEN 0 AND 3),
+  submitted REAL NOT NULL
+);
+CREATE TABLE tasks (
+  id INTEGER PRIMARY KEY AUTOINCREMENT,
+  job INTEGER NOT NULL REFERENCES jobs (id),
+  kind INTEGER NOT NULL CHECK (kind BETWEEN 0 AND 2),
+  frame INTEGER NOT NULL,
+  tile INTEGER NOT NULL,  -- -1 for bakes and assembles
+  state INTEGER NOT NULL CHECK (state BETWEEN 0 AND 5),
+  attempt INTEGER NOT NULL DEFAULT 0,
+  failures INTEGER NOT NULL DEFAULT 0,
+  worker TEXT NOT NULL DEFAULT '',
+  last_error TEXT NOT NULL DEFAULT '',
+  progress REAL NOT NULL DEFAULT 0,
+  expires REAL,                        -- while leased
+  not_before REAL NOT NULL DEFAULT 0,  -- the back-off: not leased before this
+  UNIQUE (job, frame, kind, tile)
+);
+CREATE INDEX tasks_by_state ON tasks (state, not_before);
+CREATE TABLE workers (
+  id TEXT PRIMARY KEY,
+  host TEXT NOT NULL,
+  cores INTEGER NOT NULL,
+  memory_bytes INTEGER NOT NULL,
+  cache_bytes INTEGER NOT NULL,
+  last_seen REAL NOT NULL
+);
+CREATE TABLE job_worker_failures (
+  job INTEGER NOT NULL REFERENCES jobs (id),
+  worker TEXT NOT NULL,
+  failures INTEGER NOT NULL,
+  PRIMARY KEY (job, worker)
+);
+)sql";
+
+// Reads a row selected with PBGI_TASK_COLUMNS.
+TaskInfo readTask(const Query& q) {
+  TaskInfo task;
+  task.id = q.int64(0);
+  task.ref.job = q.int64(1);
+  task.ref.kind = static_cast<TaskKind>(q.integer(2));
+  task.ref.frame = q.integer(3);
+  task.ref.tile = q.integer(4);
+  task.state = static_cast<TaskState>(q.integer(5));
+  task.attempt = q.integer(6);
+  task.failures = q.integer(7);
+  task.worker = q.text(8);
+  task.lastError = q.text(9);
+  task.progress = q.real(10);
+  return task;
+}
+
+std::string frameList(const std::vector<int>& frames) {
+  std::string out;
+  for (int frame : frames) {
+    if (!out.empty()) out += ' ';
+    out += std::to_string(frame);
+  }
+  return out;
+}
+
+enum class Access { kRead, kWrite };
+
+class SqliteJobStore final : public JobStore {
+ public:
+  SqliteJobStore(std::string path, const RetryPolicy& policy, DatabasePtr db)
+      : path_(std::move(path)), policy_(policy), db_(std::move(db)) {}
+
+  absl::Status initialize();
+
+  absl::StatusOr<int64_t> submit(const JobSpec& spec, Seconds now) override;
+  absl::StatusOr<JobInfo> job(int64_t job) override;
+  absl::StatusOr<std::vector<JobInfo>> jobs() override;
+  absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
+  absl::Status registerWorker(const WorkerInfo& worker) override;
+  absl::StatusOr<std::vector<WorkerInfo>> workers() override;
+  absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
+                                             Seconds leaseSeconds) override;
+  absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
+                         Seconds leaseSeconds) override;
+  absl::Status complete(int64_t task, int attempt, Seconds now) override;
+  absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now) override;
+  absl::StatusOr<int> expireLeases(Seconds now) override;
+  absl::Status cancel(int64_t job) override;
+  absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
+                     Seconds now) override;
+  absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
+
+ private:
+  absl::Status exec(const char* sql);
+  Query query(const char* sql);
+  template <typename Body>
+  auto transaction(Access access, Body&& body) -> decltype(body());
+
+  absl::StatusOr<JobState> jobState(int64_t job);
+  absl::StatusOr<JobInfo> readJob(const Query& q);
+  absl::Status addTaskSummary(JobInfo& info);
+  absl::StatusOr<TaskInfo> loadTask(int64_t task);
+  absl::StatusOr<TaskInfo> currentLease(int64_t task, int attempt);
+  absl::Status touchWorker(const std::string& worker, Seconds now);
+  absl::Status promoteBlocked(int64_t job, std::optional<int> frame);
+  absl::Status killDependents(const TaskInfo& dead);
+  absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now);
+  absl::Status settleJob(int64_t job);
+  int64_t blocklistThreshold() const {
+    // No threshold means no blocklist, rather than every worker blocklisted from the start.
+    return policy_.blocklistAfter > 0 ? policy_.blocklistAfter
+                                      : std::numeric_limits<int64_t>::max();
+  }
+
+  const std::string path_;
+  const RetryPolicy policy_;
+  std::mutex mutex_;
+  DatabasePtr db_;
+  // Prepared once per SQL text; declared after db_ so that they are finalized before it closes.
+  std::unordered_map<std::string, StatementPtr> statements_;
+};
+
+absl::Status SqliteJobStore::exec(const char* sql) {
+  char* message = nullptr;
+  const int rc = sqlite3_exec(db_.get(), sql, nullptr, nullptr, &message);
+  if (rc == SQLITE_OK) return absl::OkStatus();
+  const std::string text = message != nullptr ? message : sqlite3_errstr(rc);
+  sqlite3_free(message);
+  return sqliteStatus(rc, text, path_, sqlSummary(sql));
+}
+
+Query SqliteJobStore::query(const char* sql) {
+  auto it = statements_.find(sql);
+  if (it == statements_.end()) {
+    sqlite3_stmt* stmt = nullptr;
+    const int rc =
+        sqlite3_prepare_v3(db_.get(), sql, -1, SQLITE_PREPARE_PERSISTENT, &stmt, nullptr);
+    if (rc != SQLITE_OK) {
+      sqlite3_finalize(stmt);
+      return Query(
+          db_.get(), nullptr,
+          sqliteStatus(rc, sqlite3_errmsg(db_.get()), path_, "preparing " + sqlSummary(sql)),
+          path_);
+    }
+    it = statements_.emplace(sql, StatementPtr(stmt)).first;
+  }
+  return Query(db_.get(), it->second.get(), absl::OkStatus(), path_);
+}
+
+template <typename Body>
+auto SqliteJobStore::transaction(Access access, Body&& body) -> decltype(body()) {
+  std::lock_guard lock(mutex_);
+  // Writers take the write lock up front: a deferred transaction that meets a lock at its
+  // first write can only fail, since busy_timeout cannot wait out a reader's upgrade. Readers
+  // stay deferred so that status queries never hold up a lease.
+  PBGI_STORE_RETURN_IF_ERROR(exec(access == Access::kWrite ? "BEGIN IMMEDIATE" : "BEGIN"));
+  auto result = body();
+  absl::Status committed = result.ok() ? exec("COMMIT") : absl::OkStatus();
+  if (result.ok() && committed.ok()) return result;
+  // A failed call changes nothing; sqlite may already have rolled back on its own.
+  if (sqlite3_get_autocommit(db_.get()) == 0) (void)exec("ROLLBACK");
+  if (!committed.ok()) return committed;
+  return result;
+}
+
+absl::Status SqliteJobStore::initialize() {
+  {
+    std::lock_guard lock(mutex_);
+    sqlite3_extended_result_codes(db_.get(), 1);
+    sqlite3_busy_timeout(db_.get(), kBusyTimeoutMs);
+    // WAL: status readers never block the lease path, and a commit is one append.
+    std::string chosen;
+    {
+      Query mode = query("PRAGMA journal_mode = WAL");
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, mode.step());
+      if (row) chosen = absl::AsciiStrToLower(mode.text(0));
+    }
+    if (chosen != "wal") {
+      return absl::FailedPreconditionError(fmt::format(
+          "{}: the job store needs WAL journaling; SQLite chose '{}' (a network file system?)",
+          path_, chosen));
+    }
+    // FULL, not NORMAL: a lease that a worker has heard of must survive a power cut, or the
+    // same attempt number could be handed to a second worker after the restart.
+    PBGI_STORE_RETURN_IF_ERROR(exec("PRAGMA synchronous = FULL"));
+    PBGI_STORE_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
+  }
+  // Inside a write transaction, so that two coordinators creating one file cannot both see
+  // version 0.
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    int found = 0;
+    {
+      Query version = query("PRAGMA user_version");
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, version.step());
+      if (row) found = version.integer(0);
+    }
+    if (found == kSchemaVersion) return absl::OkStatus();
+    if (found != 0) {
+      return absl::FailedPreconditionError(
+          fmt::format("{}: schema version {}; this coordinator reads version {}", path_, found,
+                      kSchemaVersion));
+    }
+    PBGI_STORE_RETURN_IF_ERROR(exec(kSchema));
+    // PRAGMA takes no parameters; the value is our own constant.
+    return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
+  });
+}
+
+absl::StatusOr<JobState> SqliteJobStore::jobState(int64_t job) {
+  Query q = query("SELECT state FROM jobs WHERE id = ?1");
+  q.bind(1, job);
+  PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+  if (!row) return absl::NotFoundError(fmt::format("job {}: no such job", job));
+  return static_cast<JobState>(q.integer(0));
+}
+
+absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) {
+  JobInfo info;
+  info.id = q.int64(0);
+  info.spec.name = q.text(1);
+  info.spec.shotPath = q.text(2);
+  info.spec.shotText = q.text(3);
+  info.spec.overrides = q.text(4);
+  info.spec.outputPattern = q.text(5);
+  info.spec.priority = q.integer(6);
+  const std::string frames = q.text(7);
+  for (const auto word : absl::StrSplit(frames, ' ', absl::SkipEmpty())) {
+    int frame = 0;
+    if (!absl::SimpleAtoi(word, &frame)) {
+      return absl::DataLossError(
+          fmt::format("{}: job {}: frames '{}': expected numbers", path_, info.id, frames));
+    }
+    info.spec.frames.push_back(frame);
+  }
+  info.spec.tileCount = q.integer(8);
+  info.spec.needsBake = q.integer(9) != 0;
+  info.state = static_cast<JobState>(q.integer(10));
+  info.submitted = q.real(11);
+  return info;
+}
+
+absl::Status SqliteJobStore::addTaskSummary(JobInfo& info) {
+  {
+    Query counts = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
+    counts.bind(1, info.id);
+    for (;;) {
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, counts.step());
+      if (!row) break;
+      info.tasksByState[static_cast<size_t>(counts.integer(0))] = counts.integer(1);
+    }
+  }
+  Query dead = query("SELECT " PBGI_TASK_COLUMNS
+                     " FROM tasks WHERE job = ?1 AND state = 4 ORDER BY frame, kind, tile");
+  dead.bind(1, info.id);
+  for (;;) {
+    PBGI_STORE_ASSIGN_OR_RETURN(const bool row, dead.step());
+    if (!row) return absl::OkStatus();
+    info.dead.push_back(readTask(dead));
+  }
+}
+
+absl::StatusOr<TaskInfo> SqliteJobStore::loadTask(int64_t task) {
+  Query q = query("SELECT " PBGI_TASK_COLUMNS " FROM tasks WHERE id = ?1");
+  q.bind(1, task);
+  PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+  if (!row) return absl::NotFoundError(fmt::format("task {}: no such task", task));
+  return readTask(q);
+}
+
+absl::StatusOr<TaskInfo> SqliteJobStore::currentLease(int64_t task, int attempt) {
+  PBGI_STORE_ASSIGN_OR_RETURN(TaskInfo info, loadTask(task));
+  if (info.state != TaskState::kLeased || info.attempt != attempt) {
+    return absl::FailedPreconditionError(fmt::format(
+        "{} (task {}): attempt {} no longer holds the lease; the task is {} at attempt {}",
+        info.ref.toString(), task, attempt, toString(info.state), info.attempt));
+  }
+  return info;
+}
+
+absl::Status SqliteJobStore::touchWorker(const std::string& worker, Seconds now) {
+  Query q = query("UPDATE workers SET last_seen = ?2 WHERE id = ?1");
+  q.bind(1, worker).bind(2, now);
+  return q.run();
+}
+
+// Bakes wait on nothing, tiles on their frame's bake, an assemble on its frame's tiles. Tiles
+// go before assembles: a tile made ready here is not done, so its assemble stays blocked.
+absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> frame) {
+  static constexpr const char* kPromotions[] = {
+      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
+      "AND kind = 0",
+      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
+      "AND kind = 1 AND NOT EXISTS (SELECT 1 FROM tasks d WHERE d.job = tasks.job "
+      "AND d.frame = tasks.frame AND d.kind = 0 AND d.state != 3)",
+      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
+      "AND kind = 2 AND NOT EXISTS (SELECT 1 FROM tasks d WHERE d.job = tasks.job "
+      "AND d.frame = tasks.frame AND d.kind = 1 AND d.state != 3)",
+  };
+  for (const char* sql : kPromotions) {
+    Query q = query(sql);
+    q.bind(1, job).bind(2, frame);
+    PBGI_STORE_RETURN_IF_ERROR(q.run());
+  }
+  return absl::OkStatus();
+}
+
+// A blocked task that waits on a dead one can never run: it dies too, with the reason, so that
+// the job's failure names every frame that cannot finish and why.
+absl::Status SqliteJobStore::killDependents(const TaskInfo& dead) {
+  if (dead.ref.kind == TaskKind::kAssemble) return absl::OkStatus();
+  Query q = query(
+      "UPDATE tasks SET state = 4, last_error = ?4 WHERE job = ?1 AND frame = ?2 AND state = 0 "
+      "AND (?3 = 0 OR kind = 2)");
+  q.bind(1, dead.ref.job)
+      .bind(2, dead.ref.frame)
+      .bind(3, dead.ref.kind)
+      .bind(4, fmt::format("waits on {}: {}", dead.ref.toString(), dead.lastError));
+  return q.run();
+}
+
+absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::string& error,
+                                           Seconds now) {
+  TaskInfo failed = task;
+  failed.failures = task.failures + 1;
+  failed.lastError = error;
+  failed.state = failed.failures >= policy_.maxAttempts ? TaskState::kDead : TaskState::kReady;
+  // ldexp saturates to infinity long before the exponent could overflow; min() caps it.
+  const Seconds notBefore =
+      now + std::min(policy_.backoffMax, std::ldexp(policy_.backoffBase, failed.failures - 1));
+  {
+    Query q = query(
+        "UPDATE tasks SET state = ?2, failures = ?3, last_error = ?4, not_before = ?5, "
+        "expires = NULL WHERE id = ?1");
+    q.bind(1, task.id)
+        .bind(2, failed.state)
+        .bind(3, failed.failures)
+        .bind(4, error)
+        .bind(5, failed.state == TaskState::kReady ? notBefore : now);
+    PBGI_STORE_RETURN_IF_ERROR(q.run());
+  }
+  if (!task.worker.empty()) {
+    Query q = query(
+        "INSERT INTO job_worker_failures (job, worker, failures) VALUES (?1, ?2, 1) "
+        "ON CONFLICT (job, worker) DO UPDATE SET failures = failures + 1");
+    q.bind(1, task.ref.job).bind(2, task.worker);
+    PBGI_STORE_RETURN_IF_ERROR(q.run());
+  }
+  if (failed.state == TaskState::kDead) PBGI_STORE_RETURN_IF_ERROR(killDependents(failed));
+  return settleJob(task.ref.job);
+}
+
+// A job is active while something can still make progress; after that it is done, failed or
+// (when a retry of part of a cancelled job has finished) cancelled again.
+absl::Status SqliteJobStore::settleJob(int64_t job) {
+  PBGI_STORE_ASSIGN_OR_RETURN(const JobState current, jobState(job));
+  if (current == JobState::kCancelled) return absl::OkStatus();
+  std::array<int, 6> counts{};
+  int total = 0;
+  {
+    Query q = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
+    q.bind(1, job);
+    for (;;) {
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) break;
+      counts[static_cast<size_t>(q.integer(0))] = q.integer(1);
+      total += q.integer(1);
+    }
+  }
+  const auto count = [&](TaskState s) { return counts[static_cast<size_t>(s)]; };
+  JobState next = JobState::kActive;
+  if (count(TaskState::kDone) == total) {
+    next = JobState::kDone;
+  } else if (count(TaskState::kReady) + count(TaskState::kLeased) > 0) {
+    next = JobState::kActive;
+  } else if (count(TaskState::kDead) > 0) {
+    next = JobState::kFailed;
+  } else if (count(TaskState::kCancelled) > 0) {
+    next = JobState::kCancelled;
+  }
+  if (next == current) return absl::OkStatus();
+  Query q = query("UPDATE jobs SET state = ?2 WHERE id = ?1");
+  q.bind(1, job).bind(2, next);
+  return q.run();
+}
+
+absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now) {
+  if (spec.tileCount <= 0) {
+    return absl::InvalidArgumentError(
+        fmt::format("job '{}': tile count {}: expected at least 1", spec.name, spec.tileCount));
+  }
+  if (spec.frames.empty()) {
+    return absl::InvalidArgumentError(fmt::format("job '{}': no frames", spec.name));
+  }
+  std::set<int> seen;
+  for (int frame : spec.frames) {
+    if (!seen.insert(frame).second) {
+      return absl::InvalidArgumentError(
+          fmt::format("job '{}': frame {} is listed twice", spec.name, frame));
+    }
+  }
+  return transaction(Access::kWrite, [&]() -> absl::StatusOr<int64_t> {
+    {
+      Query q = query(
+          "INSERT INTO jobs (name, shot_path, shot_text, overrides, output_pattern, priority, "
+          "frames, tile_count, needs_bake, state, submitted) "
+          "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)");
+      q.bind(1, spec.name)
+          .bind(2, spec.shotPath)
+          .bindBlob(3, spec.shotText)
+          .bind(4, spec.overrides)
+          .bind(5, spec.outputPattern)
+          .bind(6, spec.priority)
+          .bind(7, frameList(spec.frames))
+          .bind(8, spec.tileCount)
+          .bind(9, spec.needsBake ? 1 : 0)
+          .bind(10, JobState::kActive)
+          .bind(11, now);
+      PBGI_STORE_RETURN_IF_ERROR(q.run());
+    }
+    const int64_t job = sqlite3_last_insert_rowid(db_.get());
+    const auto add = [&](TaskKind kind, int frame, int tile, TaskState state) {
+      Query q =
+          query("INSERT INTO tasks (job, kind, frame, tile, state) VALUES (?1, ?2, ?3, ?4, ?5)");
+      q.bind(1, job).bind(2, kind).bind(3, frame).bind(4, tile).bind(5, state);
+      return q.run();
+    };
+    const TaskState tileState = spec.needsBake ? TaskState::kBlocked : TaskState::kReady;
+    for (int frame : spec.frames) {
+      if (spec.needsBake) {
+        PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kBake, frame, -1, TaskState::kReady));
+      }
+      for (int tile = 0; tile < spec.tileCount; ++tile) {
+        PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kTile, frame, tile, tileState));
+      }
+      PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kAssemble, frame, -1, TaskState::kBlocked));
+    }
+    return job;
+  });
+}
+
+absl::StatusOr<JobInfo> SqliteJobStore::job(int64_t job) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<JobInfo> {
+    JobInfo info;
+    {
+      Query q = query("SELECT " PBGI_JOB_COLUMNS " FROM jobs WHERE id = ?1");
+      q.bind(1, job);
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return absl::NotFoundError(fmt::format("job {}: no such job", job));
+      PBGI_STORE_ASSIGN_OR_RETURN(info, readJob(q));
+    }
+    PBGI_STORE_RETURN_IF_ERROR(addTaskSummary(info));
+    return info;
+  });
+}
+
+absl::StatusOr<std::vector<JobInfo>> SqliteJobStore::jobs() {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<JobInfo>> {
+    std::vector<JobInfo> out;
+    {
+      Query q = query("SELECT " PBGI_JOB_COLUMNS " FROM jobs ORDER BY id DESC");
+      for (;;) {
+        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        if (!row) break;
+        PBGI_STORE_ASSIGN_OR_RETURN(JobInfo info, readJob(q));
+        out.push_back(std::move(info));
+      }
+    }
+    for (JobInfo& info : out) PBGI_STORE_RETURN_IF_ERROR(addTaskSummary(info));
+    return out;
+  });
+}
+
+absl::StatusOr<std::vector<TaskInfo>> SqliteJobStore::tasks(int64_t job) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<TaskInfo>> {
+    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    Query q =
+        query("SELECT " PBGI_TASK_COLUMNS " FROM tasks WHERE job = ?1 ORDER BY frame, kind, tile");
+    q.bind(1, job);
+    std::vector<TaskInfo> out;
+    for (;;) {
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return out;
+      out.push_back(readTask(q));
+    }
+  });
+}
+
+absl::Status SqliteJobStore::registerWorker(const WorkerInfo& worker) {
+  if (worker.id.empty()) return absl::InvalidArgumentError("a worker needs an id");
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    Query q = query(
+        "INSERT INTO workers (id, host, cores, memory_bytes, cache_bytes, last_seen) "
+        "VALUES (?1, ?2, ?3, ?4, ?5, ?6) ON CONFLICT (id) DO UPDATE SET host = excluded.host, "
+        "cores = excluded.cores, memory_bytes = excluded.memory_bytes, "
+        "cache_bytes = excluded.cache_bytes, last_seen = excluded.last_seen");
+    // SQLite integers are signed; the bit pattern round-trips through the casts.
+    q.bind(1, worker.id)
+        .bind(2, worker.host)
+        .bind(3, worker.cores)
+        .bind(4, static_cast<int64_t>(worker.memoryBytes))
+        .bind(5, static_cast<int64_t>(worker.cacheBytes))
+        .bind(6, worker.lastSeen);
+    return q.run();
+  });
+}
+
+absl::StatusOr<std::vector<WorkerInfo>> SqliteJobStore::workers() {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<WorkerInfo>> {
+    Query q = query(
+        "SELECT id, host, cores, memory_bytes, cache_bytes, last_seen FROM workers ORDER BY id");
+    std::vector<WorkerInfo> out;
+    for (;;) {
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return out;
+      WorkerInfo w;
+      w.id = q.text(0);
+      w.host = q.text(1);
+      w.cores = q.integer(2);
+      w.memoryBytes = static_cast<uint64_t>(q.int64(3));
+      w.cacheBytes = static_cast<uint64_t>(q.int64(4));
+      w.lastSeen = q.real(5);
+      out.push_back(std::move(w));
+    }
+  });
+}
+
+absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& worker, Seconds now,
+                                                           Seconds leaseSeconds) {
+  if (worker.empty()) return absl::InvalidArgumentError("a lease needs a worker id");
+  return transaction(Access::kWrite, [&]() -> absl::StatusOr<std::optional<Lease>> {
+    Lease lease;
+    {
+      Query pick = query(R"sql(
+          SELECT t.id, t.job, t.kind, t.frame, t.tile, t.attempt
+          FROM tasks t JOIN jobs j ON j.id = t.job
+          WHERE t.state = 1 AND t.not_before <= ?1 AND j.state = 0
+            AND NOT EXISTS (SELECT 1 FROM job_worker_failures f
+                            WHERE f.job = t.job AND f.worker = ?2 AND f.failures >= ?3)
+          ORDER BY j.priority DESC, j.submitted, j.id, t.frame, t.kind, t.tile
+          LIMIT 1)sql");
+      pick.bind(1, now).bind(2, worker).bind(3, blocklistThreshold());
+      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, pick.step());
+      if (!row) return std::optional<Lease>();
+      lease.task = pick.int64(0);
+      lease.ref.job = pick.int64(1);
+      lease.ref.kind = static_cast<TaskKind>(pick.integer(2));
+      lease.ref.frame = pick.integer(3);
+      lease.ref.tile = pick.integer(4);
+      lease.attempt = pick.integer(5) + 1;
+      lease.expires = now + leaseSeconds;
+    }
+    {
+      Query take = query(
+          "UPDATE tasks SET state = 2, attempt = ?2, worker = ?3, expires = ?4, progress = 0 "
+          "WHERE id = ?1");
+      take.bind(1, lease.task).bind(2, lease.attempt).bind(3, worker).bind(4, lease.expires);
+      PBGI_STORE_RETURN_IF_ERROR(take.run());
+    }
+    PBGI_STORE_RETURN_IF_ERROR(touchWorker(worker, now));
+    return std::optional<Lease>(lease);
+  });
+}
+
+absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progress, Seconds now,
+                                       Seconds leaseSeconds) {
+  // Progress comes from the network: clamp it rather than store NaN or 7.
+  progress = std::isnan(progress) ? 0.0 : std::clamp(progress, 0.0, 1.0);
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    Query q = query("UPDATE tasks SET expires = ?2, progress = ?3 WHERE id = ?1");
+    q.bind(1, task).bind(2, now + leaseSeconds).bind(3, progress);
+    PBGI_STORE_RETURN_IF_ERROR(q.run());
+    return touchWorker(info.worker, now);
+  });
+}
+
+absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    {
+      Query q = query("UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = ?1");
+      q.bind(1, task);
+      PBGI_STORE_RETURN_IF_ERROR(q.run());
+    }
+    PBGI_STORE_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame));
+    PBGI_STORE_RETURN_IF_ERROR(touchWorker(info.worker, now));
+    return settleJob(info.ref.job);
+  });
+}
+
+absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& error,
+                                  Seconds now) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    return recordFailure(info, error, now);
+  });
+}
+
+absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
+  return transaction(Access::kWrite, [&]() -> absl::StatusOr<int> {
+    // Collected first: recordFailure() runs statements of its own on the same table.
+    std::vector<int64_t> expired;
+    {
+      Query q = query("SELECT id FROM tasks WHERE state = 2 AND expires <= ?1 ORDER BY id");
+      q.bind(1, now);
+      for (;;) {
+        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        if (!row) break;
+        expired.push_back(q.int64(0));
+      }
+    }
+    for (int64_t id : expired) {
+      PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
+      PBGI_STORE_RETURN_IF_ERROR(recordFailure(
+          info, fmt::format("lease expired: worker {} stopped heartbeating", info.worker), now));
+    }
+    return static_cast<int>(expired.size());
+  });
+}
+
+absl::Status SqliteJobStore::cancel(int64_t job) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_STORE_ASSIGN_OR_RETURN(const JobState state, jobState(job));
+    if (state == JobState::kDone) {
+      return absl::FailedPreconditionError(
+          fmt::format("job {}: done; there is nothing left to cancel", job));
+    }
+    // Dead tasks stay dead: their errors are the record of why the job failed, and retry
+    // revives dead and cancelled tasks alike.
+    {
+      Query q =
+          query("UPDATE tasks SET state = 5, expires = NULL WHERE job = ?1 AND state IN (0, 1, 2)");
+      q.bind(1, job);
+      PBGI_STORE_RETURN_IF_ERROR(q.run());
+    }
+    Query q = query("UPDATE jobs SET state = 3 WHERE id = ?1");
+    q.bind(1, job);
+    return q.run();
+  });
+}
+
+absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
+                                   Seconds now) {
+  if (tile && !frame) {
+    return absl::InvalidArgumentError(
+        fmt::format("job {}: retrying tile {} needs its frame", job, *tile));
+  }
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    // A tile is retried with its frame's bake and assemble when those are dead or cancelled
+    // too: the tile cannot run without the one, and its result is lost without the other.
+    // Attempts keep counting, so a worker from before the retry still holds a stale attempt.
+    {
+      Query q = query(
+          "UPDATE tasks SET state = 0, failures = 0, last_error = '', progress = 0, "
+          "not_before = 0, expires = NULL WHERE job = ?1 AND state IN (4, 5) "
+          "AND (?2 IS NULL OR frame = ?2) AND (?3 IS NULL OR kind != 1 OR tile = ?3)");
+      q.bind(1, job).bind(2, frame).bind(3, tile);
+      PBGI_STORE_RETURN_IF_ERROR(q.run());
+    }
+    {
+      Query q = query("UPDATE jobs SET state = 0 WHERE id = ?1");
+      q.bind(1, job);
+      PBGI_STORE_RETURN_IF_ERROR(q.run());
+    }
+    PBGI_STORE_RETURN_IF_ERROR(promoteBlocked(job, frame));
+    // What was revived may still wait on a task left dead (another tile of the frame, say).
+    std::vector<TaskInfo> dead;
+    {
+      Query q = query("SELECT " PBGI_TASK_COLUMNS
+                      " FROM tasks WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 4 "
+                      "AND kind != 2 ORDER BY frame, kind, tile");
+      q.bind(1, job).bind(2, frame);
+      for (;;) {
+        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        if (!row) break;
+        dead.push_back(readTask(q));
+      }
+    }
+    for (const TaskInfo& task : dead) PBGI_STORE_RETURN_IF_ERROR(killDependents(task));
+    return settleJob(job);
+  });
+}
+
+absl::StatusOr<bool> SqliteJobStore::blocklisted(int64_t job, const std::string& worker) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<bool> {
+    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    Query q = query("SELECT failures FROM job_worker_failures WHERE job = ?1 AND worker = ?2");
+    q.bind(1, job).bind(2, worker);
+    PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+    return row && q.int64(0) >= blocklistThreshold();
+  });
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& path,
+                                                             const RetryPolicy& policy) {
+  if (policy.maxAttempts < 1 || !(policy.backoffBase >= 0) || !(policy.backoffMax >= 0)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "retry policy: max attempts {}, back-off base {} s, max {} s: expected at least one "
+        "attempt and non-negative back-offs",
+        policy.maxAttempts, policy.backoffBase, policy.backoffMax));
+  }
+  sqlite3* raw = nullptr;
+  // NOMUTEX: the store's own mutex already serializes every use of the connection.
+  const int rc =
+      sqlite3_open_v2(path.c_str(), &raw,
+                      SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX, nullptr);
+  DatabasePtr db(raw);
+  if (rc != SQLITE_OK) {
+    return sqliteStatus(rc, raw != nullptr ? sqlite3_errmsg(raw) : sqlite3_errstr(rc), path,
+                        "opening the job store");
+  }
+  auto store = std::make_unique<SqliteJobStore>(path, policy, std::move(db));
+  PBGI_STORE_RETURN_IF_ERROR(store->initialize());
+  return std::unique_ptr<JobStore>(std::move(store));
+}
+
+}  // namespace pbgi::farm

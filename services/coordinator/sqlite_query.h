@@ -1,0 +1,98 @@
+#pragma once
+// SQLite plumbing for the job store, private to services/coordinator: owners for the connection
+// and its statements, one use of a prepared statement, and errors that name the file.
+#include <sqlite3.h>
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <type_traits>
+#include <utility>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+// Nearly every statement can fail, so the plumbing is spelled once.
+#define PBGI_STORE_CONCAT_INNER(a, b) a##b
+#define PBGI_STORE_CONCAT(a, b) PBGI_STORE_CONCAT_INNER(a, b)
+#define PBGI_STORE_RETURN_IF_ERROR(expr)                                             \
+  do {                                                                               \
+    if (absl::Status pbgi_status_ = (expr); !pbgi_status_.ok()) return pbgi_status_; \
+  } while (false)
+#define PBGI_STORE_ASSIGN_OR_RETURN(lhs, expr) \
+  PBGI_STORE_ASSIGN_OR_RETURN_IMPL(PBGI_STORE_CONCAT(pbgi_statusor_, __LINE__), lhs, expr)
+#define PBGI_STORE_ASSIGN_OR_RETURN_IMPL(tmp, lhs, expr) \
+  auto tmp = (expr);                                     \
+  if (!tmp.ok()) return std::move(tmp).status();         \
+  lhs = *std::move(tmp)
+
+namespace pbgi::farm {
+
+struct DatabaseCloser {
+  void operator()(sqlite3* db) const { sqlite3_close_v2(db); }
+};
+using DatabasePtr = std::unique_ptr<sqlite3, DatabaseCloser>;
+
+struct StatementFinalizer {
+  void operator()(sqlite3_stmt* stmt) const { sqlite3_finalize(stmt); }
+};
+using StatementPtr = std::unique_ptr<sqlite3_stmt, StatementFinalizer>;
+
+// The start of a statement, whitespace collapsed: enough to say which one failed.
+std::string sqlSummary(std::string_view sql);
+
+// "path: what: sqlite's message". Unavailable for busy, locked, full and cannot-open (the
+// environment's doing, which may pass); Internal for the rest (a bug or a damaged file).
+absl::Status sqliteStatus(int rc, std::string_view message, std::string_view path,
+                          std::string_view what);
+
+// One use of a cached prepared statement. It resets the statement when it goes, because a
+// statement left in the middle of its rows would hold its snapshot past the COMMIT. A failed
+// prepare or bind is kept and returned by the first step(), so call sites bind unconditionally.
+class Query {
+ public:
+  // stmt is null exactly when `prepared` is an error.
+  Query(sqlite3* db, sqlite3_stmt* stmt, absl::Status prepared, const std::string& path)
+      : db_(db), stmt_(stmt), status_(std::move(prepared)), path_(path) {}
+  Query(const Query&) = delete;
+  Query& operator=(const Query&) = delete;
+  ~Query();
+
+  Query& bind(int index, int64_t value);
+  Query& bind(int index, int value) { return bind(index, static_cast<int64_t>(value)); }
+  Query& bind(int index, double value);
+  Query& bind(int index, std::string_view value);
+  Query& bindBlob(int index, std::string_view value);
+  Query& bind(int index, std::nullopt_t);
+  template <typename E>
+  requires std::is_enum_v<E> Query& bind(int index, E value) {
+    return bind(index, static_cast<int>(value));
+  }
+  template <typename T>
+  Query& bind(int index, const std::optional<T>& value) {
+    return value ? bind(index, *value) : bind(index, std::nullopt);
+  }
+
+  // True while a row is available.
+  absl::StatusOr<bool> step();
+  // For statements whose rows nobody reads.
+  absl::Status run();
+
+  int64_t int64(int column) const { return sqlite3_column_int64(stmt_, column); }
+  int integer(int column) const { return sqlite3_column_int(stmt_, column); }
+  double real(int column) const { return sqlite3_column_double(stmt_, column); }
+  // Text or blob, byte for byte.
+  std::string text(int column) const;
+
+ private:
+  Query& note(int rc);
+
+  sqlite3* db_;
+  sqlite3_stmt* stmt_;
+  absl::Status status_;
+  const std::string& path_;
+};
+
+}  // namespace pbgi::farm
