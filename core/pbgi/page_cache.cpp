@@ -29,16 +29,26 @@ PageCache::PageCache(TreePageSource& source, const PageCacheOptions& options)
 }
 
 void PageCache::evict(Shard& shard) {
-  // From the least recently used end, passing over pinned pages (held outside the cache).
-  auto it = shard.lru.end();
-  while (shard.bytes > shardBudget_ && it != shard.lru.begin()) {
-    --it;
-    auto entry = shard.entries.find(*it);
-    PBGI_CHECK(entry != shard.entries.end());
-    if (entry->second.page.use_count() > 1) continue;
-    shard.bytes -= entry->second.bytes;
-    it = shard.lru.erase(it);
-    shard.entries.erase(entry);
+  while (shard.bytes > shardBudget_) {
+    // The least used unpinned page (pinned ones are held outside the cache), the least
+    // recently used among equals: scanning from the old end, the first of the fewest uses.
+    auto victim = shard.entries.end();
+    std::list<uint32_t>::iterator victimLru;
+    for (auto it = shard.lru.end(); it != shard.lru.begin();) {
+      --it;
+      auto entry = shard.entries.find(*it);
+      PBGI_CHECK(entry != shard.entries.end());
+      if (entry->second.page.use_count() > 1) continue;
+      if (victim == shard.entries.end() || entry->second.uses < victim->second.uses) {
+        victim = entry;
+        victimLru = it;
+      }
+    }
+    if (victim == shard.entries.end()) break;
+    shard.bytes -= victim->second.bytes;
+    shard.evictedUses[victim->first] = victim->second.uses;
+    shard.lru.erase(victimLru);
+    shard.entries.erase(victim);
     ++shard.evictions;
   }
   if (shard.bytes > shardBudget_) ++shard.overBudget;
@@ -51,6 +61,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
     auto it = shard.entries.find(id);
     if (it != shard.entries.end()) {
       shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
+      ++it->second.uses;
       hits_.fetch_add(1, std::memory_order_relaxed);
       return it->second.page;
     }
@@ -76,10 +87,16 @@ absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
   if (!inserted) {
     // Another thread loaded it meanwhile: keep one copy.
     shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
+    ++it->second.uses;
     return it->second.page;
   }
   shard.lru.push_front(id);
-  it->second = Entry{*loaded, bytes, shard.lru.begin()};
+  uint64_t uses = 1;
+  if (auto old = shard.evictedUses.find(id); old != shard.evictedUses.end()) {
+    uses += old->second;
+    shard.evictedUses.erase(old);
+  }
+  it->second = Entry{*loaded, bytes, shard.lru.begin(), uses};
   shard.bytes += bytes;
   // The page just loaded is returned pinned, so it survives its own insertion.
   std::shared_ptr<const TreePage> result = it->second.page;

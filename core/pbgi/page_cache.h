@@ -6,7 +6,14 @@
 // Budget: the decoded bytes of the pages held (TreePage::memoryBytes). Pages are handed out
 // as shared_ptr, and a page someone still holds is pinned: eviction passes over it, so a
 // traversal never loses a page under its feet; when everything left is pinned the cache runs
-// over budget until the pins go (counted). Least recently used goes first. The cache is split
+// over budget until the pins go (counted). The least used page goes first (uses counted over
+// the cache's life, evicted pages remembering theirs), the least recently used among equals.
+// Every gather starts at the root and cuts through the whole scene, so a frame's gathers
+// cycle through more pages than a small cache holds: least-recently-used then evicts each
+// page just before it is needed again. Counting uses keeps the pages near the root, which
+// every gather reads, and lets the leaves of far-away surfaces come and go. Measured
+// (accuracy_bench, Cornell box, 250k surfels, 96x96 pixels, 4 spp, default preset): hit rate
+// 0.193 -> 0.269 at a 20 % budget, 0.135 -> 0.151 at 5 %. The cache is split
 // into shards by page id, each with its own lock and a share of the budget, so that threads
 // gathering in parallel rarely wait on one another. Loading (pread, checksum, decompression,
 // decoding) happens outside the lock; two threads missing the same page at once may both
@@ -68,11 +75,13 @@ class PageCache : public TreePageSource {
     std::shared_ptr<const TreePage> page;
     size_t bytes = 0;
     std::list<uint32_t>::iterator lru;
+    uint64_t uses = 0;
   };
   struct Shard {
     std::mutex mutex;
     std::unordered_map<uint32_t, Entry> entries;
     std::list<uint32_t> lru;  // front: most recent
+    std::unordered_map<uint32_t, uint64_t> evictedUses;
     size_t bytes = 0;
     uint64_t evictions = 0, overBudget = 0;
   };

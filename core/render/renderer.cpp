@@ -75,17 +75,22 @@ const std::vector<std::string>& frameChannels() {
   return channels;
 }
 
-std::vector<TileRect> makeTiles(int width, int height, int tileSize) {
+std::vector<TileRect> makeTiles(const TileRect& region, int tileSize) {
   PBGI_CHECK_GT(tileSize, 0);
-  const int nx = (width + tileSize - 1) / tileSize;
-  const int ny = (height + tileSize - 1) / tileSize;
+  const int nx = (region.width() + tileSize - 1) / tileSize;
+  const int ny = (region.height() + tileSize - 1) / tileSize;
   std::vector<TileRect> tiles;
-  tiles.reserve(static_cast<size_t>(nx) * ny);
+  tiles.reserve(static_cast<size_t>(std::max(nx, 0)) * std::max(ny, 0));
   for (const auto& [tx, ty] : mortonOrder(nx, ny)) {
-    tiles.push_back({tx * tileSize, ty * tileSize, std::min(width, (tx + 1) * tileSize),
-                     std::min(height, (ty + 1) * tileSize)});
+    tiles.push_back({region.x0 + tx * tileSize, region.y0 + ty * tileSize,
+                     std::min(region.x1, region.x0 + (tx + 1) * tileSize),
+                     std::min(region.y1, region.y0 + (ty + 1) * tileSize)});
   }
   return tiles;
+}
+
+std::vector<TileRect> makeTiles(int width, int height, int tileSize) {
+  return makeTiles(TileRect{0, 0, width, height}, tileSize);
 }
 
 void RenderCounters::add(const RenderCounters& o) {
@@ -179,7 +184,9 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
                                   RenderCounters* countersOut) {
   Image image(camera.imageWidth(), camera.imageHeight(), frameChannels());
   const int tileSize = options.tileSize > 0 ? options.tileSize : settings.tileSize;
-  const std::vector<TileRect> tiles = makeTiles(image.width(), image.height(), tileSize);
+  const std::vector<TileRect> tiles =
+      options.region ? makeTiles(*options.region, tileSize)
+                     : makeTiles(image.width(), image.height(), tileSize);
   std::vector<RenderCounters> perTile(tiles.size());
   std::vector<absl::Status> errors(tiles.size());
   std::atomic<bool> failed{false};

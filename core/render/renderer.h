@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,6 +28,9 @@ struct FrameRenderOptions {
   int threads = 0;  // 0: all cores
   int tileSize = 0; // 0: the shot's render.tile_size
   std::function<void(int tilesDone, int tilesTotal)> progress;  // called from worker threads
+  // Render only these pixels (a farm tile); the rest of the image stays 0. Pixels do not
+  // depend on the tiling, so they come out as in a render of the whole frame.
+  std::optional<TileRect> region;
 };
 
 // The channels of a rendered frame: RGBA, then the AOV layers.
@@ -34,6 +38,8 @@ const std::vector<std::string>& frameChannels();
 
 // Tiles covering width x height, in Morton (Z) order of their grid positions.
 std::vector<TileRect> makeTiles(int width, int height, int tileSize);
+// The same over `region` (pixel bounds of the image).
+std::vector<TileRect> makeTiles(const TileRect& region, int tileSize);
 
 // Renders the pixels of `tile` into `image` (which has frameChannels() and the full size),
 // pixel by pixel in Morton order, adding to `counters`. `scratch` is the integrator's

@@ -9,6 +9,7 @@
 #include "core/render/pbgi_integrator.h"
 #include "formats/pbgi/tree_file.h"
 #include "services/bake/frame_bake.h"
+#include "services/render/frame_assembly.h"
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
@@ -107,6 +108,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   options.threads = request.threads;
   options.tileSize = request.tileSize;
   options.progress = request.progress;
+  options.region = request.region;
 
   // The PBGI integrator reads its frame's tree through a page cache; both outlive the render.
   std::unique_ptr<TreeFile> treeFile;
@@ -141,6 +143,11 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
     report.tree->pagesRead = cache->distinctPagesLoaded();
     report.tree->pagesInFile = treeFile->container().directory().size();
   }
+  if (request.region) {
+    absl::StatusOr<Image> cropped = cropImage(*image, *request.region);
+    if (!cropped.ok()) return cropped.status();
+    image = std::move(cropped);
+  }
   clock.lap("render");
   const double renderSeconds = report.stages.back().seconds;
 
@@ -154,6 +161,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   image->setMetadata("pbgi/renderSeconds", static_cast<float>(renderSeconds));
   image->setMetadata("pbgi/discardedSamples", static_cast<int>(report.counters.discardedSamples));
   image->setMetadata("pbgi/version", std::string(PBGI_VERSION));
+  if (request.region) image->setMetadata("pbgi/region", regionText(*request.region));
   if (report.tree) {
     image->setMetadata("pbgi/tree", report.tree->treePath);
     image->setMetadata("pbgi/gather", report.tree->gather);

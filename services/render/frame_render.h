@@ -26,6 +26,9 @@ struct FrameRenderRequest {
   bool preview = true;     // write a PNG preview beside the EXR
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int tilesDone, int tilesTotal)> progress;
+  // Render and write only this region of the frame (a farm tile): the EXR holds the region's
+  // pixels, with its origin in the metadata (pbgi/region: "x0 y0 x1 y1").
+  std::optional<TileRect> region;
 
   // The PBGI integrator (0 or empty: the shot's [render] settings).
   std::string quality;         // gather preset

@@ -5,12 +5,15 @@
 //   OUT/<shot>.csv            one row per run
 //   OUT/<shot>.plot.png       relMSE against render seconds, log-log, a series per integrator
 //   OUT/<shot>.<run>.exr      each run's image, and OUT/<shot>.<run>.error.exr |image - ref|
+//   OUT/<shot>.<run>.bias.png where the run's indirect light is too bright (red) or too dark
+//                             (blue), averaged over 8x8 blocks (the mean ratio is printed)
 // and prints, for the path tracer at 256 and 1024 spp (when swept), the render time each PBGI
 // preset needs to reach the same relMSE (log-log interpolated along its spp sweep) and the
 // equal-error speed-up, without and with the bake's time.
 //
-// Then the page cache: the default preset rendered from the same tree with a cache of 5 % and
-// 20 % of the tree's decoded pages and without a limit, reporting hit rates, pages read over
+// Then the page cache: the default preset rendered from the same tree (on a frame scaled down
+// to 96 pixels wide, 4 spp) with a cache of 5 % and 20 % of the tree's decoded pages and
+// without a limit, reporting hit rates, pages read over
 // pages in the file, and whether the images are bit-identical (they must be).
 //
 // Render seconds are the render stage alone (the scene load, the bake and the EXR write are
@@ -262,16 +265,27 @@ void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<R
   }
 }
 
-int cacheRuns(const ShotDesc& shot, FrameRenderRequest request, const std::string& treePath,
+// The frame the cache runs render: the shot's, scaled down to at most kCacheRunWidth pixels
+// wide, at kCacheRunSpp. A cache much smaller than the pages a gather touches decodes pages on
+// nearly every miss (minutes per full frame); the hit rates are those of the same traversal
+// order (Morton tiles, Morton pixels), over fewer pixels.
+constexpr int kCacheRunWidth = 96;
+constexpr int kCacheRunSpp = 4;
+
+int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& treePath,
               const std::string& outDir, std::FILE* csv) {
   auto total = testing::decodedTreeBytes(treePath);
   if (!total.ok()) return std::fprintf(stderr, "%s\n", total.status().ToString().c_str()), 1;
-  std::printf("page cache (default preset, 16 spp, tree %s: %.1f MiB decoded)\n", treePath.c_str(),
-              *total / 1048576.0);
+  if (shot.width > kCacheRunWidth) {
+    shot.height = std::max(1, shot.height * kCacheRunWidth / shot.width);
+    shot.width = kCacheRunWidth;
+  }
+  std::printf("page cache (default preset, %dx%d pixels, %d spp, tree %s: %.1f MiB decoded)\n",
+              shot.width, shot.height, kCacheRunSpp, treePath.c_str(), *total / 1048576.0);
   request.treePath = treePath;
   request.integrator = "pbgi";
   request.quality = "default";
-  request.spp = 16;
+  request.spp = kCacheRunSpp;
   request.preview = false;
   std::optional<Image> unlimited;
   for (const double fraction : {0.0, 0.20, 0.05}) {
