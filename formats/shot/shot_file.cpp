@@ -77,9 +77,9 @@ absl::Status checkUniqueFrame(std::map<int, int>& seen, int frame, const Section
 // --- [shot] ------------------------------------------------------------------------------
 
 absl::Status parseShotTable(const Section& s, ShotDesc& shot) {
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly({"name", "frames", "resolution", "output"}));
+  PBGI_RETURN_IF_ERROR(s.allowOnly({"name", "frames", "resolution", "output"}));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(shot.name, s.need<std::string>("name"));
+  PBGI_ASSIGN_OR_RETURN(shot.name, s.need<std::string>("name"));
   const bool nameOk =
       !shot.name.empty() && std::all_of(shot.name.begin(), shot.name.end(), [](char c) {
         return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
@@ -89,7 +89,7 @@ absl::Status parseShotTable(const Section& s, ShotDesc& shot) {
                    fmt::format("'name' must match [A-Za-z0-9_-]+, found \"{}\"", shot.name));
   }
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const Vec2i frames, s.need<Vec2i>("frames", kFrameRange));
+  PBGI_ASSIGN_OR_RETURN(const Vec2i frames, s.need<Vec2i>("frames", kFrameRange));
   if (frames.x > frames.y) {
     return s.error(*s.find("frames"),
                    fmt::format("'frames' must be [first, last] with first <= last, found [{}, {}]",
@@ -98,7 +98,7 @@ absl::Status parseShotTable(const Section& s, ShotDesc& shot) {
   shot.firstFrame = frames.x;
   shot.lastFrame = frames.y;
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const Vec2i res, s.need<Vec2i>("resolution", kResolutionRange));
+  PBGI_ASSIGN_OR_RETURN(const Vec2i res, s.need<Vec2i>("resolution", kResolutionRange));
   const int64_t pixels = int64_t{res.x} * res.y;
   if (pixels > kMaxPixels) {
     return s.error(*s.find("resolution"),
@@ -108,7 +108,7 @@ absl::Status parseShotTable(const Section& s, ShotDesc& shot) {
   shot.width = res.x;
   shot.height = res.y;
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::string output, s.need<std::string>("output"));
+  PBGI_ASSIGN_OR_RETURN(const std::string output, s.need<std::string>("output"));
   if (output.empty() || output.back() == '/') {
     return s.error(
         *s.find("output"),
@@ -153,16 +153,16 @@ const std::vector<std::string_view> kCameraKeyValues = {
 absl::StatusOr<CameraKey> parseCameraKey(const Section& s) {
   std::vector<std::string_view> allowed = {"frame"};
   allowed.insert(allowed.end(), kCameraKeyValues.begin(), kCameraKeyValues.end());
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly(allowed));
+  PBGI_RETURN_IF_ERROR(s.allowOnly(allowed));
   CameraKey key;
   key.where = s.where();
-  PBGI_TOML_ASSIGN_OR_RETURN(key.frame, s.need<int>("frame", kFrameRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.position, s.get<Vec3f>("position"));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.lookAt, s.get<Vec3f>("look_at"));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.up, s.get<Vec3f>("up"));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.fovYDeg, s.get<float>("fov_y_deg", kFovRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.apertureRadius, s.get<float>("aperture_radius", kNonNegative));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.focusDistance, s.get<float>("focus_distance", kPositive));
+  PBGI_ASSIGN_OR_RETURN(key.frame, s.need<int>("frame", kFrameRange));
+  PBGI_ASSIGN_OR_RETURN(key.position, s.get<Vec3f>("position"));
+  PBGI_ASSIGN_OR_RETURN(key.lookAt, s.get<Vec3f>("look_at"));
+  PBGI_ASSIGN_OR_RETURN(key.up, s.get<Vec3f>("up"));
+  PBGI_ASSIGN_OR_RETURN(key.fovYDeg, s.get<float>("fov_y_deg", kFovRange));
+  PBGI_ASSIGN_OR_RETURN(key.apertureRadius, s.get<float>("aperture_radius", kNonNegative));
+  PBGI_ASSIGN_OR_RETURN(key.focusDistance, s.get<float>("focus_distance", kPositive));
   if (s.table().size() == 1) {
     return s.errorHere(fmt::format("key at frame {} sets nothing (expected at least one of: {})",
                                    key.frame, fmt::join(kCameraKeyValues, ", ")));
@@ -202,23 +202,23 @@ absl::Status checkCameraOverTime(const Section& s, const CameraDesc& camera, int
 }
 
 absl::Status parseCamera(const Section& s, ShotDesc& shot) {
-  PBGI_TOML_RETURN_IF_ERROR(
+  PBGI_RETURN_IF_ERROR(
       s.allowOnly({"position", "look_at", "up", "fov_y_deg", "aperture_radius", "focus_distance",
                    "views", "view_spacing", "key"}));
   CameraDesc& camera = shot.camera;
   CameraParams& base = camera.base;
   camera.where = s.where();
-  PBGI_TOML_ASSIGN_OR_RETURN(base.position, s.need<Vec3f>("position"));
-  PBGI_TOML_ASSIGN_OR_RETURN(base.lookAt, s.need<Vec3f>("look_at"));
-  PBGI_TOML_ASSIGN_OR_RETURN(base.up, s.need<Vec3f>("up"));
-  PBGI_TOML_ASSIGN_OR_RETURN(base.fovYDeg, s.need<float>("fov_y_deg", kFovRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(base.apertureRadius,
+  PBGI_ASSIGN_OR_RETURN(base.position, s.need<Vec3f>("position"));
+  PBGI_ASSIGN_OR_RETURN(base.lookAt, s.need<Vec3f>("look_at"));
+  PBGI_ASSIGN_OR_RETURN(base.up, s.need<Vec3f>("up"));
+  PBGI_ASSIGN_OR_RETURN(base.fovYDeg, s.need<float>("fov_y_deg", kFovRange));
+  PBGI_ASSIGN_OR_RETURN(base.apertureRadius,
                              s.getOr<float>("aperture_radius", 0.0f, kNonNegative));
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<float> focus,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<float> focus,
                              s.get<float>("focus_distance", kPositive));
   base.focusDistance = focus.value_or(0.0f);
-  PBGI_TOML_ASSIGN_OR_RETURN(camera.views, s.getOr<Vec2i>("views", Vec2i(1, 1), kViewsRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(camera.viewSpacing,
+  PBGI_ASSIGN_OR_RETURN(camera.views, s.getOr<Vec2i>("views", Vec2i(1, 1), kViewsRange));
+  PBGI_ASSIGN_OR_RETURN(camera.viewSpacing,
                              s.getOr<float>("view_spacing", 0.0f, kNonNegative));
   // A camera array renders one mosaic of all its views, so the pixel cap applies to the whole.
   const int64_t mosaic = int64_t{camera.views.x} * camera.views.y * shot.width * shot.height;
@@ -239,12 +239,12 @@ absl::Status parseCamera(const Section& s, ShotDesc& shot) {
                                : problem->what);
   }
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::vector<Section> keys,
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Section> keys,
                              tableArray(s, "key", "[[camera.key]]"));
   std::map<int, int> seen;
   for (const Section& k : keys) {
-    PBGI_TOML_ASSIGN_OR_RETURN(CameraKey key, parseCameraKey(k));
-    PBGI_TOML_RETURN_IF_ERROR(checkUniqueFrame(seen, key.frame, k));
+    PBGI_ASSIGN_OR_RETURN(CameraKey key, parseCameraKey(k));
+    PBGI_RETURN_IF_ERROR(checkUniqueFrame(seen, key.frame, k));
     camera.keys.push_back(std::move(key));
   }
   return checkCameraOverTime(s, camera, shot.firstFrame, shot.lastFrame, keys);
@@ -253,13 +253,13 @@ absl::Status parseCamera(const Section& s, ShotDesc& shot) {
 // --- [[geometry]] ------------------------------------------------------------------------
 
 absl::StatusOr<TransformKey> parseTransformKey(const Section& s) {
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly({"frame", "translate", "rotate_deg", "scale"}));
+  PBGI_RETURN_IF_ERROR(s.allowOnly({"frame", "translate", "rotate_deg", "scale"}));
   TransformKey key;
   key.where = s.where();
-  PBGI_TOML_ASSIGN_OR_RETURN(key.frame, s.need<int>("frame", kFrameRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.translate, s.get<Vec3f>("translate"));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.rotateDeg, s.get<Vec3f>("rotate_deg"));
-  PBGI_TOML_ASSIGN_OR_RETURN(key.scale, s.get<float>("scale", kPositive));
+  PBGI_ASSIGN_OR_RETURN(key.frame, s.need<int>("frame", kFrameRange));
+  PBGI_ASSIGN_OR_RETURN(key.translate, s.get<Vec3f>("translate"));
+  PBGI_ASSIGN_OR_RETURN(key.rotateDeg, s.get<Vec3f>("rotate_deg"));
+  PBGI_ASSIGN_OR_RETURN(key.scale, s.get<float>("scale", kPositive));
   if (s.table().size() == 1) {
     return s.errorHere(fmt::format(
         "key at frame {} sets nothing (expected at least one of: translate, rotate_deg, scale)",
@@ -269,7 +269,7 @@ absl::StatusOr<TransformKey> parseTransformKey(const Section& s) {
 }
 
 absl::StatusOr<GeometryDesc> parseGeometry(const Section& s) {
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly({"file", "translate", "rotate_deg", "scale", "key"}));
+  PBGI_RETURN_IF_ERROR(s.allowOnly({"file", "translate", "rotate_deg", "scale", "key"}));
   GeometryDesc geometry;
   geometry.where = s.where();
   if (s.find("file") == nullptr) return s.missing("file");
@@ -285,18 +285,18 @@ absl::StatusOr<GeometryDesc> parseGeometry(const Section& s) {
                                            given->get()));
     }
   }
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<std::string> file, s.existingFile("file"));
+  PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> file, s.existingFile("file"));
   geometry.file = *file;
-  PBGI_TOML_ASSIGN_OR_RETURN(geometry.base.translate, s.getOr<Vec3f>("translate", Vec3f(0.0f)));
-  PBGI_TOML_ASSIGN_OR_RETURN(geometry.base.rotateDeg, s.getOr<Vec3f>("rotate_deg", Vec3f(0.0f)));
-  PBGI_TOML_ASSIGN_OR_RETURN(geometry.base.scale, s.getOr<float>("scale", 1.0f, kPositive));
+  PBGI_ASSIGN_OR_RETURN(geometry.base.translate, s.getOr<Vec3f>("translate", Vec3f(0.0f)));
+  PBGI_ASSIGN_OR_RETURN(geometry.base.rotateDeg, s.getOr<Vec3f>("rotate_deg", Vec3f(0.0f)));
+  PBGI_ASSIGN_OR_RETURN(geometry.base.scale, s.getOr<float>("scale", 1.0f, kPositive));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::vector<Section> keys,
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Section> keys,
                              tableArray(s, "key", "[[geometry.key]]"));
   std::map<int, int> seen;
   for (const Section& k : keys) {
-    PBGI_TOML_ASSIGN_OR_RETURN(TransformKey key, parseTransformKey(k));
-    PBGI_TOML_RETURN_IF_ERROR(checkUniqueFrame(seen, key.frame, k));
+    PBGI_ASSIGN_OR_RETURN(TransformKey key, parseTransformKey(k));
+    PBGI_RETURN_IF_ERROR(checkUniqueFrame(seen, key.frame, k));
     geometry.keys.push_back(std::move(key));
   }
   return geometry;
@@ -318,7 +318,7 @@ const Variants& materialKeys() {
 absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
   MaterialDesc m;
   m.where = s.where();
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<MaterialType> type,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<MaterialType> type,
                              s.choice<MaterialType>("type", "material type",
                                                     {{"diffuse", MaterialType::kDiffuse},
                                                      {"conductor", MaterialType::kConductor},
@@ -327,10 +327,10 @@ absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
   if (!type) return s.missing("type");
   m.type = *type;
   const auto& [typeName, allowed] = materialKeys()[static_cast<size_t>(m.type)];
-  PBGI_TOML_RETURN_IF_ERROR(
+  PBGI_RETURN_IF_ERROR(
       s.allowOnly(allowed, strict_toml::otherVariantHint(materialKeys(), typeName, "material")));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(m.name, s.need<std::string>("name"));
+  PBGI_ASSIGN_OR_RETURN(m.name, s.need<std::string>("name"));
   if (m.name.empty()) {
     return s.error(*s.find("name"), "'name': expected a material name, found \"\"");
   }
@@ -339,8 +339,8 @@ absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
       {"ggx", MicrofacetDistribution::kGgx}, {"beckmann", MicrofacetDistribution::kBeckmann}};
   switch (m.type) {
     case MaterialType::kDiffuse: {
-      PBGI_TOML_ASSIGN_OR_RETURN(m.albedo, s.get<Vec3f>("albedo", kUnitInterval));
-      PBGI_TOML_ASSIGN_OR_RETURN(m.albedoTexture, s.existingFile("albedo_texture"));
+      PBGI_ASSIGN_OR_RETURN(m.albedo, s.get<Vec3f>("albedo", kUnitInterval));
+      PBGI_ASSIGN_OR_RETURN(m.albedoTexture, s.existingFile("albedo_texture"));
       if (m.albedo && m.albedoTexture) {
         return s.error(*s.find("albedo_texture"),
                        "a diffuse material takes 'albedo' or 'albedo_texture', not both");
@@ -352,14 +352,14 @@ absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
       break;
     }
     case MaterialType::kConductor: {
-      PBGI_TOML_ASSIGN_OR_RETURN(m.roughness, s.getOr<float>("roughness", 0.0f, kNonNegative));
-      PBGI_TOML_ASSIGN_OR_RETURN(
+      PBGI_ASSIGN_OR_RETURN(m.roughness, s.getOr<float>("roughness", 0.0f, kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(
           auto d, s.choice<MicrofacetDistribution>("distribution", "distribution", distributions));
       m.distribution = d.value_or(MicrofacetDistribution::kGgx);
-      PBGI_TOML_ASSIGN_OR_RETURN(m.specular, s.get<Vec3f>("specular", kUnitInterval));
-      PBGI_TOML_ASSIGN_OR_RETURN(m.eta, s.get<Vec3f>("eta", kPositive));
-      PBGI_TOML_ASSIGN_OR_RETURN(m.k, s.get<Vec3f>("k", kNonNegative));
-      PBGI_TOML_ASSIGN_OR_RETURN(m.tint, s.getOr<Vec3f>("tint", Rgb(1.0f), kUnitInterval));
+      PBGI_ASSIGN_OR_RETURN(m.specular, s.get<Vec3f>("specular", kUnitInterval));
+      PBGI_ASSIGN_OR_RETURN(m.eta, s.get<Vec3f>("eta", kPositive));
+      PBGI_ASSIGN_OR_RETURN(m.k, s.get<Vec3f>("k", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(m.tint, s.getOr<Vec3f>("tint", Rgb(1.0f), kUnitInterval));
       if (m.specular && (m.eta || m.k)) {
         return s.error(*s.find(m.eta ? "eta" : "k"),
                        "a conductor's Fresnel is either 'specular' or 'eta' and 'k', not both");
@@ -375,15 +375,15 @@ absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
       break;
     }
     case MaterialType::kDielectric: {
-      PBGI_TOML_ASSIGN_OR_RETURN(m.roughness, s.getOr<float>("roughness", 0.0f, kNonNegative));
-      PBGI_TOML_ASSIGN_OR_RETURN(
+      PBGI_ASSIGN_OR_RETURN(m.roughness, s.getOr<float>("roughness", 0.0f, kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(
           auto d, s.choice<MicrofacetDistribution>("distribution", "distribution", distributions));
       m.distribution = d.value_or(MicrofacetDistribution::kGgx);
-      PBGI_TOML_ASSIGN_OR_RETURN(m.ior, s.getOr<float>("ior", 1.5f, kIorRange));
+      PBGI_ASSIGN_OR_RETURN(m.ior, s.getOr<float>("ior", 1.5f, kIorRange));
       break;
     }
     case MaterialType::kEmissive: {
-      PBGI_TOML_ASSIGN_OR_RETURN(m.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(m.radiance, s.need<Vec3f>("radiance", kNonNegative));
       break;
     }
   }
@@ -406,7 +406,7 @@ const Variants& lightKeys() {
 }
 
 absl::StatusOr<Vec3f> needDirection(const Section& s, std::string_view key) {
-  PBGI_TOML_ASSIGN_OR_RETURN(const Vec3f d, s.need<Vec3f>(key));
+  PBGI_ASSIGN_OR_RETURN(const Vec3f d, s.need<Vec3f>(key));
   if (length(d) == 0.0f) {
     return s.error(*s.find(key), fmt::format("'{}' must be a non-zero vector, found {}", key, d));
   }
@@ -416,7 +416,7 @@ absl::StatusOr<Vec3f> needDirection(const Section& s, std::string_view key) {
 absl::StatusOr<LightDesc> parseLight(const Section& s) {
   LightDesc l;
   l.where = s.where();
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<LightType> type,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<LightType> type,
                              s.choice<LightType>("type", "light type",
                                                  {{"quad", LightType::kQuad},
                                                   {"sphere", LightType::kSphere},
@@ -427,14 +427,14 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
   if (!type) return s.missing("type");
   l.type = *type;
   const auto& [typeName, allowed] = lightKeys()[static_cast<size_t>(l.type)];
-  PBGI_TOML_RETURN_IF_ERROR(
+  PBGI_RETURN_IF_ERROR(
       s.allowOnly(allowed, strict_toml::otherVariantHint(lightKeys(), typeName, "light")));
 
   switch (l.type) {
     case LightType::kQuad: {
-      PBGI_TOML_ASSIGN_OR_RETURN(l.corner, s.need<Vec3f>("corner"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.edgeU, s.need<Vec3f>("edge_u"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.edgeV, s.need<Vec3f>("edge_v"));
+      PBGI_ASSIGN_OR_RETURN(l.corner, s.need<Vec3f>("corner"));
+      PBGI_ASSIGN_OR_RETURN(l.edgeU, s.need<Vec3f>("edge_u"));
+      PBGI_ASSIGN_OR_RETURN(l.edgeV, s.need<Vec3f>("edge_v"));
       const float area = length(cross(l.edgeU, l.edgeV));
       if (!(area > 1e-6f * length(l.edgeU) * length(l.edgeV)) || area == 0.0f) {
         return s.error(
@@ -442,38 +442,38 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
             fmt::format("edge_u {} and edge_v {} are parallel or zero: the quad has no area",
                         l.edgeU, l.edgeV));
       }
-      PBGI_TOML_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
       break;
     }
     case LightType::kSphere: {
-      PBGI_TOML_ASSIGN_OR_RETURN(l.center, s.need<Vec3f>("center"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.radius, s.need<float>("radius", kPositive));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.center, s.need<Vec3f>("center"));
+      PBGI_ASSIGN_OR_RETURN(l.radius, s.need<float>("radius", kPositive));
+      PBGI_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
       break;
     }
     case LightType::kPoint: {
-      PBGI_TOML_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
+      PBGI_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
       break;
     }
     case LightType::kSpot: {
-      PBGI_TOML_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.coneDeg, s.need<float>("cone_deg", kConeRange));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
+      PBGI_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
+      PBGI_ASSIGN_OR_RETURN(l.coneDeg, s.need<float>("cone_deg", kConeRange));
+      PBGI_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
       break;
     }
     case LightType::kDirectional: {
-      PBGI_TOML_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.irradiance, s.need<Vec3f>("irradiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
+      PBGI_ASSIGN_OR_RETURN(l.irradiance, s.need<Vec3f>("irradiance", kNonNegative));
       break;
     }
     case LightType::kEnvironment: {
       if (s.find("file") == nullptr) return s.missing("file");
-      PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<std::string> file, s.existingFile("file"));
+      PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> file, s.existingFile("file"));
       l.file = *file;
-      PBGI_TOML_ASSIGN_OR_RETURN(l.scale, s.getOr<float>("scale", 1.0f, kNonNegative));
-      PBGI_TOML_ASSIGN_OR_RETURN(l.rotateDeg, s.getOr<float>("rotate_deg", 0.0f));
+      PBGI_ASSIGN_OR_RETURN(l.scale, s.getOr<float>("scale", 1.0f, kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.rotateDeg, s.getOr<float>("rotate_deg", 0.0f));
       break;
     }
   }
@@ -483,52 +483,52 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
 // --- [render] ----------------------------------------------------------------------------
 
 absl::Status parseRender(const Section& s, RenderSettings& r) {
-  PBGI_TOML_RETURN_IF_ERROR(s.allowOnly(
+  PBGI_RETURN_IF_ERROR(s.allowOnly(
       {"integrator", "spp", "seed", "max_depth", "filter", "filter_width", "tile_size",
        "roulette_depth", "quality", "max_solid_angle", "microbuffer_resolution",
        "gathers_per_pixel", "cache_mb", "bake_points", "bake_bounces", "bake_quality"}));
-  PBGI_TOML_ASSIGN_OR_RETURN(r.integrator, s.getOr<std::string>("integrator", r.integrator));
+  PBGI_ASSIGN_OR_RETURN(r.integrator, s.getOr<std::string>("integrator", r.integrator));
   if (r.integrator.empty()) {
     return s.error(*s.find("integrator"),
                    "'integrator': expected a name such as \"path\", found \"\"");
   }
-  PBGI_TOML_ASSIGN_OR_RETURN(r.spp, s.getOr<int>("spp", r.spp, kSppRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(const int64_t seed,
+  PBGI_ASSIGN_OR_RETURN(r.spp, s.getOr<int>("spp", r.spp, kSppRange));
+  PBGI_ASSIGN_OR_RETURN(const int64_t seed,
                              s.getOr<int64_t>("seed", static_cast<int64_t>(r.seed), kNonNegative));
   r.seed = static_cast<uint64_t>(seed);
-  PBGI_TOML_ASSIGN_OR_RETURN(r.maxDepth, s.getOr<int>("max_depth", r.maxDepth, kDepthRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(
+  PBGI_ASSIGN_OR_RETURN(r.maxDepth, s.getOr<int>("max_depth", r.maxDepth, kDepthRange));
+  PBGI_ASSIGN_OR_RETURN(
       const std::optional<FilterType> filter,
       s.choice<FilterType>("filter", "pixel filter",
                            {{"box", FilterType::kBox},
                             {"gaussian", FilterType::kGaussian},
                             {"blackman-harris", FilterType::kBlackmanHarris}}));
   r.filter = filter.value_or(r.filter);
-  PBGI_TOML_ASSIGN_OR_RETURN(r.filterWidth,
+  PBGI_ASSIGN_OR_RETURN(r.filterWidth,
                              s.getOr<float>("filter_width", r.filterWidth, kFilterWidthRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(r.tileSize, s.getOr<int>("tile_size", r.tileSize, kTileSizeRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(r.rouletteDepth,
+  PBGI_ASSIGN_OR_RETURN(r.tileSize, s.getOr<int>("tile_size", r.tileSize, kTileSizeRange));
+  PBGI_ASSIGN_OR_RETURN(r.rouletteDepth,
                              s.getOr<int>("roulette_depth", r.rouletteDepth, kDepthRange));
   const std::vector<std::pair<std::string_view, std::string>> presets = {
       {"draft", "draft"}, {"default", "default"}, {"high", "high"}};
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<std::string> quality,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> quality,
                              s.choice<std::string>("quality", "gather quality preset", presets));
   r.quality = quality.value_or(r.quality);
-  PBGI_TOML_ASSIGN_OR_RETURN(r.maxSolidAngle,
+  PBGI_ASSIGN_OR_RETURN(r.maxSolidAngle,
                              s.getOr<float>("max_solid_angle", r.maxSolidAngle, kSolidAngleRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(r.microbufferResolution,
+  PBGI_ASSIGN_OR_RETURN(r.microbufferResolution,
                              s.getOr<int>("microbuffer_resolution", r.microbufferResolution,
                                           kMicrobufferRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(
+  PBGI_ASSIGN_OR_RETURN(
       r.gathersPerPixel, s.getOr<int>("gathers_per_pixel", r.gathersPerPixel, kGathersPerPixelRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(r.cacheMb, s.getOr<int>("cache_mb", r.cacheMb, kCacheMbRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(const int64_t bakePoints,
+  PBGI_ASSIGN_OR_RETURN(r.cacheMb, s.getOr<int>("cache_mb", r.cacheMb, kCacheMbRange));
+  PBGI_ASSIGN_OR_RETURN(const int64_t bakePoints,
                              s.getOr<int64_t>("bake_points", static_cast<int64_t>(r.bakePoints),
                                               kBakePointsRange));
   r.bakePoints = static_cast<uint64_t>(bakePoints);
-  PBGI_TOML_ASSIGN_OR_RETURN(r.bakeBounces,
+  PBGI_ASSIGN_OR_RETURN(r.bakeBounces,
                              s.getOr<int>("bake_bounces", r.bakeBounces, kBakeBouncesRange));
-  PBGI_TOML_ASSIGN_OR_RETURN(
+  PBGI_ASSIGN_OR_RETURN(
       const std::optional<std::string> bakeQuality,
       s.choice<std::string>("bake_quality", "gather quality preset", presets));
   r.bakeQuality = bakeQuality.value_or(r.bakeQuality);
@@ -549,7 +549,7 @@ absl::StatusOr<ShotDesc> parseDocument(const Source& source, const toml::table& 
     return top.errorHere(fmt::format("missing required key 'version' (this build reads version {})",
                                      kSupportedVersion));
   }
-  PBGI_TOML_ASSIGN_OR_RETURN(const int64_t version, top.need<int64_t>("version"));
+  PBGI_ASSIGN_OR_RETURN(const int64_t version, top.need<int64_t>("version"));
   if (version > kSupportedVersion) {
     return top.error(
         *top.find("version"),
@@ -561,34 +561,34 @@ absl::StatusOr<ShotDesc> parseDocument(const Source& source, const toml::table& 
                      fmt::format("'version' must be {}, found {}", kSupportedVersion, version));
   }
   shot.version = static_cast<int>(version);
-  PBGI_TOML_RETURN_IF_ERROR(
+  PBGI_RETURN_IF_ERROR(
       top.allowOnly({"version", "shot", "camera", "geometry", "material", "light", "render"}));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<Section> shotTable,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<Section> shotTable,
                              subTable(top, "shot", "[shot]"));
   if (!shotTable) return top.errorHere("missing required table [shot]");
-  PBGI_TOML_RETURN_IF_ERROR(parseShotTable(*shotTable, shot));
+  PBGI_RETURN_IF_ERROR(parseShotTable(*shotTable, shot));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<Section> camera,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<Section> camera,
                              subTable(top, "camera", "[camera]"));
   if (!camera) return top.errorHere("missing required table [camera]");
-  PBGI_TOML_RETURN_IF_ERROR(parseCamera(*camera, shot));
+  PBGI_RETURN_IF_ERROR(parseCamera(*camera, shot));
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::vector<Section> geometry,
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Section> geometry,
                              tableArray(top, "geometry", "[[geometry]]"));
   if (geometry.empty()) {
     return top.errorHere("missing required [[geometry]]: a shot needs at least one geometry file");
   }
   for (const Section& g : geometry) {
-    PBGI_TOML_ASSIGN_OR_RETURN(GeometryDesc desc, parseGeometry(g));
+    PBGI_ASSIGN_OR_RETURN(GeometryDesc desc, parseGeometry(g));
     shot.geometry.push_back(std::move(desc));
   }
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::vector<Section> materials,
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Section> materials,
                              tableArray(top, "material", "[[material]]"));
   std::map<std::string, int> materialLines;
   for (const Section& m : materials) {
-    PBGI_TOML_ASSIGN_OR_RETURN(MaterialDesc desc, parseMaterial(m));
+    PBGI_ASSIGN_OR_RETURN(MaterialDesc desc, parseMaterial(m));
     auto [it, inserted] = materialLines.emplace(desc.name, desc.where.line);
     if (!inserted) {
       return m.error(*m.find("name"), fmt::format("material \"{}\" is already defined at line {}",
@@ -597,11 +597,11 @@ absl::StatusOr<ShotDesc> parseDocument(const Source& source, const toml::table& 
     shot.materials.push_back(std::move(desc));
   }
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::vector<Section> lights,
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Section> lights,
                              tableArray(top, "light", "[[light]]"));
   int environmentLine = 0;
   for (const Section& l : lights) {
-    PBGI_TOML_ASSIGN_OR_RETURN(LightDesc desc, parseLight(l));
+    PBGI_ASSIGN_OR_RETURN(LightDesc desc, parseLight(l));
     // Two environment maps would both claim every escaping ray; nothing sums them.
     if (desc.type == LightType::kEnvironment) {
       if (environmentLine > 0) {
@@ -613,9 +613,9 @@ absl::StatusOr<ShotDesc> parseDocument(const Source& source, const toml::table& 
     shot.lights.push_back(std::move(desc));
   }
 
-  PBGI_TOML_ASSIGN_OR_RETURN(const std::optional<Section> render,
+  PBGI_ASSIGN_OR_RETURN(const std::optional<Section> render,
                              subTable(top, "render", "[render]"));
-  if (render) PBGI_TOML_RETURN_IF_ERROR(parseRender(*render, shot.render));
+  if (render) PBGI_RETURN_IF_ERROR(parseRender(*render, shot.render));
   return shot;
 }
 

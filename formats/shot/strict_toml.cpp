@@ -92,7 +92,7 @@ absl::Status Section::allowOnly(const std::vector<std::string_view>& allowed,
 }
 
 absl::StatusOr<std::optional<std::string>> Section::existingFile(std::string_view key) const {
-  PBGI_TOML_ASSIGN_OR_RETURN(std::optional<std::string> given, get<std::string>(key));
+  PBGI_ASSIGN_OR_RETURN(std::optional<std::string> given, get<std::string>(key));
   if (!given) return std::optional<std::string>();
   const toml::node& n = *find(key);
   if (given->empty()) return error(n, fmt::format("'{}': expected a file path, found \"\"", key));

@@ -23,21 +23,7 @@
 
 #include "core/math/vec.h"
 #include "core/util/source_location.h"
-
-// Every read can fail with a user-facing error, so the plumbing is spelled once here rather
-// than as an if-return after each of the hundred reads of a shot file.
-#define PBGI_STRICT_TOML_CONCAT_INNER(a, b) a##b
-#define PBGI_STRICT_TOML_CONCAT(a, b) PBGI_STRICT_TOML_CONCAT_INNER(a, b)
-#define PBGI_TOML_RETURN_IF_ERROR(expr)                                              \
-  do {                                                                               \
-    if (absl::Status pbgi_status_ = (expr); !pbgi_status_.ok()) return pbgi_status_; \
-  } while (false)
-#define PBGI_TOML_ASSIGN_OR_RETURN(lhs, expr) \
-  PBGI_TOML_ASSIGN_OR_RETURN_IMPL(PBGI_STRICT_TOML_CONCAT(pbgi_statusor_, __LINE__), lhs, expr)
-#define PBGI_TOML_ASSIGN_OR_RETURN_IMPL(tmp, lhs, expr) \
-  auto tmp = (expr);                                    \
-  if (!tmp.ok()) return std::move(tmp).status();        \
-  lhs = *std::move(tmp)
+#include "core/util/status.h"
 
 namespace pbgi::strict_toml {
 
@@ -124,7 +110,7 @@ class Section {
                                        const Range& range = kAnyNumber) const {
     const toml::node* n = find(key);
     if (n == nullptr) return std::optional<T>();
-    PBGI_TOML_ASSIGN_OR_RETURN(T value, convert<T>(*n, fmt::format("'{}'", key), range));
+    PBGI_ASSIGN_OR_RETURN(T value, convert<T>(*n, fmt::format("'{}'", key), range));
     return std::optional<T>(std::move(value));
   }
   template <typename T>
@@ -135,7 +121,7 @@ class Section {
   }
   template <typename T>
   absl::StatusOr<T> getOr(std::string_view key, T fallback, const Range& range = kAnyNumber) const {
-    PBGI_TOML_ASSIGN_OR_RETURN(std::optional<T> value, get<T>(key, range));
+    PBGI_ASSIGN_OR_RETURN(std::optional<T> value, get<T>(key, range));
     return value ? *std::move(value) : std::move(fallback);
   }
 
@@ -144,7 +130,7 @@ class Section {
   absl::StatusOr<std::optional<E>> choice(
       std::string_view key, std::string_view what,
       const std::vector<std::pair<std::string_view, E>>& options) const {
-    PBGI_TOML_ASSIGN_OR_RETURN(std::optional<std::string> name, get<std::string>(key));
+    PBGI_ASSIGN_OR_RETURN(std::optional<std::string> name, get<std::string>(key));
     if (!name) return std::optional<E>();
     for (const auto& [option, value] : options) {
       if (*name == option) return std::optional<E>(value);
@@ -167,7 +153,7 @@ class Section {
     } else if constexpr (std::is_same_v<T, float>) {
       return toFloat(n, label, range);
     } else if constexpr (std::is_same_v<T, int>) {
-      PBGI_TOML_ASSIGN_OR_RETURN(const int64_t v, toInteger(n, label, range));
+      PBGI_ASSIGN_OR_RETURN(const int64_t v, toInteger(n, label, range));
       if (v < INT_MIN || v > INT_MAX) {
         return error(n, fmt::format("{} must fit a 32-bit integer, found {}", label, v));
       }
@@ -175,19 +161,19 @@ class Section {
     } else if constexpr (std::is_same_v<T, int64_t>) {
       return toInteger(n, label, range);
     } else if constexpr (std::is_same_v<T, Vec3f>) {
-      PBGI_TOML_ASSIGN_OR_RETURN(const toml::array* a, fixedArray(n, label, 3, "3 numbers"));
+      PBGI_ASSIGN_OR_RETURN(const toml::array* a, fixedArray(n, label, 3, "3 numbers"));
       Vec3f v;
       for (int i = 0; i < 3; ++i) {
-        PBGI_TOML_ASSIGN_OR_RETURN(v[i],
+        PBGI_ASSIGN_OR_RETURN(v[i],
                                    toFloat(*a->get(i), fmt::format("{}[{}]", label, i), range));
       }
       return v;
     } else {
       static_assert(std::is_same_v<T, Vec2i>, "no strict TOML read for this type");
-      PBGI_TOML_ASSIGN_OR_RETURN(const toml::array* a, fixedArray(n, label, 2, "2 integers"));
+      PBGI_ASSIGN_OR_RETURN(const toml::array* a, fixedArray(n, label, 2, "2 integers"));
       Vec2i v;
       for (int i = 0; i < 2; ++i) {
-        PBGI_TOML_ASSIGN_OR_RETURN(
+        PBGI_ASSIGN_OR_RETURN(
             v[i], convert<int>(*a->get(i), fmt::format("{}[{}]", label, i), range));
       }
       return v;

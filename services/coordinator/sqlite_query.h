@@ -14,19 +14,7 @@
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
 
-// Nearly every statement can fail, so the plumbing is spelled once.
-#define PBGI_STORE_CONCAT_INNER(a, b) a##b
-#define PBGI_STORE_CONCAT(a, b) PBGI_STORE_CONCAT_INNER(a, b)
-#define PBGI_STORE_RETURN_IF_ERROR(expr)                                             \
-  do {                                                                               \
-    if (absl::Status pbgi_status_ = (expr); !pbgi_status_.ok()) return pbgi_status_; \
-  } while (false)
-#define PBGI_STORE_ASSIGN_OR_RETURN(lhs, expr) \
-  PBGI_STORE_ASSIGN_OR_RETURN_IMPL(PBGI_STORE_CONCAT(pbgi_statusor_, __LINE__), lhs, expr)
-#define PBGI_STORE_ASSIGN_OR_RETURN_IMPL(tmp, lhs, expr) \
-  auto tmp = (expr);                                     \
-  if (!tmp.ok()) return std::move(tmp).status();         \
-  lhs = *std::move(tmp)
+#include "core/util/status.h"
 
 namespace pbgi::farm {
 
