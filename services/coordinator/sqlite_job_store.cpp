@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numeric>
 #include <set>
 #include <string_view>
 #include <unordered_map>
@@ -14,6 +15,7 @@
 #include <absl/strings/numbers.h>
 #include <absl/strings/str_split.h>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "services/coordinator/job_store.h"
 #include "services/coordinator/sqlite_query.h"
@@ -115,15 +117,6 @@ TaskInfo readTask(const Query& q) {
   return task;
 }
 
-std::string frameList(const std::vector<int>& frames) {
-  std::string out;
-  for (int frame : frames) {
-    if (!out.empty()) out += ' ';
-    out += std::to_string(frame);
-  }
-  return out;
-}
-
 enum class Access { kRead, kWrite };
 
 class SqliteJobStore final : public JobStore {
@@ -160,6 +153,7 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<JobState> jobState(int64_t job);
   absl::StatusOr<JobInfo> readJob(const Query& q);
   absl::Status addTaskSummary(JobInfo& info);
+  absl::StatusOr<std::array<int, 6>> countTasksByState(int64_t job);
   absl::StatusOr<TaskInfo> loadTask(int64_t task);
   absl::StatusOr<TaskInfo> currentLease(int64_t task, int attempt);
   absl::Status touchWorker(const std::string& worker, Seconds now);
@@ -214,7 +208,7 @@ auto SqliteJobStore::transaction(Access access, Body&& body) -> decltype(body())
   // Writers take the write lock up front: a deferred transaction that meets a lock at its
   // first write can only fail, since busy_timeout cannot wait out a reader's upgrade. Readers
   // stay deferred so that status queries never hold up a lease.
-  PBGI_STORE_RETURN_IF_ERROR(exec(access == Access::kWrite ? "BEGIN IMMEDIATE" : "BEGIN"));
+  PBGI_RETURN_IF_ERROR(exec(access == Access::kWrite ? "BEGIN IMMEDIATE" : "BEGIN"));
   auto result = body();
   absl::Status committed = result.ok() ? exec("COMMIT") : absl::OkStatus();
   if (result.ok() && committed.ok()) return result;
@@ -233,7 +227,7 @@ absl::Status SqliteJobStore::initialize() {
     std::string chosen;
     {
       Query mode = query("PRAGMA journal_mode = WAL");
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, mode.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, mode.step());
       if (row) chosen = absl::AsciiStrToLower(mode.text(0));
     }
     if (chosen != "wal") {
@@ -243,8 +237,8 @@ absl::Status SqliteJobStore::initialize() {
     }
     // FULL, not NORMAL: a lease that a worker has heard of must survive a power cut, or the
     // same attempt number could be handed to a second worker after the restart.
-    PBGI_STORE_RETURN_IF_ERROR(exec("PRAGMA synchronous = FULL"));
-    PBGI_STORE_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
+    PBGI_RETURN_IF_ERROR(exec("PRAGMA synchronous = FULL"));
+    PBGI_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
   }
   // Inside a write transaction, so that two coordinators creating one file cannot both see
   // version 0.
@@ -252,7 +246,7 @@ absl::Status SqliteJobStore::initialize() {
     int found = 0;
     {
       Query version = query("PRAGMA user_version");
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, version.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, version.step());
       if (row) found = version.integer(0);
     }
     if (found == kSchemaVersion) return absl::OkStatus();
@@ -261,7 +255,7 @@ absl::Status SqliteJobStore::initialize() {
           fmt::format("{}: schema version {}; this coordinator reads version {}", path_, found,
                       kSchemaVersion));
     }
-    PBGI_STORE_RETURN_IF_ERROR(exec(kSchema));
+    PBGI_RETURN_IF_ERROR(exec(kSchema));
     // PRAGMA takes no parameters; the value is our own constant.
     return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
   });
@@ -270,7 +264,7 @@ absl::Status SqliteJobStore::initialize() {
 absl::StatusOr<JobState> SqliteJobStore::jobState(int64_t job) {
   Query q = query("SELECT state FROM jobs WHERE id = ?1");
   q.bind(1, job);
-  PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+  PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
   if (!row) return absl::NotFoundError(fmt::format("job {}: no such job", job));
   return static_cast<JobState>(q.integer(0));
 }
@@ -300,21 +294,25 @@ absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) {
   return info;
 }
 
-absl::Status SqliteJobStore::addTaskSummary(JobInfo& info) {
-  {
-    Query counts = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
-    counts.bind(1, info.id);
-    for (;;) {
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, counts.step());
-      if (!row) break;
-      info.tasksByState[static_cast<size_t>(counts.integer(0))] = counts.integer(1);
-    }
+// Indexed by TaskState.
+absl::StatusOr<std::array<int, 6>> SqliteJobStore::countTasksByState(int64_t job) {
+  std::array<int, 6> counts{};
+  Query q = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
+  q.bind(1, job);
+  for (;;) {
+    PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+    if (!row) return counts;
+    counts[static_cast<size_t>(q.integer(0))] = q.integer(1);
   }
+}
+
+absl::Status SqliteJobStore::addTaskSummary(JobInfo& info) {
+  PBGI_ASSIGN_OR_RETURN(info.tasksByState, countTasksByState(info.id));
   Query dead = query("SELECT " PBGI_TASK_COLUMNS
                      " FROM tasks WHERE job = ?1 AND state = 4 ORDER BY frame, kind, tile");
   dead.bind(1, info.id);
   for (;;) {
-    PBGI_STORE_ASSIGN_OR_RETURN(const bool row, dead.step());
+    PBGI_ASSIGN_OR_RETURN(const bool row, dead.step());
     if (!row) return absl::OkStatus();
     info.dead.push_back(readTask(dead));
   }
@@ -323,13 +321,13 @@ absl::Status SqliteJobStore::addTaskSummary(JobInfo& info) {
 absl::StatusOr<TaskInfo> SqliteJobStore::loadTask(int64_t task) {
   Query q = query("SELECT " PBGI_TASK_COLUMNS " FROM tasks WHERE id = ?1");
   q.bind(1, task);
-  PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+  PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
   if (!row) return absl::NotFoundError(fmt::format("task {}: no such task", task));
   return readTask(q);
 }
 
 absl::StatusOr<TaskInfo> SqliteJobStore::currentLease(int64_t task, int attempt) {
-  PBGI_STORE_ASSIGN_OR_RETURN(TaskInfo info, loadTask(task));
+  PBGI_ASSIGN_OR_RETURN(TaskInfo info, loadTask(task));
   if (info.state != TaskState::kLeased || info.attempt != attempt) {
     return absl::FailedPreconditionError(fmt::format(
         "{} (task {}): attempt {} no longer holds the lease; the task is {} at attempt {}",
@@ -360,7 +358,7 @@ absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> fram
   for (const char* sql : kPromotions) {
     Query q = query(sql);
     q.bind(1, job).bind(2, frame);
-    PBGI_STORE_RETURN_IF_ERROR(q.run());
+    PBGI_RETURN_IF_ERROR(q.run());
   }
   return absl::OkStatus();
 }
@@ -397,36 +395,26 @@ absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::stri
         .bind(3, failed.failures)
         .bind(4, error)
         .bind(5, failed.state == TaskState::kReady ? notBefore : now);
-    PBGI_STORE_RETURN_IF_ERROR(q.run());
+    PBGI_RETURN_IF_ERROR(q.run());
   }
   if (!task.worker.empty()) {
     Query q = query(
         "INSERT INTO job_worker_failures (job, worker, failures) VALUES (?1, ?2, 1) "
         "ON CONFLICT (job, worker) DO UPDATE SET failures = failures + 1");
     q.bind(1, task.ref.job).bind(2, task.worker);
-    PBGI_STORE_RETURN_IF_ERROR(q.run());
+    PBGI_RETURN_IF_ERROR(q.run());
   }
-  if (failed.state == TaskState::kDead) PBGI_STORE_RETURN_IF_ERROR(killDependents(failed));
+  if (failed.state == TaskState::kDead) PBGI_RETURN_IF_ERROR(killDependents(failed));
   return settleJob(task.ref.job);
 }
 
 // A job is active while something can still make progress; after that it is done, failed or
 // (when a retry of part of a cancelled job has finished) cancelled again.
 absl::Status SqliteJobStore::settleJob(int64_t job) {
-  PBGI_STORE_ASSIGN_OR_RETURN(const JobState current, jobState(job));
+  PBGI_ASSIGN_OR_RETURN(const JobState current, jobState(job));
   if (current == JobState::kCancelled) return absl::OkStatus();
-  std::array<int, 6> counts{};
-  int total = 0;
-  {
-    Query q = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
-    q.bind(1, job);
-    for (;;) {
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
-      if (!row) break;
-      counts[static_cast<size_t>(q.integer(0))] = q.integer(1);
-      total += q.integer(1);
-    }
-  }
+  PBGI_ASSIGN_OR_RETURN(const auto counts, countTasksByState(job));
+  const int total = std::accumulate(counts.begin(), counts.end(), 0);
   const auto count = [&](TaskState s) { return counts[static_cast<size_t>(s)]; };
   JobState next = JobState::kActive;
   if (count(TaskState::kDone) == total) {
@@ -471,12 +459,12 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
           .bind(4, spec.overrides)
           .bind(5, spec.outputPattern)
           .bind(6, spec.priority)
-          .bind(7, frameList(spec.frames))
+          .bind(7, fmt::format("{}", fmt::join(spec.frames, " ")))
           .bind(8, spec.tileCount)
           .bind(9, spec.needsBake ? 1 : 0)
           .bind(10, JobState::kActive)
           .bind(11, now);
-      PBGI_STORE_RETURN_IF_ERROR(q.run());
+      PBGI_RETURN_IF_ERROR(q.run());
     }
     const int64_t job = sqlite3_last_insert_rowid(db_.get());
     const auto add = [&](TaskKind kind, int frame, int tile, TaskState state) {
@@ -488,12 +476,12 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
     const TaskState tileState = spec.needsBake ? TaskState::kBlocked : TaskState::kReady;
     for (int frame : spec.frames) {
       if (spec.needsBake) {
-        PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kBake, frame, -1, TaskState::kReady));
+        PBGI_RETURN_IF_ERROR(add(TaskKind::kBake, frame, -1, TaskState::kReady));
       }
       for (int tile = 0; tile < spec.tileCount; ++tile) {
-        PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kTile, frame, tile, tileState));
+        PBGI_RETURN_IF_ERROR(add(TaskKind::kTile, frame, tile, tileState));
       }
-      PBGI_STORE_RETURN_IF_ERROR(add(TaskKind::kAssemble, frame, -1, TaskState::kBlocked));
+      PBGI_RETURN_IF_ERROR(add(TaskKind::kAssemble, frame, -1, TaskState::kBlocked));
     }
     return job;
   });
@@ -505,11 +493,11 @@ absl::StatusOr<JobInfo> SqliteJobStore::job(int64_t job) {
     {
       Query q = query("SELECT " PBGI_JOB_COLUMNS " FROM jobs WHERE id = ?1");
       q.bind(1, job);
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
       if (!row) return absl::NotFoundError(fmt::format("job {}: no such job", job));
-      PBGI_STORE_ASSIGN_OR_RETURN(info, readJob(q));
+      PBGI_ASSIGN_OR_RETURN(info, readJob(q));
     }
-    PBGI_STORE_RETURN_IF_ERROR(addTaskSummary(info));
+    PBGI_RETURN_IF_ERROR(addTaskSummary(info));
     return info;
   });
 }
@@ -520,26 +508,26 @@ absl::StatusOr<std::vector<JobInfo>> SqliteJobStore::jobs() {
     {
       Query q = query("SELECT " PBGI_JOB_COLUMNS " FROM jobs ORDER BY id DESC");
       for (;;) {
-        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
         if (!row) break;
-        PBGI_STORE_ASSIGN_OR_RETURN(JobInfo info, readJob(q));
+        PBGI_ASSIGN_OR_RETURN(JobInfo info, readJob(q));
         out.push_back(std::move(info));
       }
     }
-    for (JobInfo& info : out) PBGI_STORE_RETURN_IF_ERROR(addTaskSummary(info));
+    for (JobInfo& info : out) PBGI_RETURN_IF_ERROR(addTaskSummary(info));
     return out;
   });
 }
 
 absl::StatusOr<std::vector<TaskInfo>> SqliteJobStore::tasks(int64_t job) {
   return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<TaskInfo>> {
-    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
     Query q =
         query("SELECT " PBGI_TASK_COLUMNS " FROM tasks WHERE job = ?1 ORDER BY frame, kind, tile");
     q.bind(1, job);
     std::vector<TaskInfo> out;
     for (;;) {
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
       if (!row) return out;
       out.push_back(readTask(q));
     }
@@ -571,7 +559,7 @@ absl::StatusOr<std::vector<WorkerInfo>> SqliteJobStore::workers() {
         "SELECT id, host, cores, memory_bytes, cache_bytes, last_seen FROM workers ORDER BY id");
     std::vector<WorkerInfo> out;
     for (;;) {
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
       if (!row) return out;
       WorkerInfo w;
       w.id = q.text(0);
@@ -600,7 +588,7 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
           ORDER BY j.priority DESC, j.submitted, j.id, t.frame, t.kind, t.tile
           LIMIT 1)sql");
       pick.bind(1, now).bind(2, worker).bind(3, blocklistThreshold());
-      PBGI_STORE_ASSIGN_OR_RETURN(const bool row, pick.step());
+      PBGI_ASSIGN_OR_RETURN(const bool row, pick.step());
       if (!row) return std::optional<Lease>();
       lease.task = pick.int64(0);
       lease.ref.job = pick.int64(1);
@@ -615,9 +603,9 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
           "UPDATE tasks SET state = 2, attempt = ?2, worker = ?3, expires = ?4, progress = 0 "
           "WHERE id = ?1");
       take.bind(1, lease.task).bind(2, lease.attempt).bind(3, worker).bind(4, lease.expires);
-      PBGI_STORE_RETURN_IF_ERROR(take.run());
+      PBGI_RETURN_IF_ERROR(take.run());
     }
-    PBGI_STORE_RETURN_IF_ERROR(touchWorker(worker, now));
+    PBGI_RETURN_IF_ERROR(touchWorker(worker, now));
     return std::optional<Lease>(lease);
   });
 }
@@ -627,24 +615,24 @@ absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progres
   // Progress comes from the network: clamp it rather than store NaN or 7.
   progress = std::isnan(progress) ? 0.0 : std::clamp(progress, 0.0, 1.0);
   return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
     Query q = query("UPDATE tasks SET expires = ?2, progress = ?3 WHERE id = ?1");
     q.bind(1, task).bind(2, now + leaseSeconds).bind(3, progress);
-    PBGI_STORE_RETURN_IF_ERROR(q.run());
+    PBGI_RETURN_IF_ERROR(q.run());
     return touchWorker(info.worker, now);
   });
 }
 
 absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
     {
       Query q = query("UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = ?1");
       q.bind(1, task);
-      PBGI_STORE_RETURN_IF_ERROR(q.run());
+      PBGI_RETURN_IF_ERROR(q.run());
     }
-    PBGI_STORE_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame));
-    PBGI_STORE_RETURN_IF_ERROR(touchWorker(info.worker, now));
+    PBGI_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame));
+    PBGI_RETURN_IF_ERROR(touchWorker(info.worker, now));
     return settleJob(info.ref.job);
   });
 }
@@ -652,7 +640,7 @@ absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now) {
 absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& error,
                                   Seconds now) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
     return recordFailure(info, error, now);
   });
 }
@@ -665,14 +653,14 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
       Query q = query("SELECT id FROM tasks WHERE state = 2 AND expires <= ?1 ORDER BY id");
       q.bind(1, now);
       for (;;) {
-        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
         if (!row) break;
         expired.push_back(q.int64(0));
       }
     }
     for (int64_t id : expired) {
-      PBGI_STORE_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
-      PBGI_STORE_RETURN_IF_ERROR(recordFailure(
+      PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
+      PBGI_RETURN_IF_ERROR(recordFailure(
           info, fmt::format("lease expired: worker {} stopped heartbeating", info.worker), now));
     }
     return static_cast<int>(expired.size());
@@ -681,7 +669,7 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
 
 absl::Status SqliteJobStore::cancel(int64_t job) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_STORE_ASSIGN_OR_RETURN(const JobState state, jobState(job));
+    PBGI_ASSIGN_OR_RETURN(const JobState state, jobState(job));
     if (state == JobState::kDone) {
       return absl::FailedPreconditionError(
           fmt::format("job {}: done; there is nothing left to cancel", job));
@@ -692,7 +680,7 @@ absl::Status SqliteJobStore::cancel(int64_t job) {
       Query q =
           query("UPDATE tasks SET state = 5, expires = NULL WHERE job = ?1 AND state IN (0, 1, 2)");
       q.bind(1, job);
-      PBGI_STORE_RETURN_IF_ERROR(q.run());
+      PBGI_RETURN_IF_ERROR(q.run());
     }
     Query q = query("UPDATE jobs SET state = 3 WHERE id = ?1");
     q.bind(1, job);
@@ -707,7 +695,7 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
         fmt::format("job {}: retrying tile {} needs its frame", job, *tile));
   }
   return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
     // A tile is retried with its frame's bake and assemble when those are dead or cancelled
     // too: the tile cannot run without the one, and its result is lost without the other.
     // Attempts keep counting, so a worker from before the retry still holds a stale attempt.
@@ -717,14 +705,14 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
           "not_before = 0, expires = NULL WHERE job = ?1 AND state IN (4, 5) "
           "AND (?2 IS NULL OR frame = ?2) AND (?3 IS NULL OR kind != 1 OR tile = ?3)");
       q.bind(1, job).bind(2, frame).bind(3, tile);
-      PBGI_STORE_RETURN_IF_ERROR(q.run());
+      PBGI_RETURN_IF_ERROR(q.run());
     }
     {
       Query q = query("UPDATE jobs SET state = 0 WHERE id = ?1");
       q.bind(1, job);
-      PBGI_STORE_RETURN_IF_ERROR(q.run());
+      PBGI_RETURN_IF_ERROR(q.run());
     }
-    PBGI_STORE_RETURN_IF_ERROR(promoteBlocked(job, frame));
+    PBGI_RETURN_IF_ERROR(promoteBlocked(job, frame));
     // What was revived may still wait on a task left dead (another tile of the frame, say).
     std::vector<TaskInfo> dead;
     {
@@ -733,22 +721,22 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
                       "AND kind != 2 ORDER BY frame, kind, tile");
       q.bind(1, job).bind(2, frame);
       for (;;) {
-        PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
         if (!row) break;
         dead.push_back(readTask(q));
       }
     }
-    for (const TaskInfo& task : dead) PBGI_STORE_RETURN_IF_ERROR(killDependents(task));
+    for (const TaskInfo& task : dead) PBGI_RETURN_IF_ERROR(killDependents(task));
     return settleJob(job);
   });
 }
 
 absl::StatusOr<bool> SqliteJobStore::blocklisted(int64_t job, const std::string& worker) {
   return transaction(Access::kRead, [&]() -> absl::StatusOr<bool> {
-    PBGI_STORE_RETURN_IF_ERROR(jobState(job).status());
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
     Query q = query("SELECT failures FROM job_worker_failures WHERE job = ?1 AND worker = ?2");
     q.bind(1, job).bind(2, worker);
-    PBGI_STORE_ASSIGN_OR_RETURN(const bool row, q.step());
+    PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
     return row && q.int64(0) >= blocklistThreshold();
   });
 }
@@ -774,7 +762,7 @@ absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& 
                         "opening the job store");
   }
   auto store = std::make_unique<SqliteJobStore>(path, policy, std::move(db));
-  PBGI_STORE_RETURN_IF_ERROR(store->initialize());
+  PBGI_RETURN_IF_ERROR(store->initialize());
   return std::unique_ptr<JobStore>(std::move(store));
 }
 
