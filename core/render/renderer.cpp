@@ -185,8 +185,7 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
   Image image(camera.imageWidth(), camera.imageHeight(), frameChannels());
   const int tileSize = options.tileSize > 0 ? options.tileSize : settings.tileSize;
   const std::vector<TileRect> tiles =
-      options.region ? makeTiles(*options.region, tileSize)
-                     : makeTiles(image.width(), image.height(), tileSize);
+      makeTiles(options.region.value_or(TileRect{0, 0, image.width(), image.height()}), tileSize);
   std::vector<RenderCounters> perTile(tiles.size());
   std::vector<absl::Status> errors(tiles.size());
   std::atomic<bool> failed{false};

@@ -5,13 +5,26 @@
 
 #include <fmt/format.h>
 
+#include "core/util/status.h"
 #include "formats/image/image_io.h"
 
 namespace pbgi {
 
-std::vector<TileRect> farmTiles(int width, int height, int tileSize) {
-  return makeTiles(width, height, tileSize);
+namespace {
+
+// Copies a w x h block of pixels from `from` at (fx, fy) to `to` at (tx, ty); both images have
+// the same channels and the block lies inside both.
+void copyBlock(const Image& from, int fx, int fy, Image& to, int tx, int ty, int w, int h) {
+  const size_t channels = static_cast<size_t>(from.channelCount());
+  const size_t row = static_cast<size_t>(w) * channels;
+  for (int y = 0; y < h; ++y) {
+    const float* src =
+        from.pixels().data() + (static_cast<size_t>(fy + y) * from.width() + fx) * channels;
+    std::copy(src, src + row, &to.at(tx, ty + y, 0));
+  }
 }
+
+}  // namespace
 
 std::string regionText(const TileRect& r) {
   return fmt::format("{} {} {} {}", r.x0, r.y0, r.x1, r.y1);
@@ -36,12 +49,7 @@ absl::StatusOr<Image> cropImage(const Image& image, const TileRect& r) {
                                              image.width(), image.height()));
   }
   Image out(r.width(), r.height(), image.channels());
-  const size_t row = static_cast<size_t>(r.width()) * image.channelCount();
-  for (int y = r.y0; y < r.y1; ++y) {
-    const float* from = image.pixels().data() +
-                        (static_cast<size_t>(y) * image.width() + r.x0) * image.channelCount();
-    std::copy(from, from + row, &out.at(0, y - r.y0, 0));
-  }
+  copyBlock(image, r.x0, r.y0, out, 0, 0, r.width(), r.height());
   out.metadata() = image.metadata();
   return out;
 }
@@ -57,12 +65,17 @@ absl::Status assembleFrame(const std::vector<std::string>& tilePaths,
   for (size_t i = 0; i < regions.size(); ++i) {
     const TileRect& r = regions[i];
     auto where = [&] { return fmt::format("assemble {}: tile {} ({})", outPath, i, tilePaths[i]); };
+    if (r.x0 < 0 || r.y0 < 0 || r.x1 > width || r.y1 > height || r.x1 <= r.x0 || r.y1 <= r.y0) {
+      return absl::OutOfRangeError(
+          fmt::format("{}: region {} leaves the {}x{} frame", where(), regionText(r), width, height));
+    }
     if (!std::filesystem::exists(tilePaths[i])) {
       return absl::NotFoundError(fmt::format("{}: missing", where()));
     }
     absl::StatusOr<Image> tile = readImage(tilePaths[i]);
-    if (!tile.ok()) return absl::DataLossError(
-          fmt::format("{}: {}", where(), std::string(tile.status().message())));
+    if (!tile.ok()) {
+      return absl::DataLossError(fmt::format("{}: {}", where(), tile.status().message()));
+    }
     if (tile->width() != r.width() || tile->height() != r.height()) {
       return absl::DataLossError(fmt::format("{}: {}x{} pixels, expected {}x{} for region {}",
                                              where(), tile->width(), tile->height(), r.width(),
@@ -76,15 +89,7 @@ absl::Status assembleFrame(const std::vector<std::string>& tilePaths,
     } else if (tile->channels() != frame.channels()) {
       return absl::DataLossError(fmt::format("{}: channels differ from tile 0's", where()));
     }
-    if (r.x1 > width || r.y1 > height) {
-      return absl::OutOfRangeError(
-          fmt::format("{}: region {} leaves the {}x{} frame", where(), regionText(r), width, height));
-    }
-    const size_t row = static_cast<size_t>(r.width()) * frame.channelCount();
-    for (int y = 0; y < r.height(); ++y) {
-      const float* from = tile->pixels().data() + static_cast<size_t>(y) * row;
-      std::copy(from, from + row, &frame.at(r.x0, r.y0 + y, 0));
-    }
+    copyBlock(*tile, 0, 0, frame, r.x0, r.y0, r.width(), r.height());
   }
   frame.setMetadata("pbgi/assembledTiles", static_cast<int>(regions.size()));
   return writeExr(frame, outPath);

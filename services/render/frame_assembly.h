@@ -1,6 +1,7 @@
 #pragma once
-// Farm tiles: a frame split into regions that render as separate tasks (each its own EXR),
-// and the assembly that puts them back together. Pixels do not depend on the tiling
+// Farm tiles: a frame split into regions (makeTiles with the farm's tile size; a tile's
+// index is its position in that list) that render as separate tasks, each its own EXR, and
+// the assembly that puts them back together. Pixels do not depend on the tiling
 // (ARCHITECTURE invariant 1), so an assembled frame equals, pixel for pixel, the frame
 // rendered whole.
 #include <string>
@@ -13,10 +14,6 @@
 #include "core/render/renderer.h"
 
 namespace pbgi {
-
-// Farm tiles of a width x height frame: squares of `tileSize` in Morton order (a tile's index
-// is its position in this list).
-std::vector<TileRect> farmTiles(int width, int height, int tileSize);
 
 // "x0 y0 x1 y1", and back (InvalidArgument naming the text).
 std::string regionText(const TileRect& region);
