@@ -109,28 +109,29 @@ Image layer(const Image& image, const std::string& prefix) {
 constexpr int kBiasBlock = 8;
 constexpr float kBiasScale = 0.25f;
 
-double writeBiasMap(const Image& image, const Image& ref, const std::string& path) {
-  const Image indirect = layer(image, "indirect");
-  const Image refIndirect = layer(ref, "indirect");
+double writeBiasMap(const Image& indirect, const Image& refIndirect, const Image& ref,
+                    const std::string& path) {
   auto lum = [](const Image& im, int x, int y) {
-    return 0.2126 * im.at(x, y, 0) + 0.7152 * im.at(x, y, 1) + 0.0722 * im.at(x, y, 2);
+    return double(luminance(Rgb(im.at(x, y, 0), im.at(x, y, 1), im.at(x, y, 2))));
   };
-  Image map(image.width(), image.height(), {"R", "G", "B"});
+  Image map(ref.width(), ref.height(), {"R", "G", "B"});
   double sumImage = 0.0, sumRef = 0.0;
-  for (int by = 0; by < image.height(); by += kBiasBlock) {
-    for (int bx = 0; bx < image.width(); bx += kBiasBlock) {
-      const int x1 = std::min(bx + kBiasBlock, image.width());
-      const int y1 = std::min(by + kBiasBlock, image.height());
-      double diff = 0.0, total = 0.0;
+  for (int by = 0; by < ref.height(); by += kBiasBlock) {
+    for (int bx = 0; bx < ref.width(); bx += kBiasBlock) {
+      const int x1 = std::min(bx + kBiasBlock, ref.width());
+      const int y1 = std::min(by + kBiasBlock, ref.height());
+      double blockImage = 0.0, blockRef = 0.0, total = 0.0;
       for (int y = by; y < y1; ++y) {
         for (int x = bx; x < x1; ++x) {
-          diff += lum(indirect, x, y) - lum(refIndirect, x, y);
+          blockImage += lum(indirect, x, y);
+          blockRef += lum(refIndirect, x, y);
           total += lum(ref, x, y);
-          sumImage += lum(indirect, x, y);
-          sumRef += lum(refIndirect, x, y);
         }
       }
-      const float v = total > 0.0 ? static_cast<float>(diff / total) / kBiasScale : 0.0f;
+      sumImage += blockImage;
+      sumRef += blockRef;
+      const float v =
+          total > 0.0 ? static_cast<float>((blockImage - blockRef) / total) / kBiasScale : 0.0f;
       const Rgb colour = v > 0.0f ? Rgb(std::min(v, 1.0f), 0.0f, 0.0f)
                                   : Rgb(0.0f, 0.0f, std::min(-v, 1.0f));
       for (int y = by; y < y1; ++y) {
@@ -200,8 +201,10 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
   auto rgb = compareImages(*image, ref, &diff);
   if (!rgb.ok()) return rgb.status();
   run.rgb = *rgb;
+  const Image imageIndirect = layer(*image, "indirect");
+  const Image refIndirect = layer(ref, "indirect");
   auto direct = compareImages(layer(*image, "direct"), layer(ref, "direct"));
-  auto indirect = compareImages(layer(*image, "indirect"), layer(ref, "indirect"));
+  auto indirect = compareImages(imageIndirect, refIndirect);
   if (!direct.ok()) return direct.status();
   if (!indirect.ok()) return indirect.status();
   run.direct = *direct;
@@ -210,7 +213,7 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
       (fs::path(outDir) / fmt::format("{}.{}.error.exr", shot.name, run.name())).string();
   if (auto s = writeExr(diff, errorPath); !s.ok()) return s;
   const double indirectRatio = writeBiasMap(
-      *image, ref,
+      imageIndirect, refIndirect, ref,
       (fs::path(outDir) / fmt::format("{}.{}.bias.png", shot.name, run.name())).string());
   const double meanRatio =
       (rgb->channels[0].meanImage + rgb->channels[1].meanImage + rgb->channels[2].meanImage) /
