@@ -642,7 +642,9 @@ absl::StatusOr<ShotDesc> parseShot(std::string_view text, const std::string& pat
   root = std::move(result).table();
 #endif
   const Source source(path);
-  return parseDocument(source, root);
+  absl::StatusOr<ShotDesc> shot = parseDocument(source, root);
+  if (shot.ok()) shot->source = std::string(text);
+  return shot;
 }
 
 absl::StatusOr<ShotDesc> loadShotFile(const std::string& path) {

@@ -17,6 +17,7 @@ int reportError(const absl::Status& status) {
     case absl::StatusCode::kNotFound:
     case absl::StatusCode::kFailedPrecondition:
     case absl::StatusCode::kOutOfRange:
+    case absl::StatusCode::kPermissionDenied:  // an output outside the farm's root
       return kExitBadInput;
     default:
       return kExitFailed;
@@ -62,6 +63,8 @@ int run(int argc, char** argv) {
   registerCompareCommand(app, action);
   registerBakeCommand(app, action);
   registerInspectCommand(app, action);
+  registerRunCommand(app, action);
+  registerFarmCommands(app, action);
 
   try {
     app.parse(argc, argv);

@@ -26,6 +26,9 @@ void registerRenderCommand(CLI::App& app, CommandAction& action);
 void registerCompareCommand(CLI::App& app, CommandAction& action);
 void registerBakeCommand(CLI::App& app, CommandAction& action);
 void registerInspectCommand(CLI::App& app, CommandAction& action);
+void registerRunCommand(CLI::App& app, CommandAction& action);
+// submit, status, cancel, retry, logs, workers.
+void registerFarmCommands(CLI::App& app, CommandAction& action);
 
 // "pbgi <version>".
 std::string versionString();

@@ -95,6 +95,18 @@ struct JobInfo {
   std::vector<TaskInfo> dead;
 };
 
+// One line of a job's log: a lease, a completion or failure (with what the worker printed),
+// an expiry. Appended in the same transaction as the change it records.
+struct TaskEvent {
+  Seconds time = 0;
+  int64_t task = 0;
+  TaskRef ref;
+  int attempt = 0;
+  std::string worker;
+  std::string event;  // leased | done | failed | expired
+  std::string text;   // the error, or the worker's log
+};
+
 struct WorkerInfo {
   std::string id;
   std::string host;
@@ -127,10 +139,12 @@ class JobStore {
                                  Seconds leaseSeconds) = 0;
   // The task is done; its dependents become ready when all they wait on is done; the job is
   // done when every task is. FailedPrecondition from a stale attempt (nothing changes).
-  virtual absl::Status complete(int64_t task, int attempt, Seconds now) = 0;
+  virtual absl::Status complete(int64_t task, int attempt, Seconds now,
+                                const std::string& log = {}) = 0;
   // The attempt failed with `error`: ready again after the back-off, or dead at the cap.
   // Counts the failure against (job, worker) for the blocklist. FailedPrecondition when stale.
-  virtual absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now) = 0;
+  virtual absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
+                            const std::string& log = {}) = 0;
   // Leases that expired by `now` count as failures ("lease expired: worker W stopped
   // heartbeating"). Returns how many expired.
   virtual absl::StatusOr<int> expireLeases(Seconds now) = 0;
@@ -141,6 +155,9 @@ class JobStore {
   virtual absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                              Seconds now) = 0;
   virtual absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) = 0;
+  // The job's events in order, of one frame or one tile of it when given.
+  virtual absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
+                                                        std::optional<int> tile) = 0;
 };
 
 // The embedded store: one SQLite file in WAL mode (created with its schema when missing).

@@ -32,7 +32,7 @@ namespace {
 
 // Bumped with every schema change: a file written by a newer coordinator is refused rather
 // than misread.
-constexpr int kSchemaVersion = 1;
+constexpr int kSchemaVersion = 2;
 // An operator's sqlite3 shell or a backup may hold the write lock for a moment; waiting that
 // long beats failing a lease.
 constexpr int kBusyTimeoutMs = 5000;
@@ -49,6 +49,21 @@ static_assert(static_cast<int>(TaskState::kBlocked) == 0 &&
 static_assert(static_cast<int>(JobState::kActive) == 0 && static_cast<int>(JobState::kDone) == 1 &&
               static_cast<int>(JobState::kFailed) == 2 &&
               static_cast<int>(JobState::kCancelled) == 3);
+
+// Schema 2 added the events table; a version 1 file gets it on opening.
+constexpr const char* kEventsSchema = R"sql(
+CREATE TABLE task_events (
+  id INTEGER PRIMARY KEY AUTOINCREMENT,
+  task INTEGER NOT NULL REFERENCES tasks (id),
+  job INTEGER NOT NULL REFERENCES jobs (id),
+  attempt INTEGER NOT NULL,
+  worker TEXT NOT NULL,
+  time REAL NOT NULL,
+  event TEXT NOT NULL,
+  text TEXT NOT NULL
+);
+CREATE INDEX task_events_by_job ON task_events (job, id);
+)sql";
 
 // AUTOINCREMENT so that ids are never reused: a worker still holding a task id from before
 // some clean-up must never address a different task.
@@ -136,15 +151,20 @@ class SqliteJobStore final : public JobStore {
                                              Seconds leaseSeconds) override;
   absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
                          Seconds leaseSeconds) override;
-  absl::Status complete(int64_t task, int attempt, Seconds now) override;
-  absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now) override;
+  absl::Status complete(int64_t task, int attempt, Seconds now, const std::string& log) override;
+  absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
+                    const std::string& log) override;
   absl::StatusOr<int> expireLeases(Seconds now) override;
   absl::Status cancel(int64_t job) override;
   absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                      Seconds now) override;
   absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
+  absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
+                                                std::optional<int> tile) override;
 
  private:
+  absl::Status addEvent(const TaskInfo& task, int attempt, const std::string& worker,
+                        std::string_view event, std::string_view text, Seconds now);
   absl::Status exec(const char* sql);
   Query query(const char* sql);
   template <typename Body>
@@ -159,7 +179,8 @@ class SqliteJobStore final : public JobStore {
   absl::Status touchWorker(const std::string& worker, Seconds now);
   absl::Status promoteBlocked(int64_t job, std::optional<int> frame);
   absl::Status killDependents(const TaskInfo& dead);
-  absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now);
+  absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
+                             std::string_view event, std::string_view log);
   absl::Status settleJob(int64_t job);
   int64_t blocklistThreshold() const {
     // No threshold means no blocklist, rather than every worker blocklisted from the start.
@@ -250,12 +271,17 @@ absl::Status SqliteJobStore::initialize() {
       if (row) found = version.integer(0);
     }
     if (found == kSchemaVersion) return absl::OkStatus();
+    if (found == 1) {
+      PBGI_RETURN_IF_ERROR(exec(kEventsSchema));
+      return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
+    }
     if (found != 0) {
       return absl::FailedPreconditionError(
           fmt::format("{}: schema version {}; this coordinator reads version {}", path_, found,
                       kSchemaVersion));
     }
     PBGI_RETURN_IF_ERROR(exec(kSchema));
+    PBGI_RETURN_IF_ERROR(exec(kEventsSchema));
     // PRAGMA takes no parameters; the value is our own constant.
     return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
   });
@@ -336,6 +362,22 @@ absl::StatusOr<TaskInfo> SqliteJobStore::currentLease(int64_t task, int attempt)
   return info;
 }
 
+absl::Status SqliteJobStore::addEvent(const TaskInfo& task, int attempt,
+                                      const std::string& worker, std::string_view event,
+                                      std::string_view text, Seconds now) {
+  Query q = query(
+      "INSERT INTO task_events (task, job, attempt, worker, time, event, text) "
+      "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)");
+  q.bind(1, task.id)
+      .bind(2, task.ref.job)
+      .bind(3, attempt)
+      .bind(4, worker)
+      .bind(5, now)
+      .bind(6, event)
+      .bind(7, text);
+  return q.run();
+}
+
 absl::Status SqliteJobStore::touchWorker(const std::string& worker, Seconds now) {
   Query q = query("UPDATE workers SET last_seen = ?2 WHERE id = ?1");
   q.bind(1, worker).bind(2, now);
@@ -378,7 +420,10 @@ absl::Status SqliteJobStore::killDependents(const TaskInfo& dead) {
 }
 
 absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::string& error,
-                                           Seconds now) {
+                                           Seconds now, std::string_view event,
+                                           std::string_view log) {
+  PBGI_RETURN_IF_ERROR(addEvent(task, task.attempt, task.worker, event,
+                                log.empty() ? error : fmt::format("{}\n{}", error, log), now));
   TaskInfo failed = task;
   failed.failures = task.failures + 1;
   failed.lastError = error;
@@ -606,6 +651,10 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
       PBGI_RETURN_IF_ERROR(take.run());
     }
     PBGI_RETURN_IF_ERROR(touchWorker(worker, now));
+    TaskInfo leased;
+    leased.id = lease.task;
+    leased.ref = lease.ref;
+    PBGI_RETURN_IF_ERROR(addEvent(leased, lease.attempt, worker, "leased", "", now));
     return std::optional<Lease>(lease);
   });
 }
@@ -623,9 +672,11 @@ absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progres
   });
 }
 
-absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now) {
+absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now,
+                                      const std::string& log) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
+    PBGI_RETURN_IF_ERROR(addEvent(info, attempt, info.worker, "done", log, now));
     {
       Query q = query("UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = ?1");
       q.bind(1, task);
@@ -638,10 +689,10 @@ absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now) {
 }
 
 absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& error,
-                                  Seconds now) {
+                                  Seconds now, const std::string& log) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    return recordFailure(info, error, now);
+    return recordFailure(info, error, now, "failed", log);
   });
 }
 
@@ -661,7 +712,8 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
     for (int64_t id : expired) {
       PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
       PBGI_RETURN_IF_ERROR(recordFailure(
-          info, fmt::format("lease expired: worker {} stopped heartbeating", info.worker), now));
+          info, fmt::format("lease expired: worker {} stopped heartbeating", info.worker), now,
+          "expired", ""));
     }
     return static_cast<int>(expired.size());
   });
@@ -738,6 +790,36 @@ absl::StatusOr<bool> SqliteJobStore::blocklisted(int64_t job, const std::string&
     q.bind(1, job).bind(2, worker);
     PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
     return row && q.int64(0) >= blocklistThreshold();
+  });
+}
+
+absl::StatusOr<std::vector<TaskEvent>> SqliteJobStore::events(int64_t job,
+                                                              std::optional<int> frame,
+                                                              std::optional<int> tile) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<TaskEvent>> {
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
+    Query q = query(
+        "SELECT e.time, e.task, t.kind, t.frame, t.tile, e.attempt, e.worker, e.event, e.text "
+        "FROM task_events e JOIN tasks t ON t.id = e.task WHERE e.job = ?1 "
+        "AND (?2 IS NULL OR t.frame = ?2) AND (?3 IS NULL OR t.tile = ?3) ORDER BY e.id");
+    q.bind(1, job).bind(2, frame).bind(3, tile);
+    std::vector<TaskEvent> out;
+    for (;;) {
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return out;
+      TaskEvent e;
+      e.time = q.real(0);
+      e.task = q.int64(1);
+      e.ref.job = job;
+      e.ref.kind = static_cast<TaskKind>(q.integer(2));
+      e.ref.frame = q.integer(3);
+      e.ref.tile = q.integer(4);
+      e.attempt = q.integer(5);
+      e.worker = q.text(6);
+      e.event = q.text(7);
+      e.text = q.text(8);
+      out.push_back(std::move(e));
+    }
   });
 }
 

@@ -54,7 +54,7 @@ absl::StatusOr<Image> cropImage(const Image& image, const TileRect& r) {
   return out;
 }
 
-absl::Status assembleFrame(const std::vector<std::string>& tilePaths,
+absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                            const std::vector<TileRect>& regions, int width, int height,
                            const std::string& outPath) {
   if (tilePaths.size() != regions.size() || regions.empty()) {
@@ -92,7 +92,8 @@ absl::Status assembleFrame(const std::vector<std::string>& tilePaths,
     copyBlock(*tile, 0, 0, frame, r.x0, r.y0, r.width(), r.height());
   }
   frame.setMetadata("pbgi/assembledTiles", static_cast<int>(regions.size()));
-  return writeExr(frame, outPath);
+  PBGI_RETURN_IF_ERROR(writeExr(frame, outPath));
+  return frame;
 }
 
 }  // namespace pbgi

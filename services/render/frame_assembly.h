@@ -27,8 +27,8 @@ absl::StatusOr<Image> cropImage(const Image& image, const TileRect& region);
 // of its region's size and of the same channels, and writes the width x height frame to
 // `outPath` atomically (temporary then rename) with the first tile's metadata (less its
 // region). A missing or wrong tile fails the frame naming the tile and its file; nothing is
-// written then.
-absl::Status assembleFrame(const std::vector<std::string>& tilePaths,
+// written then. Returns the frame as written.
+absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                            const std::vector<TileRect>& regions, int width, int height,
                            const std::string& outPath);
 

@@ -17,8 +17,6 @@
 
 namespace pbgi {
 
-namespace {
-
 std::string previewPathFor(const std::string& exrPath) {
   const size_t dot = exrPath.find_last_of('.');
   const size_t slash = exrPath.find_last_of('/');
@@ -27,6 +25,8 @@ std::string previewPathFor(const std::string& exrPath) {
   }
   return exrPath.substr(0, dot) + ".png";
 }
+
+namespace {
 
 // The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
 // the same shot bytes and bake settings is on disk, else a new bake.

@@ -63,6 +63,9 @@ struct FrameRenderReport {
   std::vector<std::string> warnings;
 };
 
+// The PNG preview written beside an EXR: its extension replaced by .png.
+std::string previewPathFor(const std::string& exrPath);
+
 // The integrators this build can run, by name.
 const std::vector<std::string>& availableIntegrators();
 

@@ -85,7 +85,7 @@ TEST_F(FrameAssembly, AMissingTileFailsTheFrameByName) {
   std::vector<std::string> paths = renderTiles(tiles);
   fs::remove(paths[2]);
   const std::string out = (dir_ / "frame.exr").string();
-  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out);
+  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
   EXPECT_EQ(s.code(), absl::StatusCode::kNotFound) << s;
   EXPECT_NE(s.message().find("tile 2"), std::string::npos) << s;
   EXPECT_NE(s.message().find(paths[2]), std::string::npos) << s;
@@ -98,7 +98,7 @@ TEST_F(FrameAssembly, ATileOfTheWrongSizeFailsTheFrame) {
   // 2 x 2 tiles in Morton order: 0 and 1 are 20 x 20, 2 and 3 are 20 x 8 (the bottom row).
   std::swap(paths[0], paths[2]);
   const std::string out = (dir_ / "frame.exr").string();
-  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out);
+  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
   EXPECT_FALSE(fs::exists(out));
 }

@@ -1,0 +1,154 @@
+#include "services/cli/farm_cli.h"
+
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include <CLI/CLI.hpp>
+#include <absl/strings/numbers.h>
+#include <absl/strings/str_split.h>
+#include <fmt/format.h>
+
+#include "core/util/status.h"
+#include "services/coordinator/farm_job.h"
+
+namespace pbgi::cli {
+
+void addJobFlags(CLI::App& cmd, JobFlags& flags) {
+  cmd.add_option("--frames", flags.frames, "Frames to render, e.g. 1-3,7 (default: every frame)");
+  cmd.add_option("--integrator", flags.integrator, "Integrator (default: the shot's)");
+  cmd.add_option("--spp", flags.spp, "Camera samples per pixel (default: the shot's)")
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--quality", flags.quality, "PBGI gather preset: draft, default, high")
+      ->check(CLI::IsMember({"draft", "default", "high"}));
+  cmd.add_option("--cache-mb", flags.cacheMb, "PBGI: tree page cache budget in MiB")
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--priority", flags.priority, "Higher runs first (default 0)");
+}
+
+absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
+  std::vector<int> frames;
+  for (const absl::string_view part : absl::StrSplit(text, ',', absl::SkipWhitespace())) {
+    const std::vector<absl::string_view> ends = absl::StrSplit(part, absl::MaxSplits('-', 1));
+    int first = 0;
+    int last = 0;
+    const bool ok = absl::SimpleAtoi(ends[0], &first) &&
+                    (ends.size() == 1 ? (last = first, true) : absl::SimpleAtoi(ends[1], &last)) &&
+                    first <= last && last - first < 1'000'000;
+    if (!ok) {
+      return absl::InvalidArgumentError(fmt::format(
+          "--frames {}: '{}' is not a frame or a range (expected e.g. 1-3,7)", text,
+          std::string(part)));
+    }
+    for (int f = first; f <= last; ++f) frames.push_back(f);
+  }
+  if (frames.empty()) {
+    return absl::InvalidArgumentError(fmt::format("--frames {}: no frames", text));
+  }
+  return frames;
+}
+
+absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const std::string& shotPath,
+                                                         const JobFlags& flags) {
+  std::ifstream in(shotPath, std::ios::binary);
+  if (!in) return absl::NotFoundError(fmt::format("{}: shot file not found", shotPath));
+  std::ostringstream text;
+  text << in.rdbuf();
+  farm::v1::SubmitJobRequest request;
+  request.set_shot_path(std::filesystem::absolute(shotPath).lexically_normal().string());
+  request.set_shot_text(text.str());
+  request.set_priority(flags.priority);
+  if (!flags.frames.empty()) {
+    PBGI_ASSIGN_OR_RETURN(const std::vector<int> frames, parseFrameList(flags.frames));
+    for (int f : frames) request.add_frames(f);
+  }
+  if (!flags.integrator.empty()) request.add_overrides("integrator=" + flags.integrator);
+  if (flags.spp > 0) request.add_overrides(fmt::format("spp={}", flags.spp));
+  if (!flags.quality.empty()) request.add_overrides("quality=" + flags.quality);
+  if (flags.cacheMb > 0) request.add_overrides(fmt::format("cache_mb={}", flags.cacheMb));
+  // The coordinator checks the same, but a typo is better caught before the network.
+  const std::vector<std::string> overrides(request.overrides().begin(), request.overrides().end());
+  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
+                        farm::jobShot(request.shot_text(), request.shot_path(), overrides));
+  for (int f : request.frames()) {
+    if (f < shot.firstFrame || f > shot.lastFrame) {
+      return absl::OutOfRangeError(fmt::format("--frames {}: frame {} is outside the shot's frames [{}, {}]",
+                                               flags.frames, f, shot.firstFrame, shot.lastFrame));
+    }
+  }
+  return request;
+}
+
+void addConnectionFlags(CLI::App& cmd, ConnectionFlags& flags) {
+  const char* env = std::getenv("PBGI_COORDINATOR");
+  flags.coordinator = env != nullptr && *env != '\0' ? env : farm::kDefaultCoordinatorAddress;
+  cmd.add_option("--coordinator", flags.coordinator,
+                 "Coordinator host:port (default: $PBGI_COORDINATOR, else 127.0.0.1:7411)");
+  cmd.add_option("--token-file", flags.tokenFile,
+                 "The farm token (default: $PBGI_TOKEN; the coordinator writes <state>/token)");
+}
+
+absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags) {
+  PBGI_ASSIGN_OR_RETURN(std::string token, farm::loadClientToken(flags.tokenFile));
+  return std::make_unique<farm::FarmClient>(flags.coordinator, std::move(token));
+}
+
+JobProgress jobProgress(const farm::v1::JobStatus& job) {
+  JobProgress p;
+  for (const auto& [state, count] : job.tasks_by_state()) {
+    p.total += count;
+    if (state == "done") p.done += count;
+  }
+  return p;
+}
+
+std::string describeJob(const farm::v1::JobStatus& job) {
+  const JobProgress p = jobProgress(job);
+  std::string out = fmt::format("job {} {} {}: {} of {} tasks done, {} frames x {} tiles\n",
+                                job.job(), job.name(), job.state(), p.done, p.total,
+                                job.frames_size(), job.tiles_per_frame());
+  struct FrameLine {
+    std::string bake = "-";
+    int tilesDone = 0;
+    int tilesLeased = 0;
+    int tilesDead = 0;
+    double tileProgress = 0.0;
+    std::string assemble;
+  };
+  std::map<int, FrameLine> frames;
+  for (const auto& t : job.tasks()) {
+    FrameLine& f = frames[t.frame()];
+    if (t.kind() == "bake") {
+      f.bake = t.state() == "leased" ? fmt::format("leased ({:.0f} %)", 100 * t.progress()) : t.state();
+    } else if (t.kind() == "assemble") {
+      f.assemble = t.state();
+    } else {
+      f.tilesDone += t.state() == "done";
+      f.tilesDead += t.state() == "dead";
+      if (t.state() == "leased") {
+        ++f.tilesLeased;
+        f.tileProgress += t.progress();
+      }
+    }
+  }
+  for (const auto& [frame, f] : frames) {
+    out += fmt::format("  frame {:>4}: bake {}, tiles {}/{} done", frame, f.bake, f.tilesDone,
+                       job.tiles_per_frame());
+    if (f.tilesLeased > 0) {
+      out += fmt::format(", {} running ({:.0f} % on average)", f.tilesLeased,
+                         100 * f.tileProgress / f.tilesLeased);
+    }
+    if (f.tilesDead > 0) out += fmt::format(", {} dead", f.tilesDead);
+    out += fmt::format(", assemble {}\n", f.assemble);
+  }
+  for (const auto& d : job.dead()) {
+    out += fmt::format("  dead: frame {} {}{} after {} attempt(s): {}\n", d.frame(), d.kind(),
+                       d.kind() == "tile" ? fmt::format(" {}", d.tile()) : "", d.attempt(),
+                       d.last_error());
+  }
+  for (const auto& o : job.outputs()) out += fmt::format("  wrote {}\n", o);
+  return out;
+}
+
+}  // namespace pbgi::cli

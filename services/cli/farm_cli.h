@@ -1,0 +1,57 @@
+#pragma once
+// What `pbgi run` and the farm client commands (submit, status, cancel, retry, logs, workers)
+// share: the job flags that become a submission, the coordinator connection flags, and the
+// text that shows a job's progress.
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <absl/status/statusor.h>
+
+#include "services/coordinator/farm_client.h"
+
+namespace CLI {
+class App;
+}
+
+namespace pbgi::cli {
+
+// Flags that shape a job: which frames, and the overrides of the shot's [render] settings.
+struct JobFlags {
+  std::string frames;  // "1-3,7"; empty: every frame
+  std::string integrator;
+  int spp = 0;
+  std::string quality;
+  int cacheMb = 0;
+  int priority = 0;
+};
+void addJobFlags(CLI::App& cmd, JobFlags& flags);
+
+// The submission of `shotPath` (read here: the job renders these bytes) with `flags`.
+// Errors name the shot file or the flag.
+absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const std::string& shotPath,
+                                                         const JobFlags& flags);
+
+// "1-3,7" -> {1, 2, 3, 7}; InvalidArgument naming the text.
+absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text);
+
+// --coordinator (default: $PBGI_COORDINATOR, else 127.0.0.1:7411) and --token-file.
+struct ConnectionFlags {
+  std::string coordinator;
+  std::string tokenFile;
+};
+void addConnectionFlags(CLI::App& cmd, ConnectionFlags& flags);
+absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags);
+
+// Tasks done of all tasks, over the job's frames.
+struct JobProgress {
+  int done = 0;
+  int total = 0;
+};
+JobProgress jobProgress(const farm::v1::JobStatus& job);
+
+// One line per frame (bake, tiles done of all, assemble) and the dead tasks with their errors.
+std::string describeJob(const farm::v1::JobStatus& job);
+
+}  // namespace pbgi::cli

@@ -1,0 +1,210 @@
+// The farm client commands: pbgi submit, status, cancel, retry, logs, workers. Each talks to
+// a running coordinator (--coordinator, --token-file).
+
+#include <chrono>
+#include <cstdio>
+#include <ctime>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <google/protobuf/util/json_util.h>
+
+#include "services/cli/cli.h"
+#include "core/util/status.h"
+#include "services/cli/farm_cli.h"
+#include "services/cli/progress.h"
+
+namespace pbgi::cli {
+
+namespace {
+
+namespace v1 = farm::v1;
+
+std::string timeText(double seconds) {
+  const std::time_t t = static_cast<std::time_t>(seconds);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%d %H:%M:%S", &tm);
+  return text;
+}
+
+struct SubmitOptions {
+  ConnectionFlags connection;
+  std::string shot;
+  std::string outputDir;
+  JobFlags job;
+};
+
+int runSubmit(const SubmitOptions& o) {
+  auto request = submitRequest(o.shot, o.job);
+  if (!request.ok()) return reportError(request.status());
+  request->set_output_dir(o.outputDir);
+  auto client = connect(o.connection);
+  if (!client.ok()) return reportError(client.status());
+  auto response = (*client)->submitJob(*request);
+  if (!response.ok()) return reportError(response.status());
+  std::printf("%lld\n", static_cast<long long>(response->job()));
+  return kExitOk;
+}
+
+struct StatusOptions {
+  ConnectionFlags connection;
+  int64_t job = 0;
+  bool json = false;
+};
+
+int runStatus(const StatusOptions& o) {
+  auto client = connect(o.connection);
+  if (!client.ok()) return reportError(client.status());
+  v1::GetStatusRequest request;
+  request.set_job(o.job);
+  request.set_with_tasks(o.job != 0);
+  auto response = (*client)->getStatus(request);
+  if (!response.ok()) return reportError(response.status());
+  if (o.json) {
+    std::string json;
+    (void)google::protobuf::util::MessageToJsonString(*response, &json);
+    std::printf("%s\n", json.c_str());
+    return kExitOk;
+  }
+  if (response->jobs().empty()) std::printf("no jobs\n");
+  for (const v1::JobStatus& job : response->jobs()) {
+    if (o.job != 0) {
+      // One job: its frames x tiles, with a bar on a terminal.
+      const JobProgress p = jobProgress(job);
+      Progress bar(fmt::format("job {}", job.job()));
+      bar.update(static_cast<uint64_t>(p.done), static_cast<uint64_t>(p.total));
+      bar.finish();
+      std::printf("%s", describeJob(job).c_str());
+    } else {
+      const JobProgress p = jobProgress(job);
+      std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s\n",
+                  static_cast<long long>(job.job()), job.name().c_str(), job.state().c_str(),
+                  p.total > 0 ? 100 * p.done / p.total : 0, p.done, p.total, job.frames_size(),
+                  job.tiles_per_frame(),
+                  job.dead().empty() ? "" : fmt::format(", {} dead", job.dead_size()).c_str());
+    }
+  }
+  return kExitOk;
+}
+
+struct JobOptions {
+  ConnectionFlags connection;
+  int64_t job = 0;
+  std::optional<int> frame;
+  std::optional<int> tile;
+};
+
+int runCancel(const JobOptions& o) {
+  auto client = connect(o.connection);
+  if (!client.ok()) return reportError(client.status());
+  v1::CancelJobRequest request;
+  request.set_job(o.job);
+  if (auto r = (*client)->cancelJob(request); !r.ok()) return reportError(r.status());
+  std::printf("cancelled job %lld\n", static_cast<long long>(o.job));
+  return kExitOk;
+}
+
+int runRetry(const JobOptions& o) {
+  auto client = connect(o.connection);
+  if (!client.ok()) return reportError(client.status());
+  v1::RetryJobRequest request;
+  request.set_job(o.job);
+  if (o.frame) request.set_frame(*o.frame);
+  if (o.tile) request.set_tile(*o.tile);
+  if (auto r = (*client)->retryJob(request); !r.ok()) return reportError(r.status());
+  std::printf("retrying job %lld\n", static_cast<long long>(o.job));
+  return kExitOk;
+}
+
+int runLogs(const JobOptions& o) {
+  auto client = connect(o.connection);
+  if (!client.ok()) return reportError(client.status());
+  v1::GetLogsRequest request;
+  request.set_job(o.job);
+  if (o.frame) request.set_frame(*o.frame);
+  if (o.tile) request.set_tile(*o.tile);
+  auto response = (*client)->getLogs(request);
+  if (!response.ok()) return reportError(response.status());
+  for (const v1::LogEntry& e : response->entries()) {
+    std::printf("%s frame %d %s%s attempt %d %s on %s\n", timeText(e.time()).c_str(), e.frame(),
+                e.kind().c_str(), e.kind() == "tile" ? fmt::format(" {}", e.tile()).c_str() : "",
+                e.attempt(), e.event().c_str(), e.worker().c_str());
+    if (!e.text().empty()) {
+      std::string text = e.text();
+      if (text.back() != '\n') text += '\n';
+      for (size_t start = 0; start < text.size();) {
+        const size_t end = text.find('\n', start);
+        std::printf("    %s\n", text.substr(start, end - start).c_str());
+        start = end + 1;
+      }
+    }
+  }
+  return kExitOk;
+}
+
+int runWorkers(const ConnectionFlags& connection) {
+  auto client = connect(connection);
+  if (!client.ok()) return reportError(client.status());
+  auto response = (*client)->listWorkers(v1::ListWorkersRequest());
+  if (!response.ok()) return reportError(response.status());
+  if (response->workers().empty()) std::printf("no workers\n");
+  const double now =
+      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  for (const v1::WorkerStatus& w : response->workers()) {
+    std::printf("%-28s %-16s %3d cores %6.1f GiB  cache %6.0f MiB  seen %.0f s ago\n",
+                w.worker().c_str(), w.host().c_str(), w.cores(),
+                double(w.memory_bytes()) / (1 << 30), double(w.cache_bytes()) / (1 << 20),
+                now - w.last_seen());
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+void registerFarmCommands(CLI::App& app, CommandAction& action) {
+  {
+    auto o = std::make_shared<SubmitOptions>();
+    CLI::App* cmd = app.add_subcommand("submit", "Submit a shot job to a coordinator; prints the job id");
+    cmd->add_option("SHOT", o->shot, "Shot file (TOML), at a path the workers can read")->required();
+    cmd->add_option("--output-dir", o->outputDir,
+                    "Write the frames here, under the coordinator's output root (default: the "
+                    "shot's output pattern)");
+    addJobFlags(*cmd, o->job);
+    addConnectionFlags(*cmd, o->connection);
+    cmd->callback([o, &action] { action = [o] { return runSubmit(*o); }; });
+  }
+  {
+    auto o = std::make_shared<StatusOptions>();
+    CLI::App* cmd = app.add_subcommand("status", "Jobs and their progress (one job: frames x tiles)");
+    cmd->add_option("JOB", o->job, "A job id (default: every job)");
+    cmd->add_flag("--json", o->json, "Print the status as JSON");
+    addConnectionFlags(*cmd, o->connection);
+    cmd->callback([o, &action] { action = [o] { return runStatus(*o); }; });
+  }
+  const auto jobCommand = [&](const char* name, const char* help, bool parts,
+                              int (*run)(const JobOptions&)) {
+    auto o = std::make_shared<JobOptions>();
+    CLI::App* cmd = app.add_subcommand(name, help);
+    cmd->add_option("JOB", o->job, "The job id")->required();
+    if (parts) {
+      cmd->add_option("--frame", o->frame, "Only this frame");
+      cmd->add_option("--tile", o->tile, "Only this tile of the frame");
+    }
+    addConnectionFlags(*cmd, o->connection);
+    cmd->callback([o, run, &action] { action = [o, run] { return run(*o); }; });
+  };
+  jobCommand("cancel", "Cancel a job's unfinished tasks", false, runCancel);
+  jobCommand("retry", "Run a job's dead or cancelled tasks again (a frame, a tile)", true, runRetry);
+  jobCommand("logs", "A job's task history: leases, completions with their logs, failures",
+             true, runLogs);
+  {
+    auto o = std::make_shared<ConnectionFlags>();
+    CLI::App* cmd = app.add_subcommand("workers", "The workers a coordinator knows");
+    addConnectionFlags(*cmd, *o);
+    cmd->callback([o, &action] { action = [o] { return runWorkers(*o); }; });
+  }
+}
+
+}  // namespace pbgi::cli

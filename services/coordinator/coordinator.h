@@ -1,0 +1,68 @@
+#pragma once
+// The coordinator: the farm's gRPC service (pbgi.farm.v1) over the durable job store, a
+// lease-expiry loop, and an HTTP endpoint with Prometheus metrics and a JSON status. The
+// `pbgi-coordinator` daemon runs one; `pbgi run` runs one in-process.
+//
+// Every RPC must carry "authorization: Bearer <token>"; others are refused (and counted).
+// A job's frames are written only under the output root. The coordinator keeps running
+// through any bad job: a shot that does not parse is refused at submission with the reader's
+// message, and a task that fails on a worker is retried, then dead, by the store's policy.
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "services/coordinator/job_store.h"
+
+namespace pbgi::farm {
+
+struct CoordinatorOptions {
+  std::string listen = "127.0.0.1:0";  // host:port; port 0 picks a free one
+  std::string httpListen;              // host:port for /metrics and /status; empty: none
+  std::string stateDir;                // jobs.db and jobs/<job>/ (bakes, tiles)
+  std::string outputRoot;              // every job's frames must lie under it
+  std::string token;                   // required on every RPC (not empty)
+  double leaseSeconds = 30.0;          // a worker heartbeats well within this
+  double expiryIntervalSeconds = 1.0;  // how often expired leases are reclaimed
+  int tileSize = 0;                    // farm tile edge; 0: kDefaultFarmTileSize
+  RetryPolicy retry;
+};
+
+// Counters since this coordinator started (Prometheus counters reset with the process).
+struct CoordinatorMetrics;
+
+class Coordinator {
+ public:
+  // Opens (or creates) <stateDir>/jobs.db, binds both listeners and starts serving. After a
+  // restart, leases already in the database get one lease period to be heartbeated before
+  // they are reclaimed: their workers may only have lost sight of the coordinator.
+  static absl::StatusOr<std::unique_ptr<Coordinator>> start(const CoordinatorOptions& options);
+  ~Coordinator();
+
+  // The bound addresses ("127.0.0.1:41234"); httpAddress is empty without an HTTP listener.
+  const std::string& address() const;
+  const std::string& httpAddress() const;
+
+  // The store, for an in-process caller (pbgi run) that watches its job.
+  JobStore& store();
+
+  // Stops accepting calls, lets calls in flight finish, and stops the expiry loop.
+  void shutdown();
+
+  // The Prometheus text and JSON status the HTTP endpoint serves.
+  std::string metricsText();
+  std::string statusJson();
+
+  struct Impl;
+
+ private:
+  explicit Coordinator(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// pbgi-coordinator's command line (services/coordinator/coordinator_daemon.cpp).
+int coordinatorDaemonMain(int argc, char** argv);
+
+}  // namespace pbgi::farm

@@ -1,0 +1,101 @@
+// pbgi-coordinator [--config FILE] [--listen HOST:PORT] [--state DIR] ...
+
+#include <cstdio>
+#include <filesystem>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include "core/util/log.h"
+#include "core/util/status.h"
+#include "services/coordinator/coordinator.h"
+#include "services/coordinator/farm_job.h"
+#include "services/util/daemon.h"
+
+namespace pbgi::farm {
+
+int coordinatorDaemonMain(int argc, char** argv) {
+  CLI::App app{"pbgi-coordinator: the render farm's coordinator daemon"};
+  app.set_config("--config", "", "TOML file of these options (keys are the long flag names)");
+  CoordinatorOptions o;
+  o.listen = kDefaultCoordinatorAddress;
+  std::string stateDir = "pbgi-state";
+  std::string tokenFile;
+  std::string addressFile;
+  app.add_option("--listen", o.listen, "gRPC address (port 0 picks a free one)")
+      ->capture_default_str();
+  app.add_option("--http", o.httpListen, "HTTP address of /metrics and /status (empty: none)");
+  app.add_option("--state", stateDir, "State folder: jobs.db, job folders, token")
+      ->capture_default_str();
+  app.add_option("--output-root", o.outputRoot,
+                 "Every job's frames must lie under this folder (default: <state>/output)");
+  app.add_option("--token-file", tokenFile,
+                 "The farm token; created with a random token when missing (default: <state>/token)");
+  app.add_option("--address-file", addressFile,
+                 "Where the bound address is written (default: <state>/coordinator.addr)");
+  app.add_option("--lease-seconds", o.leaseSeconds, "Lease length; workers heartbeat within it")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--expiry-interval", o.expiryIntervalSeconds, "Seconds between lease sweeps")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--tile-size", o.tileSize, "Farm tile edge in pixels")
+      ->check(CLI::Range(16, 8192))
+      ->default_val(kDefaultFarmTileSize);
+  app.add_option("--max-attempts", o.retry.maxAttempts, "Attempts before a task is dead")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  app.add_option("--backoff-base", o.retry.backoffBase, "First retry back-off in seconds (doubles)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--backoff-max", o.retry.backoffMax, "Longest retry back-off in seconds")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--blocklist-after", o.retry.blocklistAfter,
+                 "Failures of one job on one worker that blocklist the worker for the job (0: never)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() != 0) {
+      std::fprintf(stderr, "pbgi-coordinator: error: %s\n", e.what());
+      return 2;
+    }
+    return app.exit(e);
+  }
+  log::setLevel(log::Level::kInfo);
+  namespace fs = std::filesystem;
+  o.stateDir = stateDir;
+  if (o.outputRoot.empty()) o.outputRoot = (fs::path(stateDir) / "output").string();
+  std::error_code ec;
+  fs::create_directories(o.outputRoot, ec);
+  auto token = loadOrCreateToken(tokenFile.empty() ? (fs::path(stateDir) / "token").string()
+                                                   : tokenFile);
+  if (!token.ok()) {
+    std::fprintf(stderr, "pbgi-coordinator: error: %s\n", std::string(token.status().message()).c_str());
+    return 2;
+  }
+  o.token = *token;
+  blockStopSignals();
+  auto coordinator = Coordinator::start(o);
+  if (!coordinator.ok()) {
+    std::fprintf(stderr, "pbgi-coordinator: error: %s\n",
+                 std::string(coordinator.status().message()).c_str());
+    return 1;
+  }
+  const std::string addressPath =
+      addressFile.empty() ? (fs::path(stateDir) / "coordinator.addr").string() : addressFile;
+  if (absl::Status s = writeFileAtomic(addressPath, (*coordinator)->address() + "\n", 0644);
+      !s.ok()) {
+    log::warn("{}", s.message());
+  }
+  std::printf("pbgi-coordinator: listening on %s\n", (*coordinator)->address().c_str());
+  std::fflush(stdout);
+  const int signal = waitForStopSignal();
+  log::info("signal {}: shutting down", signal);
+  (*coordinator)->shutdown();
+  return 0;
+}
+
+}  // namespace pbgi::farm

@@ -1,0 +1,58 @@
+#pragma once
+// A connection to a coordinator, for workers and for `pbgi submit/status/...`. Every call
+// carries the farm's token and a deadline, and comes back as a Status whose message says
+// which coordinator did not answer or what it refused. gRPC itself stays inside the .cpp.
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "pbgi/farm/v1/farm.pb.h"
+
+namespace pbgi::farm {
+
+namespace v1 = ::pbgi::farm::v1;
+
+// The token a client sends: the file's first line when a file is named, else the PBGI_TOKEN
+// environment variable; NotFound/InvalidArgument saying where it looked otherwise.
+absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile);
+
+class FarmClient {
+ public:
+  FarmClient(const std::string& address, std::string token, double deadlineSeconds = 30.0);
+  ~FarmClient();
+  FarmClient(const FarmClient&) = delete;
+  FarmClient& operator=(const FarmClient&) = delete;
+
+  const std::string& address() const { return address_; }
+
+  absl::StatusOr<v1::SubmitJobResponse> submitJob(const v1::SubmitJobRequest& request);
+  absl::StatusOr<v1::GetStatusResponse> getStatus(const v1::GetStatusRequest& request);
+  absl::StatusOr<v1::CancelJobResponse> cancelJob(const v1::CancelJobRequest& request);
+  absl::StatusOr<v1::RetryJobResponse> retryJob(const v1::RetryJobRequest& request);
+  absl::StatusOr<v1::GetLogsResponse> getLogs(const v1::GetLogsRequest& request);
+  absl::StatusOr<v1::RegisterWorkerResponse> registerWorker(
+      const v1::RegisterWorkerRequest& request);
+  absl::StatusOr<v1::ListWorkersResponse> listWorkers(const v1::ListWorkersRequest& request);
+  absl::StatusOr<v1::LeaseTaskResponse> leaseTask(const v1::LeaseTaskRequest& request);
+  absl::StatusOr<v1::HeartbeatResponse> heartbeat(const v1::HeartbeatRequest& request);
+  absl::StatusOr<v1::CompleteTaskResponse> completeTask(const v1::CompleteTaskRequest& request);
+  absl::StatusOr<v1::FailTaskResponse> failTask(const v1::FailTaskRequest& request);
+
+  // Streams a frame's tree from the coordinator's page service into `outPath` (written to a
+  // temporary beside it, then renamed). Returns the bytes received.
+  absl::StatusOr<uint64_t> fetchTree(int64_t job, int frame, const std::string& outPath);
+
+ private:
+  struct Impl;
+  std::string address_;
+  std::unique_ptr<Impl> impl_;
+};
+
+// True for the errors that mean "the coordinator is not there right now" (UNAVAILABLE,
+// DEADLINE_EXCEEDED): a worker waits and calls again rather than giving up its task.
+bool isTransient(const absl::Status& status);
+
+}  // namespace pbgi::farm

@@ -1,0 +1,122 @@
+#include "services/coordinator/farm_job.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <iterator>
+
+#include <absl/strings/numbers.h>
+#include <absl/strings/str_split.h>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include "core/pbgi/gather.h"
+#include "core/util/status.h"
+#include "formats/shot/shot_file.h"
+#include "services/render/frame_render.h"
+
+namespace pbgi::farm {
+
+namespace fs = std::filesystem;
+
+std::string jobWorkDir(const std::string& stateDir, int64_t job) {
+  return (fs::path(stateDir) / "jobs" / std::to_string(job)).string();
+}
+
+std::string jobBakeDir(const std::string& workDir) { return (fs::path(workDir) / "bake").string(); }
+
+std::string farmTilePath(const std::string& workDir, int frame, int tile) {
+  return (fs::path(workDir) / fmt::format("frame.{:04d}", frame) / fmt::format("tile.{:04d}.exr", tile))
+      .string();
+}
+
+namespace {
+
+template <typename T>
+absl::StatusOr<T> overrideNumber(const std::string& key, const std::string& value, T lo, T hi) {
+  T parsed{};
+  if (!absl::SimpleAtoi(value, &parsed) || parsed < lo || parsed > hi) {
+    return absl::InvalidArgumentError(fmt::format(
+        "override {}={}: expected a whole number in [{}, {}]", key, value, lo, hi));
+  }
+  return parsed;
+}
+
+}  // namespace
+
+absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides) {
+  RenderSettings& r = shot.render;
+  for (const std::string& line : overrides) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) {
+      return absl::InvalidArgumentError(
+          fmt::format("override '{}': expected key=value", line));
+    }
+    const std::string key = line.substr(0, eq);
+    const std::string value = line.substr(eq + 1);
+    if (key == "integrator") {
+      const auto& names = availableIntegrators();
+      if (std::find(names.begin(), names.end(), value) == names.end()) {
+        return absl::InvalidArgumentError(fmt::format(
+            "override integrator={}: expected one of {}", value, fmt::join(names, ", ")));
+      }
+      r.integrator = value;
+    } else if (key == "quality") {
+      if (!gatherPreset(value).ok()) {
+        return absl::InvalidArgumentError(
+            fmt::format("override quality={}: expected draft, default or high", value));
+      }
+      r.quality = value;
+    } else if (key == "spp") {
+      PBGI_ASSIGN_OR_RETURN(r.spp, overrideNumber<int>(key, value, 1, 1 << 20));
+    } else if (key == "cache_mb") {
+      PBGI_ASSIGN_OR_RETURN(r.cacheMb, overrideNumber<int>(key, value, 1, 1 << 24));
+    } else if (key == "bake_points") {
+      PBGI_ASSIGN_OR_RETURN(r.bakePoints,
+                            overrideNumber<uint64_t>(key, value, 1000, 100'000'000'000ull));
+    } else if (key == "bake_bounces") {
+      PBGI_ASSIGN_OR_RETURN(r.bakeBounces, overrideNumber<int>(key, value, 0, 16));
+    } else {
+      return absl::InvalidArgumentError(fmt::format(
+          "override '{}': unknown key '{}' (expected integrator, spp, quality, cache_mb, "
+          "bake_points or bake_bounces)",
+          line, key));
+    }
+  }
+  return absl::OkStatus();
+}
+
+std::vector<std::string> splitOverrides(std::string_view lines) {
+  return absl::StrSplit(absl::string_view(lines.data(), lines.size()), '\n', absl::SkipEmpty());
+}
+
+absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
+                                 const std::vector<std::string>& overrides) {
+  PBGI_ASSIGN_OR_RETURN(ShotDesc shot, parseShot(shotText, shotPath));
+  PBGI_RETURN_IF_ERROR(applyOverrides(shot, overrides));
+  return shot;
+}
+
+absl::StatusOr<std::string> confineToRoot(const std::string& path, const std::string& root) {
+  std::error_code ec;
+  const fs::path rootPath = fs::weakly_canonical(fs::absolute(root), ec);
+  if (ec) {
+    return absl::InvalidArgumentError(
+        fmt::format("output root {}: {}", root, ec.message()));
+  }
+  const fs::path full = fs::weakly_canonical(fs::absolute(path), ec);
+  if (ec) return absl::InvalidArgumentError(fmt::format("output {}: {}", path, ec.message()));
+  const auto [rootEnd, fullIt] = std::mismatch(rootPath.begin(), rootPath.end(), full.begin(),
+                                               full.end());
+  // Inside means strictly below: every component of the root, then at least one more (the
+  // root's own trailing empty component, when it has one, does not count).
+  const bool rootConsumed =
+      rootEnd == rootPath.end() || (std::next(rootEnd) == rootPath.end() && rootEnd->empty());
+  if (!rootConsumed || fullIt == full.end()) {
+    return absl::PermissionDeniedError(fmt::format(
+        "output {} lies outside the coordinator's output root {}", full.string(),
+        rootPath.string()));
+  }
+  return full.string();
+}
+
+}  // namespace pbgi::farm

@@ -1,0 +1,47 @@
+#pragma once
+// What the coordinator and its workers agree on about a job without asking each other: where
+// its files live under the coordinator's state folder, how a frame splits into farm tiles,
+// and how a job's overrides change the shot it was submitted with.
+//
+//   <state>/jobs/<job>/bake/<image stem>.pbgi      the frame's bake (tiles read it)
+//   <state>/jobs/<job>/frame.<NNNN>/tile.<TTTT>.exr   a tile, committed by rename; tile t
+//                                                    is makeTiles(width, height, tile size)[t]
+//   the shot's output pattern, under the output root   the assembled frame and its preview
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "core/render/renderer.h"
+#include "core/scene/shot.h"
+
+namespace pbgi::farm {
+
+// Tiles large enough that loading the frame's scene is a small part of each.
+inline constexpr int kDefaultFarmTileSize = 256;
+inline constexpr const char* kDefaultCoordinatorAddress = "127.0.0.1:7411";
+
+std::string jobWorkDir(const std::string& stateDir, int64_t job);
+std::string jobBakeDir(const std::string& workDir);
+std::string farmTilePath(const std::string& workDir, int frame, int tile);
+
+// The overrides a job may carry, "key=value", on the shot's [render] settings: integrator,
+// spp, quality, cache_mb, bake_points, bake_bounces. InvalidArgument names the override and
+// what was expected.
+absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides);
+// One override per line, as the job store keeps them.
+std::vector<std::string> splitOverrides(std::string_view lines);
+
+// The shot a job renders: the submitted text, parsed as the file at `shotPath`, with the
+// job's overrides applied.
+absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
+                                 const std::vector<std::string>& overrides);
+
+// `path`, made absolute and normal, when it lies inside `root` (symbolic links resolved as far
+// as they exist); PermissionDenied naming both otherwise.
+absl::StatusOr<std::string> confineToRoot(const std::string& path, const std::string& root);
+
+}  // namespace pbgi::farm

@@ -1,0 +1,380 @@
+#include "services/worker/worker.h"
+
+#include <algorithm>
+#include <chrono>
+#include <condition_variable>
+#include <filesystem>
+#include <mutex>
+#include <thread>
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include "core/util/log.h"
+#include "core/util/status.h"
+#include "formats/image/image_io.h"
+#include "formats/image/ocio_config.h"
+#include "services/bake/frame_bake.h"
+#include "services/coordinator/farm_client.h"
+#include "services/coordinator/farm_job.h"
+#include "services/render/frame_assembly.h"
+#include "services/render/frame_render.h"
+
+namespace pbgi::farm {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+std::string hostName() {
+  char name[256] = {};
+  if (::gethostname(name, sizeof name - 1) != 0) return "localhost";
+  return name;
+}
+
+uint64_t physicalMemory() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES);
+  const long pageSize = ::sysconf(_SC_PAGESIZE);
+  return pages > 0 && pageSize > 0 ? uint64_t(pages) * uint64_t(pageSize) : 0;
+}
+
+void sleepUnlessStopped(double seconds, const std::atomic<bool>& stop) {
+  const auto until = Clock::now() + std::chrono::duration<double>(seconds);
+  while (!stop.load() && Clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
+// Calls `rpc` until it answers with anything but "the coordinator is not there", waiting a
+// little longer each time. A worker that has finished a task keeps its result until the
+// coordinator can take it (within `patienceSeconds`; after that the lease has long expired
+// and the task runs again elsewhere).
+template <typename Rpc>
+auto callPatiently(Rpc&& rpc, double patienceSeconds, const char* what) -> decltype(rpc()) {
+  const auto giveUp = Clock::now() + std::chrono::duration<double>(patienceSeconds);
+  double wait = 0.2;
+  for (;;) {
+    auto result = rpc();
+    if (result.ok() || !isTransient(result.status()) || Clock::now() >= giveUp) return result;
+    log::warn("{}: {}; trying again in {:.1f} s", what, result.status().message(), wait);
+    std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+    wait = std::min(wait * 2.0, 2.0);
+  }
+}
+
+// Reports progress and keeps the lease alive while a task runs.
+class Heartbeat {
+ public:
+  Heartbeat(FarmClient& client, const std::string& worker, const v1::LeaseTaskResponse& task)
+      : client_(client) {
+    request_.set_worker(worker);
+    request_.set_task(task.task());
+    request_.set_attempt(task.attempt());
+    // Four beats per lease: one lost call does not lose the lease.
+    const double period = std::clamp(task.lease_seconds() / 4.0, 0.05, 10.0);
+    thread_ = std::thread([this, period] { loop(period); });
+  }
+  ~Heartbeat() {
+    {
+      std::lock_guard lock(mutex_);
+      done_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  void progress(double fraction) { progress_.store(fraction); }
+  bool lost() const { return lost_.load(); }
+
+ private:
+  void loop(double period) {
+    std::unique_lock lock(mutex_);
+    while (!done_) {
+      changed_.wait_for(lock, std::chrono::duration<double>(period));
+      if (done_) break;
+      lock.unlock();
+      request_.set_progress(progress_.load());
+      auto answer = client_.heartbeat(request_);
+      if (answer.ok() && !answer->keep_going() && !lost_.exchange(true)) {
+        log::warn("task={} attempt={}: the lease is lost (expired, or the job was cancelled)",
+                  request_.task(), request_.attempt());
+      }
+      lock.lock();
+    }
+  }
+
+  FarmClient& client_;
+  v1::HeartbeatRequest request_;
+  std::atomic<double> progress_{0.0};
+  std::atomic<bool> lost_{false};
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  bool done_ = false;
+  std::thread thread_;
+};
+
+struct TaskResult {
+  std::string log;
+  uint64_t cacheHits = 0;
+  uint64_t cacheMisses = 0;
+  uint64_t treeBytesStreamed = 0;
+};
+
+class Worker {
+ public:
+  Worker(const WorkerOptions& options, std::string id)
+      : options_(options), id_(std::move(id)), client_(options.coordinator, options.token) {
+    cacheDir_ = options.cacheDir.empty()
+                    ? (fs::temp_directory_path() / fmt::format("pbgi-worker-{}", sanitized(id_)))
+                          .string()
+                    : options.cacheDir;
+  }
+
+  int run(const std::atomic<bool>& stop);
+
+ private:
+  static std::string sanitized(std::string text) {
+    for (char& c : text) {
+      if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '_') c = '_';
+    }
+    return text;
+  }
+
+  absl::StatusOr<TaskResult> execute(const v1::LeaseTaskResponse& task, Heartbeat& beat);
+  absl::StatusOr<TaskResult> bake(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                  Heartbeat& beat);
+  absl::StatusOr<TaskResult> tile(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                  Heartbeat& beat);
+  absl::StatusOr<TaskResult> assemble(const ShotDesc& shot, const v1::LeaseTaskResponse& task);
+  void report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
+              double seconds);
+
+  const WorkerOptions& options_;
+  const std::string id_;
+  FarmClient client_;
+  std::string cacheDir_;
+};
+
+absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                        Heartbeat& beat) {
+  PBGI_ASSIGN_OR_RETURN(FrameBakeRequest request, shotBakeRequest(shot, task.frame()));
+  request.outDir = task.output_path();
+  request.threads = options_.threads;
+  request.progress = [&beat](const std::string&, uint64_t done, uint64_t total) {
+    if (total > 0) beat.progress(double(done) / double(total));
+  };
+  PBGI_ASSIGN_OR_RETURN(const FrameBakeReport report, bakeShotFrame(shot, request));
+  TaskResult result;
+  result.log = fmt::format("tree {} ({} bytes)\n{}", report.treePath, report.treeFileBytes,
+                           formatStages(report.stages));
+  for (const std::string& w : report.warnings) result.log += "warning: " + w + "\n";
+  return result;
+}
+
+absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                        Heartbeat& beat) {
+  const std::vector<TileRect> tiles = makeTiles(shot.width, shot.height, task.tile_size());
+  if (task.tile() < 0 || static_cast<size_t>(task.tile()) >= tiles.size() ||
+      static_cast<int>(tiles.size()) != task.tiles_per_frame()) {
+    return absl::InvalidArgumentError(fmt::format(
+        "tile {} of {} at tile size {}: this worker makes {} tiles of a {}x{} frame", task.tile(),
+        task.tiles_per_frame(), task.tile_size(), tiles.size(), shot.width, shot.height));
+  }
+  FrameRenderRequest request;
+  request.frame = task.frame();
+  request.threads = options_.threads;
+  request.outPath = task.output_path();
+  request.preview = false;
+  request.region = tiles[static_cast<size_t>(task.tile())];
+  request.cacheBytes = options_.cacheBytes;
+  request.bakeDir = jobBakeDir(task.work_dir());
+  request.progress = [&beat](int done, int total) {
+    if (total > 0) beat.progress(double(done) / double(total));
+  };
+  TaskResult result;
+  if (shot.render.integrator == "pbgi") {
+    // The bake task made the tree; a tile never bakes one of its own.
+    PBGI_ASSIGN_OR_RETURN(FrameBakeRequest bake, shotBakeRequest(shot, task.frame()));
+    bake.outDir = request.bakeDir;
+    const std::string shared = bakeTreePath(shot, bake);
+    const bool visible = fs::exists(shared);
+    if (options_.treeSource == TreeSource::kShared && !visible) {
+      return absl::NotFoundError(fmt::format(
+          "{}: the frame's tree is not visible here (run the worker with --tree-source auto to "
+          "stream it from the coordinator)",
+          shared));
+    }
+    if (options_.treeSource == TreeSource::kStream ||
+        (options_.treeSource == TreeSource::kAuto && !visible)) {
+      const std::string local = (fs::path(cacheDir_) / fmt::format("job{}", task.job()) /
+                                 fmt::format("frame.{:04d}.pbgi", task.frame()))
+                                    .string();
+      if (!fs::exists(local)) {
+        PBGI_ASSIGN_OR_RETURN(result.treeBytesStreamed,
+                              client_.fetchTree(task.job(), task.frame(), local));
+        result.log += fmt::format("streamed the tree from {}: {} bytes into {}\n",
+                                  client_.address(), result.treeBytesStreamed, local);
+      }
+      request.treePath = local;
+    } else {
+      request.treePath = shared;
+    }
+  }
+  PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
+  result.log += fmt::format("wrote {} (region {})\n{}", report.exrPath,
+                            regionText(*request.region), formatStages(report.stages));
+  if (report.tree) {
+    result.cacheHits = report.tree->cache.hits;
+    result.cacheMisses = report.tree->cache.misses;
+    result.log += fmt::format("tree {}; cache {}; pages read {} of {}\n", report.tree->treePath,
+                              report.tree->cache.toString(), report.tree->pagesRead,
+                              report.tree->pagesInFile);
+  }
+  result.log += fmt::format("samples {}, discarded (NaN/Inf) {}\n", report.counters.cameraSamples,
+                            report.counters.discardedSamples);
+  for (const std::string& w : report.warnings) result.log += "warning: " + w + "\n";
+  return result;
+}
+
+absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
+                                            const v1::LeaseTaskResponse& task) {
+  const std::vector<TileRect> tiles = makeTiles(shot.width, shot.height, task.tile_size());
+  std::vector<std::string> paths;
+  for (size_t t = 0; t < tiles.size(); ++t) {
+    paths.push_back(farmTilePath(task.work_dir(), task.frame(), static_cast<int>(t)));
+  }
+  PBGI_ASSIGN_OR_RETURN(const Image frame,
+                        assembleFrame(paths, tiles, shot.width, shot.height, task.output_path()));
+  TaskResult result;
+  result.log = fmt::format("assembled {} tiles into {}\n", tiles.size(), task.output_path());
+  const std::string preview = previewPathFor(task.output_path());
+  if (absl::Status s = writePreviewPng(frame, preview, defaultOcioConfigPath()); !s.ok()) {
+    result.log += fmt::format("warning: no preview: {}\n", s.message());
+  } else {
+    result.log += fmt::format("preview {}\n", preview);
+  }
+  return result;
+}
+
+absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& task, Heartbeat& beat) {
+  const std::vector<std::string> overrides(task.overrides().begin(), task.overrides().end());
+  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
+                        jobShot(task.shot_text(), task.shot_path(), overrides));
+  if (task.kind() == "bake") return bake(shot, task, beat);
+  if (task.kind() == "tile") return tile(shot, task, beat);
+  if (task.kind() == "assemble") return assemble(shot, task);
+  return absl::InvalidArgumentError(
+      fmt::format("task kind '{}': this worker runs bake, tile and assemble", task.kind()));
+}
+
+void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
+                    double seconds) {
+  // The coordinator may be restarting; a result is worth waiting for.
+  const double patience = std::max(120.0, 4.0 * task.lease_seconds());
+  absl::Status sent;
+  if (result.ok()) {
+    v1::CompleteTaskRequest request;
+    request.set_worker(id_);
+    request.set_task(task.task());
+    request.set_attempt(task.attempt());
+    request.set_seconds(seconds);
+    request.set_log(result->log);
+    request.set_cache_hits(result->cacheHits);
+    request.set_cache_misses(result->cacheMisses);
+    request.set_tree_bytes_streamed(result->treeBytesStreamed);
+    sent = callPatiently([&] { return client_.completeTask(request); }, patience, "CompleteTask")
+               .status();
+    if (sent.ok()) {
+      log::info("done job={} frame={} {} task={} attempt={} seconds={:.2f}", task.job(),
+                task.frame(), task.kind() == "tile" ? fmt::format("tile={}", task.tile()) : task.kind(),
+                task.task(), task.attempt(), seconds);
+    }
+  } else {
+    log::warn("failed job={} frame={} {} task={} attempt={}: {}", task.job(), task.frame(),
+              task.kind() == "tile" ? fmt::format("tile={}", task.tile()) : task.kind(),
+              task.task(), task.attempt(), result.status().message());
+    v1::FailTaskRequest request;
+    request.set_worker(id_);
+    request.set_task(task.task());
+    request.set_attempt(task.attempt());
+    request.set_error(std::string(result.status().message()));
+    sent = callPatiently([&] { return client_.failTask(request); }, patience, "FailTask").status();
+  }
+  if (!sent.ok()) {
+    // A stale attempt (the lease expired while the coordinator was away, and the task went to
+    // another worker): nothing to do, the other attempt's result counts.
+    log::warn("task={} attempt={}: the coordinator did not take the result: {}", task.task(),
+              task.attempt(), sent.message());
+  }
+}
+
+int Worker::run(const std::atomic<bool>& stop) {
+  v1::RegisterWorkerRequest hello;
+  hello.set_worker(id_);
+  hello.set_host(hostName());
+  hello.set_cores(static_cast<int>(std::thread::hardware_concurrency()));
+  hello.set_memory_bytes(physicalMemory());
+  hello.set_cache_bytes(options_.cacheBytes);
+  for (double wait = 0.2;; wait = std::min(wait * 2.0, 2.0)) {
+    auto answer = client_.registerWorker(hello);
+    if (answer.ok()) break;
+    if (!isTransient(answer.status())) {
+      log::error("worker={}: the coordinator refused the worker: {}", id_, answer.status().message());
+      return 1;
+    }
+    if (stop.load()) return 0;
+    log::warn("worker={}: {}; trying again", id_, answer.status().message());
+    sleepUnlessStopped(wait, stop);
+  }
+  log::info("worker={} registered with {} (tree source {}, cache {})", id_, options_.coordinator,
+            options_.treeSource == TreeSource::kAuto     ? "auto"
+            : options_.treeSource == TreeSource::kShared ? "shared"
+                                                         : "stream",
+            cacheDir_);
+  v1::LeaseTaskRequest ask;
+  ask.set_worker(id_);
+  double backoff = options_.pollSeconds;
+  while (!stop.load()) {
+    auto task = client_.leaseTask(ask);
+    if (!task.ok()) {
+      if (!isTransient(task.status())) {
+        log::error("worker={}: lease refused: {}", id_, task.status().message());
+        return 1;
+      }
+      sleepUnlessStopped(backoff, stop);
+      backoff = std::min(backoff * 2.0, 2.0);
+      continue;
+    }
+    backoff = options_.pollSeconds;
+    if (!task->has_task()) {
+      sleepUnlessStopped(options_.pollSeconds, stop);
+      continue;
+    }
+    const auto started = Clock::now();
+    absl::StatusOr<TaskResult> result;
+    {
+      Heartbeat beat(client_, id_, *task);
+      result = execute(*task, beat);
+    }
+    report(*task, result, std::chrono::duration<double>(Clock::now() - started).count());
+  }
+  log::info("worker={} stopping", id_);
+  return 0;
+}
+
+}  // namespace
+
+int runWorker(const WorkerOptions& options, const std::atomic<bool>& stop) {
+  if (options.coordinator.empty()) {
+    log::error("the worker needs a coordinator address (--coordinator host:port)");
+    return 1;
+  }
+  const std::string id =
+      options.id.empty() ? fmt::format("{}:{}", hostName(), static_cast<long>(::getpid()))
+                         : options.id;
+  Worker worker(options, id);
+  return worker.run(stop);
+}
+
+}  // namespace pbgi::farm

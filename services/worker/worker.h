@@ -1,0 +1,42 @@
+#pragma once
+// The render worker: registers with a coordinator (cores, memory, cache size), then leases
+// and runs tasks until it is told to stop:
+//   bake      bakes the frame's tree into the job's bake folder;
+//   tile      renders one farm tile of the frame to its EXR (written to a temporary, renamed);
+//   assemble  checks every tile of the frame is there and writes the frame's EXR and preview.
+// Tiles read the frame's tree from the shared job folder when this machine can see it, and
+// otherwise stream it from the coordinator's page service into a local disk cache. While a
+// task runs, a heartbeat thread extends its lease and reports progress. A coordinator that
+// does not answer is waited for: the task's result is reported when it is back.
+#include <atomic>
+#include <cstddef>
+#include <string>
+
+namespace pbgi::farm {
+
+enum class TreeSource {
+  kAuto,    // the shared job folder when the tree is there, else the page service
+  kShared,  // only the shared job folder
+  kStream,  // only the page service
+};
+
+struct WorkerOptions {
+  std::string coordinator;   // host:port
+  std::string token;
+  std::string id;            // empty: <host>:<pid>
+  int threads = 0;           // 0: all cores
+  size_t cacheBytes = 0;     // tree page cache budget; 0: the shot's cache_mb
+  std::string cacheDir;      // streamed trees; empty: <temp>/pbgi-worker-<id>
+  TreeSource treeSource = TreeSource::kAuto;
+  double pollSeconds = 0.5;  // between lease requests while there is no work
+};
+
+// Runs until `stop` becomes true (the daemon sets it on SIGTERM). A task in progress is
+// finished and reported first. Returns 0, or 1 when the coordinator refused the worker (a
+// wrong token) or the options are unusable.
+int runWorker(const WorkerOptions& options, const std::atomic<bool>& stop);
+
+// pbgi-worker's command line (services/worker/worker_daemon.cpp).
+int workerDaemonMain(int argc, char** argv);
+
+}  // namespace pbgi::farm

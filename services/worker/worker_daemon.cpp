@@ -1,0 +1,69 @@
+// pbgi-worker --coordinator HOST:PORT [--config FILE] [--token-file FILE] ...
+
+#include <cstdio>
+#include <map>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "core/util/log.h"
+#include "services/coordinator/farm_client.h"
+#include "services/util/daemon.h"
+#include "services/worker/worker.h"
+
+namespace pbgi::farm {
+
+int workerDaemonMain(int argc, char** argv) {
+  CLI::App app{"pbgi-worker: a render farm worker daemon"};
+  app.set_config("--config", "", "TOML file of these options (keys are the long flag names)");
+  WorkerOptions o;
+  std::string tokenFile;
+  int cacheMb = 0;
+  app.add_option("--coordinator", o.coordinator, "The coordinator's host:port")->required();
+  app.add_option("--token-file", tokenFile, "The farm token (default: $PBGI_TOKEN)");
+  app.add_option("--id", o.id, "Worker name (default: host:pid)");
+  app.add_option("--threads", o.threads, "Render threads (default: all cores)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--cache-mb", cacheMb, "Tree page cache in MiB (default: the shot's cache_mb)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--cache-dir", o.cacheDir,
+                 "Local disk cache of streamed trees (default: <temp>/pbgi-worker-<id>)");
+  app.add_option("--tree-source", o.treeSource,
+                 "auto: the shared job folder when visible, else stream; shared; stream")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, TreeSource>{{"auto", TreeSource::kAuto},
+                                            {"shared", TreeSource::kShared},
+                                            {"stream", TreeSource::kStream}},
+          CLI::ignore_case))
+      ->default_str("auto");
+  app.add_option("--poll-seconds", o.pollSeconds, "Between lease requests while idle")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() != 0) {
+      std::fprintf(stderr, "pbgi-worker: error: %s\n", e.what());
+      return 2;
+    }
+    return app.exit(e);
+  }
+  log::setLevel(log::Level::kInfo);
+  o.cacheBytes = static_cast<size_t>(cacheMb) << 20;
+  auto token = loadClientToken(tokenFile);
+  if (!token.ok()) {
+    std::fprintf(stderr, "pbgi-worker: error: %s\n", std::string(token.status().message()).c_str());
+    return 2;
+  }
+  o.token = *token;
+  blockStopSignals();
+  static std::atomic<bool> stop{false};
+  // SIGTERM: finish the task in hand, report it, then exit.
+  std::thread([] {
+    waitForStopSignal();
+    stop.store(true);
+  }).detach();
+  return runWorker(o, stop);
+}
+
+}  // namespace pbgi::farm

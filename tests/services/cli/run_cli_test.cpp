@@ -1,0 +1,73 @@
+// `pbgi run`, the embedded farm, as users run it: the real binary starting real pbgi-worker
+// processes. Its frames must be the frames `pbgi render` makes, bit for bit.
+
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+
+#include "formats/image/image_io.h"
+#include "tests/support/farm_fixtures.h"
+
+namespace pbgi {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::runPbgi;
+using testing::shellQuote;
+
+TEST(RunCliTest, TwoFramesOnTwoWorkersEqualPbgiRender) {
+  const fs::path dir = testing::makeTempDir("run-cli");
+  testing::SmallShot small;
+  small.spp = 3;
+  const fs::path shot = testing::writeSmallShot(dir, small);
+  const testing::RunResult run = runPbgi("run " + shellQuote(shot.string()) +
+                                         " --workers 2 --tile-size 32 --state " +
+                                         shellQuote((dir / "state").string()));
+  ASSERT_EQ(run.exitCode, 0) << run.output();
+  EXPECT_NE(run.output().find("submitted job 1"), std::string::npos) << run.output();
+  for (int frame : {1, 2}) {
+    const fs::path farmFrame = dir / fmt::format("out/small.{:04d}.exr", frame);
+    EXPECT_NE(run.output().find("wrote " + farmFrame.string()), std::string::npos) << run.output();
+    EXPECT_TRUE(fs::exists(dir / fmt::format("out/small.{:04d}.png", frame)));
+    const fs::path alone = dir / fmt::format("alone.{}.exr", frame);
+    const testing::RunResult render =
+        runPbgi(fmt::format("render {} --frame {} --no-preview --out {}", shellQuote(shot.string()),
+                            frame, shellQuote(alone.string())));
+    ASSERT_EQ(render.exitCode, 0) << render.output();
+    auto a = readImage(farmFrame.string());
+    auto b = readImage(alone.string());
+    ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
+    std::string why;
+    EXPECT_TRUE(testing::samePixels(*a, *b, &why)) << "frame " << frame << ": " << why;
+  }
+  // Both workers registered and logged their tasks.
+  EXPECT_TRUE(fs::exists(dir / "state/jobs/1/worker-0.log"));
+  EXPECT_TRUE(fs::exists(dir / "state/jobs/1/worker-1.log"));
+  // A second run of a finished job submits a new one rather than resuming.
+  const testing::RunResult again = runPbgi("run " + shellQuote(shot.string()) +
+                                           " --frames 2 --tile-size 32 --state " +
+                                           shellQuote((dir / "state").string()));
+  ASSERT_EQ(again.exitCode, 0) << again.output();
+  EXPECT_NE(again.output().find("submitted job 2"), std::string::npos) << again.output();
+  fs::remove_all(dir);
+}
+
+TEST(RunCliTest, BadShotsAndFlagsExitTwoBeforeAnythingStarts) {
+  const fs::path dir = testing::makeTempDir("run-cli-bad");
+  const fs::path shot = dir / "bad.toml";
+  std::ofstream(shot) << "version = 1\n[shot]\nname = \"x\"\nbogus = 3\n";
+  const testing::RunResult bad = runPbgi("run " + shellQuote(shot.string()));
+  EXPECT_EQ(bad.exitCode, 2) << bad.output();
+  EXPECT_NE(bad.output().find("bad.toml:"), std::string::npos) << bad.output();
+  const fs::path good = testing::writeSmallShot(dir, {});
+  const testing::RunResult frames = runPbgi("run " + shellQuote(good.string()) + " --frames 1-x");
+  EXPECT_EQ(frames.exitCode, 2) << frames.output();
+  EXPECT_NE(frames.output().find("--frames 1-x"), std::string::npos) << frames.output();
+  const testing::RunResult outside = runPbgi("run " + shellQuote(good.string()) + " --frames 5");
+  EXPECT_EQ(outside.exitCode, 2) << outside.output();
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace pbgi

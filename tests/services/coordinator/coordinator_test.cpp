@@ -1,0 +1,203 @@
+// The coordinator over real gRPC on loopback (port 0): the token, the output root, bad jobs,
+// stale completions, the metrics endpoint. Workers here are this test speaking the worker's
+// calls, so that each rule is exercised exactly; tests/services/worker/ runs real workers.
+
+#include <gtest/gtest.h>
+
+#include <httplib.h>
+
+#include "services/coordinator/coordinator.h"
+#include "services/coordinator/farm_client.h"
+#include "tests/support/farm_fixtures.h"
+
+namespace pbgi::farm {
+namespace {
+
+namespace fs = std::filesystem;
+
+class CoordinatorTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = pbgi::testing::makeTempDir("coordinator");
+    options_.stateDir = (dir_ / "state").string();
+    options_.outputRoot = (dir_ / "out-root").string();
+    options_.token = "secret-token";
+    options_.httpListen = "127.0.0.1:0";
+    options_.tileSize = 32;
+    options_.retry.backoffBase = 0.0;
+    fs::create_directories(options_.outputRoot);
+  }
+  void TearDown() override {
+    coordinator_.reset();
+    fs::remove_all(dir_);
+  }
+  void start() {
+    auto c = Coordinator::start(options_);
+    ASSERT_TRUE(c.ok()) << c.status();
+    coordinator_ = *std::move(c);
+    client_ = std::make_unique<FarmClient>(coordinator_->address(), options_.token, 10.0);
+  }
+  v1::SubmitJobRequest shotRequest(const pbgi::testing::SmallShot& shot) {
+    const fs::path path = pbgi::testing::writeSmallShot(fs::path(options_.outputRoot), shot);
+    v1::SubmitJobRequest request;
+    request.set_shot_path(path.string());
+    request.set_shot_text(pbgi::testing::slurpFile(path));
+    return request;
+  }
+  std::string metrics() {
+    httplib::Client http("http://" + coordinator_->httpAddress());
+    auto res = http.Get("/metrics");
+    return res ? res->body : std::string();
+  }
+
+  fs::path dir_;
+  CoordinatorOptions options_;
+  std::unique_ptr<Coordinator> coordinator_;
+  std::unique_ptr<FarmClient> client_;
+};
+
+TEST_F(CoordinatorTest, EveryCallWithoutTheTokenIsRefusedAndCounted) {
+  start();
+  FarmClient wrong(coordinator_->address(), "not-the-token", 10.0);
+  FarmClient none(coordinator_->address(), "", 10.0);
+  const auto submitted = wrong.submitJob(shotRequest({}));
+  EXPECT_EQ(submitted.status().code(), absl::StatusCode::kUnauthenticated) << submitted.status();
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("w");
+  EXPECT_EQ(none.leaseTask(lease).status().code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(wrong.getStatus(v1::GetStatusRequest()).status().code(),
+            absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(wrong.fetchTree(1, 1, (dir_ / "tree.pbgi").string()).status().code(),
+            absl::StatusCode::kUnauthenticated);
+  EXPECT_FALSE(fs::exists(dir_ / "tree.pbgi"));
+  // Nothing was submitted by the refused call; the right token works.
+  auto status = client_->getStatus(v1::GetStatusRequest());
+  ASSERT_TRUE(status.ok()) << status.status();
+  EXPECT_EQ(status->jobs_size(), 0);
+  EXPECT_NE(metrics().find("pbgi_rpc_refused_total 4"), std::string::npos) << metrics();
+}
+
+TEST_F(CoordinatorTest, OutputsOutsideTheOutputRootAreRejected) {
+  start();
+  pbgi::testing::SmallShot escaping;
+  escaping.output = "../../escaped/small.####.exr";
+  const auto refused = client_->submitJob(shotRequest(escaping));
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kPermissionDenied) << refused.status();
+  EXPECT_NE(refused.status().message().find("outside the coordinator's output root"),
+            std::string::npos)
+      << refused.status();
+  v1::SubmitJobRequest elsewhere = shotRequest({});
+  elsewhere.set_output_dir("/tmp");
+  EXPECT_EQ(client_->submitJob(elsewhere).status().code(), absl::StatusCode::kPermissionDenied);
+  v1::SubmitJobRequest dotdot = shotRequest({});
+  dotdot.set_output_dir("sub/../../..");
+  EXPECT_EQ(client_->submitJob(dotdot).status().code(), absl::StatusCode::kPermissionDenied);
+  // Inside the root, relative to it: accepted.
+  v1::SubmitJobRequest inside = shotRequest({});
+  inside.set_output_dir("renders/v1");
+  auto id = client_->submitJob(inside);
+  ASSERT_TRUE(id.ok()) << id.status();
+  auto job = coordinator_->store().job(id->job());
+  ASSERT_TRUE(job.ok());
+  EXPECT_EQ(job->spec.outputPattern,
+            (fs::path(options_.outputRoot) / "renders/v1/small.####.exr").string());
+}
+
+TEST_F(CoordinatorTest, ABadShotIsRefusedWithItsLineAndTheCoordinatorCarriesOn) {
+  start();
+  v1::SubmitJobRequest bad = shotRequest({});
+  bad.set_shot_text("version = 1\n[shot]\nname = \"x\"\nframes = [1, 1]\nbogus = 3\n");
+  const auto refused = client_->submitJob(bad);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument) << refused.status();
+  EXPECT_NE(refused.status().message().find("small.shot.toml:"), std::string::npos)
+      << refused.status();
+  v1::SubmitJobRequest badOverride = shotRequest({});
+  badOverride.add_overrides("spp=many");
+  EXPECT_EQ(client_->submitJob(badOverride).status().code(), absl::StatusCode::kInvalidArgument);
+  v1::SubmitJobRequest badFrame = shotRequest({});
+  badFrame.add_frames(7);
+  EXPECT_EQ(client_->submitJob(badFrame).status().code(), absl::StatusCode::kOutOfRange);
+  auto good = client_->submitJob(shotRequest({}));
+  ASSERT_TRUE(good.ok()) << good.status();
+  auto job = coordinator_->store().job(good->job());
+  ASSERT_TRUE(job.ok());
+  EXPECT_EQ(job->spec.frames, (std::vector<int>{1, 2}));
+  EXPECT_EQ(job->spec.tileCount, 4);  // 64 x 64 in 32-pixel tiles
+  EXPECT_FALSE(job->spec.needsBake);
+}
+
+TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
+  options_.leaseSeconds = 0.4;
+  options_.expiryIntervalSeconds = 0.05;
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  ASSERT_TRUE(client_->submitJob(request).ok());
+  v1::LeaseTaskRequest asA;
+  asA.set_worker("worker-a");
+  auto first = client_->leaseTask(asA);
+  ASSERT_TRUE(first.ok() && first->has_task()) << first.status();
+  EXPECT_EQ(first->attempt(), 1);
+  EXPECT_EQ(first->kind(), "tile");
+  EXPECT_EQ(first->tile_size(), 32);
+  EXPECT_EQ(first->tiles_per_frame(), 4);
+  // worker-a goes silent; its lease expires and the tile goes to worker-b.
+  v1::LeaseTaskRequest asB;
+  asB.set_worker("worker-b");
+  absl::StatusOr<v1::LeaseTaskResponse> second;
+  ASSERT_TRUE(pbgi::testing::waitFor(
+      [&] {
+        second = client_->leaseTask(asB);
+        return second.ok() && second->has_task() && second->task() == first->task();
+      },
+      10.0));
+  EXPECT_EQ(second->attempt(), 2);
+  v1::CompleteTaskRequest late;
+  late.set_worker("worker-a");
+  late.set_task(first->task());
+  late.set_attempt(first->attempt());
+  const auto rejected = client_->completeTask(late);
+  EXPECT_EQ(rejected.status().code(), absl::StatusCode::kFailedPrecondition) << rejected.status();
+  v1::HeartbeatRequest beat;
+  beat.set_task(first->task());
+  beat.set_attempt(first->attempt());
+  auto lost = client_->heartbeat(beat);
+  ASSERT_TRUE(lost.ok());
+  EXPECT_FALSE(lost->keep_going());
+  v1::CompleteTaskRequest current = late;
+  current.set_worker("worker-b");
+  current.set_attempt(second->attempt());
+  current.set_seconds(1.5);
+  EXPECT_TRUE(client_->completeTask(current).ok());
+  const std::string text = metrics();
+  EXPECT_NE(text.find("pbgi_stale_completions_total 1"), std::string::npos) << text;
+  EXPECT_NE(text.find("pbgi_leases_expired_total 1"), std::string::npos) << text;
+  EXPECT_NE(text.find("pbgi_task_seconds_count{kind=\"tile\"} 1"), std::string::npos) << text;
+  // The log says what happened, in order.
+  v1::GetLogsRequest logs;
+  logs.set_job(first->job());
+  logs.set_tile(first->tile());
+  auto entries = client_->getLogs(logs);
+  ASSERT_TRUE(entries.ok());
+  std::vector<std::string> events;
+  for (const auto& e : entries->entries()) events.push_back(e.event() + "/" + e.worker());
+  EXPECT_EQ(events, (std::vector<std::string>{"leased/worker-a", "expired/worker-a",
+                                              "leased/worker-b", "done/worker-b"}));
+}
+
+TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
+  start();
+  ASSERT_TRUE(client_->submitJob(shotRequest({})).ok());
+  httplib::Client http("http://" + coordinator_->httpAddress());
+  auto status = http.Get("/status");
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->status, 200);
+  EXPECT_NE(status->body.find("\"tilesPerFrame\":4"), std::string::npos) << status->body;
+  const std::string text = metrics();
+  EXPECT_NE(text.find("pbgi_tasks{state=\"ready\"} 8"), std::string::npos) << text;
+  EXPECT_NE(text.find("pbgi_tasks{state=\"blocked\"} 2"), std::string::npos) << text;
+  EXPECT_NE(text.find("# TYPE pbgi_task_seconds histogram"), std::string::npos) << text;
+}
+
+}  // namespace
+}  // namespace pbgi::farm

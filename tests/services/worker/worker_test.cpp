@@ -1,0 +1,274 @@
+// Real pbgi-worker processes (and a real pbgi-coordinator where it is the one killed) on
+// loopback: killed workers, a killed coordinator, a tile that always fails, a worker that keeps
+// failing a job, trees streamed from the page service. Every frame that completes is compared
+// bit for bit with the frame rendered whole in this process.
+
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+
+#include <map>
+
+#include "formats/image/image_io.h"
+#include "formats/shot/shot_file.h"
+#include "services/coordinator/coordinator.h"
+#include "services/coordinator/farm_client.h"
+#include "services/coordinator/farm_job.h"
+#include "services/render/frame_render.h"
+#include "tests/support/farm_fixtures.h"
+
+namespace pbgi::farm {
+namespace {
+
+namespace fs = std::filesystem;
+using pbgi::testing::Process;
+using pbgi::testing::waitFor;
+
+class WorkerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = pbgi::testing::makeTempDir("worker");
+    options_.stateDir = (dir_ / "state").string();
+    options_.outputRoot = dir_.string();
+    options_.token = "worker-test-token";
+    options_.tileSize = 32;
+    options_.leaseSeconds = 1.0;
+    options_.expiryIntervalSeconds = 0.1;
+    options_.retry.backoffBase = 0.0;
+  }
+  void TearDown() override {
+    workers_.clear();
+    coordinator_.reset();
+    fs::remove_all(dir_);
+  }
+  void start() {
+    auto c = Coordinator::start(options_);
+    ASSERT_TRUE(c.ok()) << c.status();
+    coordinator_ = *std::move(c);
+    client_ = std::make_unique<FarmClient>(coordinator_->address(), options_.token, 10.0);
+  }
+  Process& startWorker(const std::string& id, std::vector<std::string> extra = {},
+                       const std::string& address = {}) {
+    std::vector<std::string> argv = {pbgi::testing::binary("pbgi-worker").string(),
+                                     "--coordinator",
+                                     address.empty() ? coordinator_->address() : address,
+                                     "--id", id, "--threads", "1", "--poll-seconds", "0.05",
+                                     "--cache-dir", (dir_ / ("cache-" + id)).string()};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    workers_.emplace_back(argv, dir_ / (id + ".log"),
+                          std::vector<std::string>{"PBGI_TOKEN=" + options_.token});
+    return workers_.back();
+  }
+  int64_t submit(const pbgi::testing::SmallShot& shot, std::vector<int> frames = {}) {
+    shotPath_ = pbgi::testing::writeSmallShot(dir_, shot);
+    v1::SubmitJobRequest request;
+    request.set_shot_path(shotPath_.string());
+    request.set_shot_text(pbgi::testing::slurpFile(shotPath_));
+    for (int f : frames) request.add_frames(f);
+    auto id = client_->submitJob(request);
+    EXPECT_TRUE(id.ok()) << id.status();
+    return id.ok() ? id->job() : 0;
+  }
+  absl::StatusOr<v1::JobStatus> jobStatus(int64_t job) {
+    v1::GetStatusRequest request;
+    request.set_job(job);
+    request.set_with_tasks(true);
+    auto s = client_->getStatus(request);
+    if (!s.ok()) return s.status();
+    return s->jobs(0);
+  }
+  bool settled(int64_t job, std::string* state = nullptr) {
+    auto s = jobStatus(job);
+    if (state != nullptr && s.ok()) *state = s->state();
+    return s.ok() && s->state() != "active";
+  }
+  // The frame as `pbgi render` makes it: the whole frame, in this process.
+  void expectFrameEqualsWholeRender(int frame) {
+    auto shot = loadShotFile(shotPath_.string());
+    ASSERT_TRUE(shot.ok()) << shot.status();
+    FrameRenderRequest request;
+    request.frame = frame;
+    request.threads = 2;
+    request.preview = false;
+    request.outPath = (dir_ / fmt::format("whole.{}.exr", frame)).string();
+    request.bakeDir = (dir_ / "whole-bake").string();
+    ASSERT_TRUE(renderShotFrame(*shot, request).ok());
+    auto whole = readImage(request.outPath);
+    auto farm = readImage(
+        outputPathForFrame(shot->output, frame, shot->lastFrame > shot->firstFrame));
+    ASSERT_TRUE(whole.ok() && farm.ok()) << whole.status() << farm.status();
+    std::string why;
+    EXPECT_TRUE(pbgi::testing::samePixels(*farm, *whole, &why)) << "frame " << frame << ": " << why;
+  }
+  std::string workerLogs() {
+    std::string all;
+    for (const Process& w : workers_) all += w.log();
+    return all;
+  }
+
+  fs::path dir_;
+  fs::path shotPath_;
+  CoordinatorOptions options_;
+  std::unique_ptr<Coordinator> coordinator_;
+  std::unique_ptr<FarmClient> client_;
+  std::vector<Process> workers_;
+};
+
+TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
+  // Two 64 x 64 tiles of about a second each on one thread.
+  options_.tileSize = 64;
+  start();
+  pbgi::testing::SmallShot slow;
+  slow.width = 128;
+  slow.height = 64;
+  slow.spp = 256;
+  const int64_t job = submit(slow, {1});
+  Process& doomed = startWorker("doomed");
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto s = jobStatus(job);
+        if (!s.ok()) return false;
+        for (const auto& t : s->tasks()) {
+          if (t.kind() == "tile" && t.state() == "leased" && t.worker() == "doomed") return true;
+        }
+        return false;
+      },
+      30.0))
+      << workerLogs();
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  doomed.signal(SIGKILL);
+  EXPECT_EQ(doomed.wait(5.0), 128 + SIGKILL);
+  startWorker("rescuer");
+  std::string state;
+  ASSERT_TRUE(waitFor([&] { return settled(job, &state); }, 90.0)) << workerLogs();
+  ASSERT_EQ(state, "done") << workerLogs();
+  // The killed attempt expired and was taken over; nothing it left behind was used.
+  v1::GetLogsRequest logs;
+  logs.set_job(job);
+  auto entries = client_->getLogs(logs);
+  ASSERT_TRUE(entries.ok());
+  int expired = 0;
+  for (const auto& e : entries->entries()) expired += e.event() == "expired" && e.worker() == "doomed";
+  EXPECT_EQ(expired, 1);
+  expectFrameEqualsWholeRender(1);
+}
+
+TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwice) {
+  // The coordinator is a process here, so that kill -9 is real.
+  const fs::path state = dir_ / "daemon-state";
+  auto startDaemon = [&](const std::string& listen) {
+    return Process({pbgi::testing::binary("pbgi-coordinator").string(), "--state", state.string(),
+                    "--listen", listen, "--output-root", dir_.string(), "--tile-size", "32",
+                    "--lease-seconds", "2", "--expiry-interval", "0.1", "--backoff-base", "0"},
+                   dir_ / "coordinator.log");
+  };
+  Process daemon = startDaemon("127.0.0.1:0");
+  const fs::path addressFile = state / "coordinator.addr";
+  ASSERT_TRUE(waitFor([&] { return fs::exists(addressFile); }, 20.0)) << daemon.log();
+  std::string address = pbgi::testing::slurpFile(addressFile);
+  address = address.substr(0, address.find('\n'));
+  const std::string token = [&] {
+    std::string t = pbgi::testing::slurpFile(state / "token");
+    return t.substr(0, t.find('\n'));
+  }();
+  client_ = std::make_unique<FarmClient>(address, token, 5.0);
+  pbgi::testing::SmallShot shot;
+  shot.spp = 48;
+  const int64_t job = submit(shot);
+  ASSERT_NE(job, 0);
+  options_.token = token;
+  startWorker("steady", {}, address);
+  // Kill the coordinator once some tiles are done and some are not.
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto s = jobStatus(job);
+        return s.ok() && s->tasks_by_state().count("done") && s->tasks_by_state().at("done") >= 2;
+      },
+      60.0))
+      << workerLogs() << daemon.log();
+  daemon.signal(SIGKILL);
+  EXPECT_EQ(daemon.wait(5.0), 128 + SIGKILL);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  Process restarted = startDaemon(address);
+  std::string final;
+  ASSERT_TRUE(waitFor([&] { return settled(job, &final); }, 120.0))
+      << workerLogs() << restarted.log();
+  ASSERT_EQ(final, "done") << workerLogs() << restarted.log();
+  v1::GetLogsRequest logs;
+  logs.set_job(job);
+  auto entries = client_->getLogs(logs);
+  ASSERT_TRUE(entries.ok());
+  std::map<int64_t, int> completions;
+  for (const auto& e : entries->entries()) {
+    if (e.event() == "done") ++completions[e.task()];
+  }
+  EXPECT_EQ(completions.size(), 10u);  // 2 frames x (4 tiles + assemble)
+  for (const auto& [task, n] : completions) EXPECT_EQ(n, 1) << "task " << task;
+  expectFrameEqualsWholeRender(1);
+  expectFrameEqualsWholeRender(2);
+}
+
+TEST_F(WorkerTest, ATileThatAlwaysFailsIsDeadAndTheJobSaysWhichAndWhy) {
+  options_.retry.maxAttempts = 2;
+  start();
+  const int64_t job = submit({}, {1});
+  // Tile 2's file cannot be written: a folder of its name stands where the file would go.
+  const std::string blocked = farmTilePath(jobWorkDir(options_.stateDir, job), 1, 2);
+  fs::create_directories(blocked);
+  fs::create_directories(fs::path(blocked) / "keep");
+  startWorker("w1");
+  std::string state;
+  ASSERT_TRUE(waitFor([&] { return settled(job, &state); }, 60.0)) << workerLogs();
+  EXPECT_EQ(state, "failed");
+  auto s = jobStatus(job);
+  ASSERT_TRUE(s.ok());
+  ASSERT_EQ(s->dead_size(), 2) << s->DebugString();  // the tile, and the assemble waiting on it
+  EXPECT_EQ(s->dead(0).kind(), "tile");
+  EXPECT_EQ(s->dead(0).tile(), 2);
+  EXPECT_EQ(s->dead(0).attempt(), 2);
+  EXPECT_NE(s->dead(0).last_error().find("tile.0002.exr"), std::string::npos)
+      << s->dead(0).last_error();
+  EXPECT_EQ(s->dead(1).kind(), "assemble");
+  EXPECT_NE(s->dead(1).last_error().find("waits on job"), std::string::npos);
+  // The other tiles are done; the frame was never written.
+  EXPECT_EQ(s->tasks_by_state().at("done"), 3);
+  EXPECT_FALSE(fs::exists(dir_ / "out/small.0001.exr"));
+}
+
+TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree) {
+  options_.retry.maxAttempts = 5;
+  options_.retry.blocklistAfter = 2;
+  start();
+  pbgi::testing::SmallShot pbgiShot;
+  pbgiShot.integrator = "pbgi";
+  pbgiShot.extraRender = "bake_points = 4000\nbake_bounces = 1\nquality = \"draft\"\n";
+  const int64_t job = submit(pbgiShot, {1});
+  // This worker bakes fine, but streams trees into a cache it cannot write: every tile fails.
+  Process& bad = startWorker("bad", {"--tree-source", "stream", "--cache-dir", "/proc/pbgi-no"});
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto b = coordinator_->store().blocklisted(job, "bad");
+        return b.ok() && *b;
+      },
+      60.0))
+      << workerLogs();
+  bad.signal(SIGTERM);
+  EXPECT_EQ(bad.wait(30.0), 0) << bad.log();
+  // A worker that must stream (it does not read the shared folder) finishes the job.
+  startWorker("good", {"--tree-source", "stream"});
+  std::string state;
+  ASSERT_TRUE(waitFor([&] { return settled(job, &state); }, 90.0)) << workerLogs();
+  ASSERT_EQ(state, "done") << workerLogs();
+  EXPECT_TRUE(fs::exists(dir_ / "cache-good/job1/frame.0001.pbgi"));
+  auto s = jobStatus(job);
+  ASSERT_TRUE(s.ok());
+  for (const auto& t : s->tasks()) {
+    if (t.kind() == "tile") EXPECT_EQ(t.worker(), "good");
+  }
+  const std::string metrics = coordinator_->metricsText();
+  EXPECT_NE(metrics.find("pbgi_trees_streamed_total 1"), std::string::npos) << metrics;
+  expectFrameEqualsWholeRender(1);
+}
+
+}  // namespace
+}  // namespace pbgi::farm
