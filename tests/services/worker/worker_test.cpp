@@ -52,8 +52,10 @@ class WorkerTest : public ::testing::Test {
     std::vector<std::string> argv = {pbgi::testing::binary("pbgi-worker").string(),
                                      "--coordinator",
                                      address.empty() ? coordinator_->address() : address,
-                                     "--id", id, "--threads", "1", "--poll-seconds", "0.05",
-                                     "--cache-dir", (dir_ / ("cache-" + id)).string()};
+                                     "--id", id, "--threads", "1", "--poll-seconds", "0.05"};
+    if (std::find(extra.begin(), extra.end(), "--cache-dir") == extra.end()) {
+      extra.insert(extra.end(), {"--cache-dir", (dir_ / ("cache-" + id)).string()});
+    }
     argv.insert(argv.end(), extra.begin(), extra.end());
     workers_.emplace_back(argv, dir_ / (id + ".log"),
                           std::vector<std::string>{"PBGI_TOKEN=" + options_.token});
@@ -115,27 +117,34 @@ class WorkerTest : public ::testing::Test {
 };
 
 TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
-  // Two 64 x 64 tiles of about a second each on one thread.
+  // Two 64 x 64 tiles of a second or two each on one thread.
   options_.tileSize = 64;
   start();
   pbgi::testing::SmallShot slow;
   slow.width = 128;
   slow.height = 64;
-  slow.spp = 256;
+  slow.spp = 1024;
   const int64_t job = submit(slow, {1});
   Process& doomed = startWorker("doomed");
+  int tile = -1;
   ASSERT_TRUE(waitFor(
       [&] {
         auto s = jobStatus(job);
         if (!s.ok()) return false;
         for (const auto& t : s->tasks()) {
-          if (t.kind() == "tile" && t.state() == "leased" && t.worker() == "doomed") return true;
+          if (t.kind() == "tile" && t.state() == "leased" && t.worker() == "doomed") {
+            tile = t.tile();
+            return true;
+          }
         }
         return false;
       },
       30.0))
       << workerLogs();
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  // Mid-tile: the tile's file is not there yet.
+  const std::string tilePath = farmTilePath(jobWorkDir(options_.stateDir, job), 1, tile);
+  EXPECT_FALSE(fs::exists(tilePath));
   doomed.signal(SIGKILL);
   EXPECT_EQ(doomed.wait(5.0), 128 + SIGKILL);
   startWorker("rescuer");
