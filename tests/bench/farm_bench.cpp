@@ -1,0 +1,190 @@
+// The farm's throughput, measured in one run (these machines are noisy; compare within a run):
+//   1. lease round trips per second (LeaseTask + CompleteTask over gRPC, every state change
+//      committed to SQLite with synchronous=FULL) with 200 simulated workers;
+//   2. 1 against 2 pbgi-worker processes on a 4-frame Cornell box job through `pbgi run`;
+//   3. the page service: a baked tree streamed to a worker's disk cache, MB/s.
+// Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|--stream-only]
+
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "core/util/log.h"
+#include "services/bake/frame_bake.h"
+#include "services/coordinator/coordinator.h"
+#include "services/coordinator/farm_client.h"
+#include "services/coordinator/farm_job.h"
+#include "tests/support/farm_fixtures.h"
+
+namespace pbgi::farm {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+std::unique_ptr<Coordinator> startCoordinator(const fs::path& dir, int tileSize) {
+  CoordinatorOptions o;
+  o.stateDir = (dir / "state").string();
+  o.outputRoot = dir.string();
+  o.token = "bench";
+  o.tileSize = tileSize;
+  o.leaseSeconds = 600;
+  auto c = Coordinator::start(o);
+  if (!c.ok()) {
+    std::fprintf(stderr, "farm_bench: %s\n", std::string(c.status().message()).c_str());
+    std::exit(1);
+  }
+  return *std::move(c);
+}
+
+v1::SubmitJobRequest jobRequest(const fs::path& shot) {
+  v1::SubmitJobRequest r;
+  r.set_shot_path(shot.string());
+  r.set_shot_text(pbgi::testing::slurpFile(shot));
+  return r;
+}
+
+void leaseRoundTrips() {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-lease");
+  pbgi::testing::SmallShot big;
+  big.width = 2048;
+  big.height = 2048;
+  big.lastFrame = 4;
+  const fs::path shot = pbgi::testing::writeSmallShot(dir, big);
+  auto coordinator = startCoordinator(dir, 32);  // 4096 tiles a frame
+  FarmClient client(coordinator->address(), "bench");
+  if (!client.submitJob(jobRequest(shot)).ok()) std::exit(1);
+  constexpr int kWorkers = 200;
+  constexpr int kThreads = 16;  // each drives kWorkers / kThreads simulated workers in turn
+  constexpr double kSeconds = 5.0;
+  std::atomic<uint64_t> trips{0};
+  std::atomic<uint64_t> errors{0};
+  std::atomic<bool> stop{false};
+  std::vector<std::thread> threads;
+  const auto t0 = Clock::now();
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      FarmClient own(coordinator->address(), "bench");
+      for (int i = 0; !stop.load(); ++i) {
+        const int worker = t + kThreads * (i % (kWorkers / kThreads));
+        v1::LeaseTaskRequest ask;
+        ask.set_worker(fmt::format("sim-{}", worker));
+        auto lease = own.leaseTask(ask);
+        if (!lease.ok() || !lease->has_task()) {
+          errors.fetch_add(1);
+          continue;
+        }
+        v1::CompleteTaskRequest done;
+        done.set_worker(ask.worker());
+        done.set_task(lease->task());
+        done.set_attempt(lease->attempt());
+        done.set_seconds(0.001);
+        if (own.completeTask(done).ok()) trips.fetch_add(1); else errors.fetch_add(1);
+      }
+    });
+  }
+  std::this_thread::sleep_for(std::chrono::duration<double>(kSeconds));
+  stop.store(true);
+  for (auto& th : threads) th.join();
+  const double seconds = since(t0);
+  std::printf("lease round trips: %d simulated workers on %d client threads, %.1f s: %llu round "
+              "trips (lease + complete), %.0f per second, %.2f ms each; %llu empty or failed\n",
+              kWorkers, kThreads, seconds, static_cast<unsigned long long>(trips.load()),
+              trips.load() / seconds, 1000.0 * seconds * kThreads / std::max<uint64_t>(trips.load(), 1),
+              static_cast<unsigned long long>(errors.load()));
+  coordinator.reset();
+  fs::remove_all(dir);
+}
+
+double timedRun(const fs::path& shot, const fs::path& state, int workers, int threads) {
+  fs::remove_all(state);
+  const std::string command = fmt::format(
+      "{} -q run {} --workers {} --threads {} --tile-size 128 --state {} >/dev/null 2>&1",
+      pbgi::testing::shellQuote(pbgi::testing::pbgiBinary().string()),
+      pbgi::testing::shellQuote(shot.string()), workers, threads,
+      pbgi::testing::shellQuote(state.string()));
+  const auto t0 = Clock::now();
+  const int status = std::system(command.c_str());
+  const double seconds = since(t0);
+  if (status != 0) {
+    std::fprintf(stderr, "farm_bench: `%s` failed (%d)\n", command.c_str(), status);
+    std::exit(1);
+  }
+  return seconds;
+}
+
+void workerScaling() {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-workers");
+  pbgi::testing::SmallShot cornell;
+  cornell.width = 256;
+  cornell.height = 256;
+  cornell.lastFrame = 4;
+  cornell.spp = 64;
+  const fs::path shot = pbgi::testing::writeSmallShot(dir, cornell);
+  const fs::path state = dir / "state";
+  timedRun(shot, state, 1, 1);  // warm the file cache
+  const double one = timedRun(shot, state, 1, 1);
+  const double two = timedRun(shot, state, 2, 2);
+  const double oneWide = timedRun(shot, state, 1, 2);
+  std::printf("workers: 4-frame Cornell box, 256x256, 64 spp, 4 tiles a frame, pbgi run:\n"
+              "  1 worker x 1 thread  %.2f s  (%.2f frames/s)\n"
+              "  2 workers x 1 thread %.2f s  (%.2f frames/s)  throughput ratio 2:1 = %.2f\n"
+              "  1 worker x 2 threads %.2f s  (%.2f frames/s)  2 processes vs 2 threads = %.2f\n",
+              one, 4 / one, two, 4 / two, one / two, oneWide, 4 / oneWide, oneWide / two);
+  fs::remove_all(dir);
+}
+
+void pageStream() {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-stream");
+  pbgi::testing::SmallShot cornell;
+  cornell.integrator = "pbgi";
+  cornell.lastFrame = 1;
+  cornell.extraRender = "bake_points = 1000000\nbake_bounces = 0\n";
+  const fs::path shot = pbgi::testing::writeSmallShot(dir, cornell);
+  auto coordinator = startCoordinator(dir, 256);
+  FarmClient client(coordinator->address(), "bench");
+  auto job = client.submitJob(jobRequest(shot));
+  if (!job.ok()) std::exit(1);
+  // The bake task's work, done here: the tree lands where the page service looks.
+  auto desc = jobShot(pbgi::testing::slurpFile(shot), shot.string(), {});
+  auto bake = shotBakeRequest(*desc, 1);
+  bake->outDir = jobBakeDir(jobWorkDir((dir / "state").string(), job->job()));
+  auto baked = bakeShotFrame(*desc, *bake);
+  if (!baked.ok()) {
+    std::fprintf(stderr, "farm_bench: %s\n", std::string(baked.status().message()).c_str());
+    std::exit(1);
+  }
+  constexpr int kRepeats = 5;
+  uint64_t bytes = 0;
+  const auto t0 = Clock::now();
+  for (int i = 0; i < kRepeats; ++i) {
+    auto got = client.fetchTree(job->job(), 1, (dir / fmt::format("copy{}.pbgi", i)).string());
+    if (!got.ok()) std::exit(1);
+    bytes += *got;
+  }
+  const double seconds = since(t0);
+  std::printf("page stream: a %.1f MiB tree (1M surfels) fetched %d times over loopback into the "
+              "disk cache: %.1f MiB/s\n",
+              double(baked->treeFileBytes) / (1 << 20), kRepeats, double(bytes) / (1 << 20) / seconds);
+  coordinator.reset();
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace pbgi::farm
+
+int main(int argc, char** argv) {
+  const std::string only = argc > 1 ? argv[1] : "";
+  pbgi::log::setLevel(pbgi::log::Level::kError);
+  if (only.empty() || only == "--leases-only") pbgi::farm::leaseRoundTrips();
+  if (only.empty() || only == "--workers-only") pbgi::farm::workerScaling();
+  if (only.empty() || only == "--stream-only") pbgi::farm::pageStream();
+  return 0;
+}
