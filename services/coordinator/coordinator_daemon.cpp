@@ -17,6 +17,7 @@ namespace pbgi::farm {
 int coordinatorDaemonMain(int argc, char** argv) {
   CLI::App app{"pbgi-coordinator: the render farm's coordinator daemon"};
   app.set_config("--config", "", "TOML file of these options (keys are the long flag names)");
+  app.allow_config_extras(CLI::config_extras_mode::error);  // a misspelt key is an error
   CoordinatorOptions o;
   o.listen = kDefaultCoordinatorAddress;
   std::string stateDir = "pbgi-state";

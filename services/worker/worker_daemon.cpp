@@ -16,6 +16,7 @@ namespace pbgi::farm {
 int workerDaemonMain(int argc, char** argv) {
   CLI::App app{"pbgi-worker: a render farm worker daemon"};
   app.set_config("--config", "", "TOML file of these options (keys are the long flag names)");
+  app.allow_config_extras(CLI::config_extras_mode::error);  // a misspelt key is an error
   WorkerOptions o;
   std::string tokenFile;
   int cacheMb = 0;

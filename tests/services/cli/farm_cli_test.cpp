@@ -1,0 +1,111 @@
+// The farm client commands (submit, status, cancel, retry, logs, workers) against a real
+// pbgi-coordinator process, and the daemons' command lines.
+
+#include <gtest/gtest.h>
+
+#include "tests/support/farm_fixtures.h"
+
+namespace pbgi {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::runPbgi;
+using testing::shellQuote;
+
+class FarmCliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = testing::makeTempDir("farm-cli");
+    daemon_ = testing::Process(
+        {testing::binary("pbgi-coordinator").string(), "--state", (dir_ / "state").string(),
+         "--listen", "127.0.0.1:0", "--output-root", dir_.string(), "--tile-size", "32"},
+        dir_ / "coordinator.log");
+    ASSERT_TRUE(testing::waitFor([&] { return fs::exists(dir_ / "state/coordinator.addr"); }, 20.0))
+        << daemon_.log();
+    std::string address = testing::slurpFile(dir_ / "state/coordinator.addr");
+    connection_ = " --coordinator " + address.substr(0, address.find('\n')) + " --token-file " +
+                  shellQuote((dir_ / "state/token").string());
+  }
+  void TearDown() override {
+    daemon_.signal(SIGTERM);
+    EXPECT_EQ(daemon_.wait(20.0), 0) << daemon_.log();
+    fs::remove_all(dir_);
+  }
+
+  fs::path dir_;
+  testing::Process daemon_;
+  std::string connection_;
+};
+
+TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
+  const fs::path shot = testing::writeSmallShot(dir_, {});
+  const auto submitted = runPbgi("submit " + shellQuote(shot.string()) + " --spp 1" + connection_);
+  ASSERT_EQ(submitted.exitCode, 0) << submitted.output();
+  EXPECT_EQ(submitted.out, "1\n");
+  const auto all = runPbgi("status" + connection_);
+  ASSERT_EQ(all.exitCode, 0) << all.output();
+  EXPECT_NE(all.out.find("cornell"), std::string::npos) << all.out;
+  EXPECT_NE(all.out.find("active"), std::string::npos) << all.out;
+  EXPECT_NE(all.out.find("0/10 tasks"), std::string::npos) << all.out;
+  const auto one = runPbgi("status 1" + connection_);
+  ASSERT_EQ(one.exitCode, 0) << one.output();
+  EXPECT_NE(one.out.find("frame    2: bake -, tiles 0/4 done, assemble blocked"), std::string::npos)
+      << one.out;
+  const auto json = runPbgi("status 1 --json" + connection_);
+  EXPECT_NE(json.out.find("\"tilesPerFrame\":4"), std::string::npos) << json.out;
+  const auto cancelled = runPbgi("cancel 1" + connection_);
+  ASSERT_EQ(cancelled.exitCode, 0) << cancelled.output();
+  EXPECT_NE(runPbgi("status" + connection_).out.find("cancelled"), std::string::npos);
+  const auto retried = runPbgi("retry 1 --frame 2 --tile 1" + connection_);
+  ASSERT_EQ(retried.exitCode, 0) << retried.output();
+  EXPECT_NE(runPbgi("status" + connection_).out.find("active"), std::string::npos);
+  const auto logs = runPbgi("logs 1" + connection_);
+  EXPECT_EQ(logs.exitCode, 0) << logs.output();
+  const auto workers = runPbgi("workers" + connection_);
+  ASSERT_EQ(workers.exitCode, 0) << workers.output();
+  EXPECT_EQ(workers.out, "no workers\n");
+  const auto unknown = runPbgi("status 7" + connection_);
+  EXPECT_EQ(unknown.exitCode, 2) << unknown.output();
+  EXPECT_NE(unknown.err.find("job 7: no such job"), std::string::npos) << unknown.err;
+}
+
+TEST_F(FarmCliTest, RefusedWithoutTheTokenAndOutsideTheOutputRoot) {
+  const fs::path shot = testing::writeSmallShot(dir_, {});
+  std::ofstream(dir_ / "wrong-token") << "nope\n";
+  const std::string address = connection_.substr(0, connection_.find(" --token-file"));
+  const auto wrong = runPbgi("status" + address + " --token-file " +
+                             shellQuote((dir_ / "wrong-token").string()));
+  EXPECT_EQ(wrong.exitCode, 1) << wrong.output();
+  EXPECT_NE(wrong.err.find("token"), std::string::npos) << wrong.err;
+  const auto none = runPbgi("status" + address);
+  EXPECT_EQ(none.exitCode, 2) << none.output();
+  EXPECT_NE(none.err.find("PBGI_TOKEN"), std::string::npos) << none.err;
+  const auto outside = runPbgi("submit " + shellQuote(shot.string()) + " --output-dir /tmp" + connection_);
+  EXPECT_EQ(outside.exitCode, 2) << outside.output();
+  EXPECT_NE(outside.err.find("outside the coordinator's output root"), std::string::npos)
+      << outside.err;
+  EXPECT_NE(daemon_.log().find("refused peer="), std::string::npos);
+}
+
+TEST(DaemonCliTest, ConfigFilesAreStrict) {
+  const fs::path dir = testing::makeTempDir("daemon-cli");
+  std::ofstream(dir / "bad.toml") << "lease-seconds = 5\nbogus-key = 3\n";
+  testing::Process coordinator({testing::binary("pbgi-coordinator").string(), "--config",
+                                (dir / "bad.toml").string(), "--state", (dir / "s").string()},
+                               dir / "coordinator.log");
+  EXPECT_EQ(coordinator.wait(20.0), 2) << coordinator.log();
+  EXPECT_NE(coordinator.log().find("bogus"), std::string::npos) << coordinator.log();
+  testing::Process worker({testing::binary("pbgi-worker").string(), "--config",
+                           (dir / "bad.toml").string(), "--coordinator", "127.0.0.1:1"},
+                          dir / "worker.log");
+  EXPECT_EQ(worker.wait(20.0), 2) << worker.log();
+  // A worker without a token says where it looked.
+  testing::Process tokenless({testing::binary("pbgi-worker").string(), "--coordinator", "127.0.0.1:1"},
+                             dir / "tokenless.log", {"PBGI_TOKEN="});
+  EXPECT_EQ(tokenless.wait(20.0), 2) << tokenless.log();
+  EXPECT_NE(tokenless.log().find("PBGI_TOKEN"), std::string::npos) << tokenless.log();
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace pbgi
