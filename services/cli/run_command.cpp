@@ -26,6 +26,7 @@
 #include "services/cli/progress.h"
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_job.h"
+#include "services/util/daemon.h"
 
 namespace pbgi::cli {
 
@@ -87,13 +88,6 @@ absl::StatusOr<pid_t> spawnWorker(const std::string& exe, const std::string& add
   return pid;
 }
 
-std::string randomToken() {
-  std::random_device entropy;
-  std::string token;
-  for (int i = 0; i < 4; ++i) token += fmt::format("{:08x}", entropy());
-  return token;
-}
-
 // The job this run continues: an unfinished one of the same shot bytes, overrides, frames and
 // output (a run that was interrupted), else a new submission.
 absl::StatusOr<int64_t> findOrSubmit(farm::Coordinator& coordinator, farm::FarmClient& client,
@@ -128,7 +122,7 @@ int runEmbedded(const RunOptions& o) {
   options.stateDir = o.state.empty() ? (fs::path(shot->dir) / ".pbgi-run").string() : o.state;
   options.outputRoot =
       o.outputRoot.empty() ? fs::path(shot->output).parent_path().string() : o.outputRoot;
-  options.token = randomToken();
+  options.token = newToken();
   options.leaseSeconds = o.leaseSeconds;
   options.tileSize = o.tileSize;
   std::error_code ec;

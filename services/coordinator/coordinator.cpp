@@ -660,13 +660,6 @@ const std::string& Coordinator::httpAddress() const { return impl_->httpAddress;
 JobStore& Coordinator::store() { return *impl_->store; }
 std::string Coordinator::metricsText() { return impl_->metricsText(); }
 
-std::string Coordinator::statusJson() {
-  std::string json;
-  auto status = impl_->status(v1::GetStatusRequest());
-  if (status.ok()) (void)google::protobuf::util::MessageToJsonString(*status, &json);
-  return json;
-}
-
 void Coordinator::shutdown() {
   {
     std::lock_guard lock(impl_->stopMutex);

@@ -51,9 +51,8 @@ class Coordinator {
   // Stops accepting calls, lets calls in flight finish, and stops the expiry loop.
   void shutdown();
 
-  // The Prometheus text and JSON status the HTTP endpoint serves.
+  // The Prometheus text the HTTP endpoint serves at /metrics.
   std::string metricsText();
-  std::string statusJson();
 
   struct Impl;
 

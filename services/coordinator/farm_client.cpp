@@ -4,7 +4,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 
 #include <unistd.h>
 
@@ -12,6 +11,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "pbgi/farm/v1/farm.grpc.pb.h"
+#include "services/util/daemon.h"
 
 namespace pbgi::farm {
 
@@ -31,17 +31,7 @@ absl::Status fromGrpc(const grpc::Status& s, const std::string& address, const c
 }  // namespace
 
 absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile) {
-  if (!tokenFile.empty()) {
-    std::ifstream in(tokenFile);
-    if (!in) return absl::NotFoundError(fmt::format("{}: cannot read the token file", tokenFile));
-    std::string token;
-    std::getline(in, token);
-    if (token.empty()) {
-      return absl::InvalidArgumentError(
-          fmt::format("{}:1: expected the farm's token on the first line", tokenFile));
-    }
-    return token;
-  }
+  if (!tokenFile.empty()) return readTokenFile(tokenFile);
   if (const char* env = std::getenv("PBGI_TOKEN"); env != nullptr && *env != '\0') return std::string(env);
   return absl::NotFoundError(
       "no farm token: pass --token-file FILE (the coordinator writes <state>/token) or set "

@@ -52,20 +52,28 @@ absl::Status writeFileAtomic(const std::string& path, const std::string& text, u
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::string> loadOrCreateToken(const std::string& path) {
-  std::ifstream in(path);
-  if (in) {
-    std::string token;
-    std::getline(in, token);
-    if (token.empty()) {
-      return absl::InvalidArgumentError(
-          fmt::format("{}:1: expected the farm's token on the first line", path));
-    }
-    return token;
-  }
+std::string newToken() {
   std::random_device entropy;  // /dev/urandom on Linux
   std::string token;
   for (int i = 0; i < 4; ++i) token += fmt::format("{:08x}", entropy());
+  return token;
+}
+
+absl::StatusOr<std::string> readTokenFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(fmt::format("{}: cannot read the token file", path));
+  std::string token;
+  std::getline(in, token);
+  if (token.empty()) {
+    return absl::InvalidArgumentError(
+        fmt::format("{}:1: expected the farm's token on the first line", path));
+  }
+  return token;
+}
+
+absl::StatusOr<std::string> loadOrCreateToken(const std::string& path) {
+  if (std::filesystem::exists(path)) return readTokenFile(path);
+  const std::string token = newToken();
   std::error_code ec;
   std::filesystem::create_directories(std::filesystem::path(path).parent_path(), ec);
   if (absl::Status s = writeFileAtomic(path, token + "\n", 0600); !s.ok()) return s;

@@ -18,8 +18,13 @@ int waitForStopSignal();
 // Writes `text` to a temporary beside `path` with the given mode, then renames it into place.
 absl::Status writeFileAtomic(const std::string& path, const std::string& text, unsigned mode);
 
-// The farm token at `path`: its first line; when the file does not exist, a new random token
-// is written there (mode 0600) and returned.
+// A new random farm token: 32 hex digits from the system's entropy source.
+std::string newToken();
+// The farm token in `path`: its first line. NotFound when the file cannot be read,
+// InvalidArgument when its first line is empty.
+absl::StatusOr<std::string> readTokenFile(const std::string& path);
+// readTokenFile(path); when the file does not exist, a newToken() is written there (mode
+// 0600) and returned.
 absl::StatusOr<std::string> loadOrCreateToken(const std::string& path);
 
 }  // namespace pbgi

@@ -162,6 +162,32 @@ TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
   expectFrameEqualsWholeRender(1);
 }
 
+TEST_F(WorkerTest, SigtermFinishesAndReportsTheTaskInHandThenExits) {
+  options_.tileSize = 64;
+  start();
+  pbgi::testing::SmallShot slow;
+  slow.width = 128;
+  slow.height = 64;
+  slow.spp = 512;
+  const int64_t job = submit(slow, {1});
+  Process& polite = startWorker("polite");
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto s = jobStatus(job);
+        return s.ok() && s->tasks_by_state().count("leased") && s->tasks_by_state().at("leased") == 1;
+      },
+      30.0))
+      << workerLogs();
+  polite.signal(SIGTERM);
+  EXPECT_EQ(polite.wait(60.0), 0) << polite.log();
+  // It finished the tile it held and took no other.
+  auto s = jobStatus(job);
+  ASSERT_TRUE(s.ok());
+  EXPECT_EQ(s->tasks_by_state().at("done"), 1) << s->DebugString();
+  EXPECT_EQ(s->tasks_by_state().count("leased") ? s->tasks_by_state().at("leased") : 0, 0);
+  EXPECT_NE(polite.log().find("stopping"), std::string::npos) << polite.log();
+}
+
 TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwice) {
   // The coordinator is a process here, so that kill -9 is real.
   const fs::path state = dir_ / "daemon-state";
