@@ -52,6 +52,41 @@ TEST(RunCliTest, TwoFramesOnTwoWorkersEqualPbgiRender) {
   fs::remove_all(dir);
 }
 
+TEST(RunCliTest, AnInterruptedRunResumesItsJob) {
+  const fs::path dir = testing::makeTempDir("run-cli-resume");
+  testing::SmallShot slow;
+  slow.spp = 256;
+  const fs::path shot = testing::writeSmallShot(dir, slow);
+  const std::string state = (dir / "state").string();
+  testing::Process first({testing::pbgiBinary().string(), "run", shot.string(), "--tile-size",
+                          "32", "--threads", "1", "--state", state},
+                         dir / "first.log");
+  // Interrupted once a tile is done (each takes a fraction of a second on one thread).
+  ASSERT_TRUE(testing::waitFor(
+      [&] { return fs::exists(dir / "state/jobs/1/frame.0001/tile.0000.exr"); }, 60.0))
+      << first.log();
+  first.signal(SIGINT);
+  EXPECT_EQ(first.wait(60.0), 1) << first.log();
+  EXPECT_NE(first.log().find("run the same command again to resume job 1"), std::string::npos)
+      << first.log();
+  EXPECT_FALSE(fs::exists(dir / "out/small.0002.exr"));
+  const testing::RunResult second = runPbgi("run " + shellQuote(shot.string()) +
+                                            " --tile-size 32 --state " + shellQuote(state));
+  ASSERT_EQ(second.exitCode, 0) << second.output();
+  EXPECT_NE(second.output().find("resuming job 1"), std::string::npos) << second.output();
+  const fs::path alone = dir / "alone.exr";
+  ASSERT_EQ(runPbgi("render " + shellQuote(shot.string()) + " --frame 2 --no-preview --out " +
+                    shellQuote(alone.string()))
+                .exitCode,
+            0);
+  auto a = readImage((dir / "out/small.0002.exr").string());
+  auto b = readImage(alone.string());
+  ASSERT_TRUE(a.ok() && b.ok());
+  std::string why;
+  EXPECT_TRUE(testing::samePixels(*a, *b, &why)) << why;
+  fs::remove_all(dir);
+}
+
 TEST(RunCliTest, BadShotsAndFlagsExitTwoBeforeAnythingStarts) {
   const fs::path dir = testing::makeTempDir("run-cli-bad");
   const fs::path shot = dir / "bad.toml";
