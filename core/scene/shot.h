@@ -127,7 +127,7 @@ struct RenderSettings {
 struct ShotDesc {
   std::string path;  // the shot file, as given
   std::string dir;   // its folder; relative paths resolve against it
-  std::string source;  // the file's bytes as parsed (a farm job's are those it was submitted with)
+  std::string source;  // the bytes parsed: what bakes and caches key on (a farm job: as submitted)
   int version = 1;
   std::string name;
   int firstFrame = 1;

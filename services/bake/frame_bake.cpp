@@ -62,17 +62,9 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
 }
 
 uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
-  // The bytes the shot was parsed from: a farm job renders the text it was submitted with,
-  // whatever the file on disk says by the time its bake runs.
+  // The bytes the shot was parsed from, not the file as it is now: a farm job renders the
+  // text it was submitted with, whatever the file says by the time its bake runs.
   std::string text = shot.source;
-  if (text.empty()) {
-    if (FILE* f = std::fopen(shot.path.c_str(), "rb")) {
-      char buffer[65536];
-      size_t n;
-      while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) text.append(buffer, n);
-      std::fclose(f);
-    }
-  }
   const uint64_t points = request.points > 0 ? request.points : kDefaultBakePoints;
   text += fmt::format(
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_gather={}|encoding={}|leaf={}"

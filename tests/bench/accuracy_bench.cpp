@@ -28,7 +28,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <optional>
 #include <string>
 #include <vector>
@@ -147,13 +146,8 @@ double writeBiasMap(const Image& indirect, const Image& refIndirect, const Image
   return sumRef > 0.0 ? sumImage / sumRef : 0.0;
 }
 
-std::string readBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
 absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& args) {
-  const std::string key = fmt::format("{}|frame={}|spp={}|version={}", readBytes(shot.path),
+  const std::string key = fmt::format("{}|frame={}|spp={}|version={}", shot.source,
                                       frame, args.referenceSpp, PBGI_VERSION);
   const fs::path dir = args.cache.empty() ? fs::path(args.out) / "reference" : fs::path(args.cache);
   const std::string path = (dir / fmt::format("{}.{:04d}.path{}.{:016x}.exr", shot.name, frame,
