@@ -116,8 +116,6 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
   };
   std::mutex jobsMutex;
   std::unordered_map<int64_t, std::shared_ptr<const JobView>> jobs;
-  // Leases handed out by this process, for the duration histogram's kind label.
-  std::unordered_map<int64_t, TaskKind> leasedKinds;
 
   // ---- helpers ----
 
@@ -353,10 +351,6 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
         continue;
       }
       metrics.leases.fetch_add(1);
-      {
-        std::lock_guard lock(jobsMutex);
-        leasedKinds[l.task] = l.ref.kind;
-      }
       const JobSpec& spec = (*view)->spec;
       response->set_has_task(true);
       response->set_task(l.task);
@@ -400,34 +394,26 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     return toGrpc(s);
   }
 
-  std::optional<TaskKind> forgetLease(int64_t task) {
-    std::lock_guard lock(jobsMutex);
-    const auto it = leasedKinds.find(task);
-    if (it == leasedKinds.end()) return std::nullopt;
-    const TaskKind kind = it->second;
-    leasedKinds.erase(it);
-    return kind;
-  }
-
   grpc::Status CompleteTask(grpc::ServerContext* context, const v1::CompleteTaskRequest* request,
                             v1::CompleteTaskResponse*) override {
     if (!authorized(context)) return refusedStatus();
-    const absl::Status s =
+    const absl::StatusOr<TaskRef> done =
         store->complete(request->task(), request->attempt(), wallClock(), request->log());
-    if (s.code() == absl::StatusCode::kFailedPrecondition) {
+    if (done.status().code() == absl::StatusCode::kFailedPrecondition) {
       metrics.staleCompletions.fetch_add(1);
-      log::warn("dropped stale completion worker={}: {}", request->worker(), s.message());
+      log::warn("dropped stale completion worker={}: {}", request->worker(),
+                done.status().message());
     }
-    if (!s.ok()) return toGrpc(s);
+    if (!done.ok()) return toGrpc(done.status());
     metrics.cacheHits.fetch_add(request->cache_hits());
     metrics.cacheMisses.fetch_add(request->cache_misses());
     if (request->tree_bytes_streamed() > 0) {
       metrics.treesStreamed.fetch_add(1);
       metrics.treeBytesStreamed.fetch_add(request->tree_bytes_streamed());
     }
-    if (const auto kind = forgetLease(request->task())) {
+    {
       std::lock_guard lock(metrics.mutex);
-      metrics.durations[toString(*kind)].add(request->seconds());
+      metrics.durations[toString(done->kind)].add(request->seconds());
     }
     return grpc::Status::OK;
   }
@@ -439,7 +425,6 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
                                        wallClock(), request->log());
     if (!s.ok()) return toGrpc(s);
     metrics.failures.fetch_add(1);
-    forgetLease(request->task());
     log::warn("failed task={} attempt={} worker={}: {}", request->task(), request->attempt(),
               request->worker(), request->error());
     return grpc::Status::OK;

@@ -138,9 +138,10 @@ class JobStore {
   virtual absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
                                  Seconds leaseSeconds) = 0;
   // The task is done; its dependents become ready when all they wait on is done; the job is
-  // done when every task is. FailedPrecondition from a stale attempt (nothing changes).
-  virtual absl::Status complete(int64_t task, int attempt, Seconds now,
-                                const std::string& log = {}) = 0;
+  // done when every task is. Returns the task. FailedPrecondition from a stale attempt
+  // (nothing changes).
+  virtual absl::StatusOr<TaskRef> complete(int64_t task, int attempt, Seconds now,
+                                           const std::string& log = {}) = 0;
   // The attempt failed with `error`: ready again after the back-off, or dead at the cap.
   // Counts the failure against (job, worker) for the blocklist. FailedPrecondition when stale.
   virtual absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,

@@ -153,7 +153,8 @@ class SqliteJobStore final : public JobStore {
                                              Seconds leaseSeconds) override;
   absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
                          Seconds leaseSeconds) override;
-  absl::Status complete(int64_t task, int attempt, Seconds now, const std::string& log) override;
+  absl::StatusOr<TaskRef> complete(int64_t task, int attempt, Seconds now,
+                                   const std::string& log) override;
   absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
                     const std::string& log) override;
   absl::StatusOr<int> expireLeases(Seconds now) override;
@@ -688,9 +689,9 @@ absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progres
   });
 }
 
-absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now,
-                                      const std::string& log) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
+absl::StatusOr<TaskRef> SqliteJobStore::complete(int64_t task, int attempt, Seconds now,
+                                                 const std::string& log) {
+  return transaction(Access::kWrite, [&]() -> absl::StatusOr<TaskRef> {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
     PBGI_RETURN_IF_ERROR(addEvent(info, attempt, info.worker, "done", log, now));
     {
@@ -700,7 +701,8 @@ absl::Status SqliteJobStore::complete(int64_t task, int attempt, Seconds now,
     }
     PBGI_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame));
     PBGI_RETURN_IF_ERROR(touchWorker(info.worker, now));
-    return settleJob(info.ref.job);
+    PBGI_RETURN_IF_ERROR(settleJob(info.ref.job));
+    return info.ref;
   });
 }
 

@@ -159,7 +159,7 @@ TEST_F(SqliteJobStoreTest, SubmitRejectsMalformedJobsAndUnknownIdsAreNotFound) {
   EXPECT_EQ(store_->tasks(42).status().code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(store_->cancel(42).code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(store_->retry(42, std::nullopt, std::nullopt, 0).code(), absl::StatusCode::kNotFound);
-  EXPECT_EQ(store_->complete(42, 1, 0).code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store_->complete(42, 1, 0).status().code(), absl::StatusCode::kNotFound);
   auto jobs = store_->jobs();
   ASSERT_TRUE(jobs.ok()) << jobs.status();
   EXPECT_TRUE(jobs->empty());
@@ -195,7 +195,9 @@ TEST_F(SqliteJobStoreTest, BakeUnblocksTilesWhichUnblockTheAssembleAndTheJobIsDo
   ASSERT_TRUE(bake.has_value());
   EXPECT_EQ(bake->ref.kind, TaskKind::kBake);
   EXPECT_FALSE(lease("w2", 0).has_value()) << "tiles must wait on the bake";
-  ASSERT_TRUE(store_->complete(bake->task, bake->attempt, 1).ok());
+  const auto completed = store_->complete(bake->task, bake->attempt, 1);
+  ASSERT_TRUE(completed.ok());
+  EXPECT_EQ(completed->toString(), bake->ref.toString());  // the task it completed
   EXPECT_EQ(count(job(id), TaskState::kReady), 2);
 
   auto tile0 = lease("w1", 1);
@@ -234,7 +236,7 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   ASSERT_TRUE(store_->heartbeat(second->task, 2, 0.25, 31, kLease).ok());
   const TaskInfo before = task(id, TaskKind::kTile, 1, 0);
 
-  const absl::Status completed = store_->complete(first->task, first->attempt, 32);
+  const absl::Status completed = store_->complete(first->task, first->attempt, 32).status();
   EXPECT_EQ(completed.code(), absl::StatusCode::kFailedPrecondition);
   EXPECT_NE(completed.message().find(fmt::format("job {} frame 1 tile 0", id)), std::string::npos)
       << completed;
@@ -243,7 +245,7 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   EXPECT_EQ(store_->heartbeat(first->task, 1, 0.9, 32, kLease).code(),
             absl::StatusCode::kFailedPrecondition);
   EXPECT_EQ(store_->fail(first->task, 1, "late", 32).code(), absl::StatusCode::kFailedPrecondition);
-  EXPECT_EQ(store_->complete(first->task, 3, 32).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->complete(first->task, 3, 32).status().code(), absl::StatusCode::kFailedPrecondition);
 
   const TaskInfo after = task(id, TaskKind::kTile, 1, 0);
   EXPECT_EQ(after.state, TaskState::kLeased);
@@ -257,7 +259,7 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   EXPECT_FALSE(*blocklisted);
 
   ASSERT_TRUE(store_->complete(second->task, 2, 33).ok());
-  EXPECT_EQ(store_->complete(second->task, 2, 34).code(), absl::StatusCode::kFailedPrecondition)
+  EXPECT_EQ(store_->complete(second->task, 2, 34).status().code(), absl::StatusCode::kFailedPrecondition)
       << "a done task takes no second completion";
 }
 
@@ -339,7 +341,7 @@ TEST_F(SqliteJobStoreTest, ExpiredLeasesCountAsFailures) {
   EXPECT_EQ(info.state, TaskState::kReady);
   EXPECT_EQ(info.failures, 1);
   EXPECT_EQ(info.lastError, "lease expired: worker w1 stopped heartbeating");
-  EXPECT_EQ(store_->complete(l->task, l->attempt, 51).code(),
+  EXPECT_EQ(store_->complete(l->task, l->attempt, 51).status().code(),
             absl::StatusCode::kFailedPrecondition);
   EXPECT_EQ(store_->expireLeases(1000).value_or(-1), 0);
 }
@@ -380,7 +382,7 @@ TEST_F(SqliteJobStoreTest, CancelStopsEverythingAndRetryRevivesByFrame) {
   JobInfo info = job(id);
   EXPECT_EQ(info.state, JobState::kCancelled);
   EXPECT_EQ(count(info, TaskState::kCancelled), 8);
-  EXPECT_EQ(store_->complete(bake->task, bake->attempt, 1).code(),
+  EXPECT_EQ(store_->complete(bake->task, bake->attempt, 1).status().code(),
             absl::StatusCode::kFailedPrecondition);
   EXPECT_FALSE(lease("w1", 1).has_value());
 
@@ -513,7 +515,7 @@ TEST_F(SqliteJobStoreTest, ConcurrentLeasesNeverHandOutATaskTwice) {
           std::this_thread::yield();  // the assembles wait on tiles another thread holds
           continue;
         }
-        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0);
+        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
         std::lock_guard lock(mutex);
         if (!s.ok()) errors.push_back(std::string(s.message()));
         completed.insert((*l)->task);
