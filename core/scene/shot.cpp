@@ -79,4 +79,10 @@ std::string outputPathForFrame(const std::string& pattern, int frame, bool multi
   return out;
 }
 
+absl::Status checkShotFrame(const ShotDesc& shot, int frame) {
+  if (frame >= shot.firstFrame && frame <= shot.lastFrame) return absl::OkStatus();
+  return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
+                                           shot.path, frame, shot.firstFrame, shot.lastFrame));
+}
+
 }  // namespace pbgi

@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include <absl/status/status.h>
+
 #include "core/math/vec.h"
 #include "core/util/source_location.h"
 
@@ -141,6 +143,10 @@ struct ShotDesc {
   std::vector<LightDesc> lights;
   RenderSettings render;
 };
+
+// OkStatus when `frame` is one of the shot's; OutOfRange naming the shot file and its frames
+// otherwise.
+absl::Status checkShotFrame(const ShotDesc& shot, int frame);
 
 // Keyframe evaluation. The table's own values act as a key at the shot's first frame;
 // explicit keys override it. Each value interpolates linearly between the keys that set it

@@ -163,11 +163,7 @@ std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) 
 absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                                               const FrameBakeRequest& request,
                                               const Scene* loadedScene) {
-  if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
-    return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
-                                             shot.path, request.frame, shot.firstFrame,
-                                             shot.lastFrame));
-  }
+  if (absl::Status s = checkShotFrame(shot, request.frame); !s.ok()) return s;
   if (request.bounces < 0 || request.bounces > kMaxBakeBounces) {
     return absl::InvalidArgumentError(
         fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));

@@ -1,9 +1,8 @@
 #include "services/cli/farm_cli.h"
 
 #include <cstdlib>
-#include <fstream>
+#include <filesystem>
 #include <map>
-#include <sstream>
 
 #include <CLI/CLI.hpp>
 #include <absl/strings/numbers.h>
@@ -49,32 +48,25 @@ absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
   return frames;
 }
 
-absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const std::string& shotPath,
+absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
                                                          const JobFlags& flags) {
-  std::ifstream in(shotPath, std::ios::binary);
-  if (!in) return absl::NotFoundError(fmt::format("{}: shot file not found", shotPath));
-  std::ostringstream text;
-  text << in.rdbuf();
   farm::v1::SubmitJobRequest request;
-  request.set_shot_path(std::filesystem::absolute(shotPath).lexically_normal().string());
-  request.set_shot_text(text.str());
+  request.set_shot_path(std::filesystem::absolute(shot.path).lexically_normal().string());
+  request.set_shot_text(shot.source);
   request.set_priority(flags.priority);
-  if (!flags.frames.empty()) {
-    PBGI_ASSIGN_OR_RETURN(const std::vector<int> frames, parseFrameList(flags.frames));
-    for (int f : frames) request.add_frames(f);
-  }
   if (!flags.integrator.empty()) request.add_overrides("integrator=" + flags.integrator);
   if (flags.spp > 0) request.add_overrides(fmt::format("spp={}", flags.spp));
   if (!flags.quality.empty()) request.add_overrides("quality=" + flags.quality);
   if (flags.cacheMb > 0) request.add_overrides(fmt::format("cache_mb={}", flags.cacheMb));
-  // The coordinator checks the same, but a typo is better caught before the network.
-  const std::vector<std::string> overrides(request.overrides().begin(), request.overrides().end());
-  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
-                        farm::jobShot(request.shot_text(), request.shot_path(), overrides));
-  for (int f : request.frames()) {
-    if (f < shot.firstFrame || f > shot.lastFrame) {
-      return absl::OutOfRangeError(fmt::format("--frames {}: frame {} is outside the shot's frames [{}, {}]",
-                                               flags.frames, f, shot.firstFrame, shot.lastFrame));
+  // The coordinator checks the same, but bad input is better caught before anything starts.
+  ShotDesc overridden = shot;
+  PBGI_RETURN_IF_ERROR(farm::applyOverrides(
+      overridden, std::vector<std::string>(request.overrides().begin(), request.overrides().end())));
+  if (!flags.frames.empty()) {
+    PBGI_ASSIGN_OR_RETURN(const std::vector<int> frames, parseFrameList(flags.frames));
+    for (int f : frames) {
+      PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
+      request.add_frames(f);
     }
   }
   return request;

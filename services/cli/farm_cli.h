@@ -9,6 +9,7 @@
 
 #include <absl/status/statusor.h>
 
+#include "core/scene/shot.h"
 #include "services/coordinator/farm_client.h"
 
 namespace CLI {
@@ -28,9 +29,9 @@ struct JobFlags {
 };
 void addJobFlags(CLI::App& cmd, JobFlags& flags);
 
-// The submission of `shotPath` (read here: the job renders these bytes) with `flags`.
+// The submission of `shot` (the job renders the bytes it was parsed from) with `flags`.
 // Errors name the shot file or the flag.
-absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const std::string& shotPath,
+absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
                                                          const JobFlags& flags);
 
 // "1-3,7" -> {1, 2, 3, 7}; InvalidArgument naming the text.

@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 #include <google/protobuf/util/json_util.h>
 
+#include "formats/shot/shot_file.h"
 #include "services/cli/cli.h"
 #include "core/util/status.h"
 #include "services/cli/farm_cli.h"
@@ -37,7 +38,9 @@ struct SubmitOptions {
 };
 
 int runSubmit(const SubmitOptions& o) {
-  auto request = submitRequest(o.shot, o.job);
+  auto shot = loadShotFile(o.shot);
+  if (!shot.ok()) return reportError(shot.status());
+  auto request = submitRequest(*shot, o.job);
   if (!request.ok()) return reportError(request.status());
   request->set_output_dir(o.outputDir);
   auto client = connect(o.connection);

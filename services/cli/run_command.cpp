@@ -93,8 +93,8 @@ absl::StatusOr<pid_t> spawnWorker(const std::string& exe, const std::string& add
 absl::StatusOr<int64_t> findOrSubmit(farm::Coordinator& coordinator, farm::FarmClient& client,
                                      const farm::v1::SubmitJobRequest& request, bool* resumed) {
   PBGI_ASSIGN_OR_RETURN(const std::vector<farm::JobInfo> jobs, coordinator.store().jobs());
-  std::string overrides;
-  for (const std::string& o : request.overrides()) overrides += o + "\n";
+  const std::string overrides = farm::joinOverrides(
+      std::vector<std::string>(request.overrides().begin(), request.overrides().end()));
   for (const farm::JobInfo& j : jobs) {
     const bool sameFrames =
         request.frames().empty() ||
@@ -114,7 +114,7 @@ absl::StatusOr<int64_t> findOrSubmit(farm::Coordinator& coordinator, farm::FarmC
 int runEmbedded(const RunOptions& o) {
   auto shot = loadShotFile(o.shot);
   if (!shot.ok()) return reportError(shot.status());
-  auto request = submitRequest(o.shot, o.job);
+  auto request = submitRequest(*shot, o.job);
   if (!request.ok()) return reportError(request.status());
 
   farm::CoordinatorOptions options;
@@ -144,11 +144,14 @@ int runEmbedded(const RunOptions& o) {
   const std::string exe = workerExecutable();
   const std::string logDir = farm::jobWorkDir(options.stateDir, *job);
   fs::create_directories(logDir, ec);
+  const auto start = [&](int index) {
+    return spawnWorker(exe, (*coordinator)->address(), options.token, index, threads,
+                       (fs::path(logDir) / fmt::format("worker-{}.log", index)).string());
+  };
   std::vector<Child> children(static_cast<size_t>(o.workers));
   for (int i = 0; i < o.workers; ++i) {
     children[i].index = i;
-    auto pid = spawnWorker(exe, (*coordinator)->address(), options.token, i, threads,
-                           (fs::path(logDir) / fmt::format("worker-{}.log", i)).string());
+    auto pid = start(i);
     if (!pid.ok()) return reportError(pid.status());
     children[i].pid = *pid;
   }
@@ -182,9 +185,7 @@ int runEmbedded(const RunOptions& o) {
         if (c.restarts++ < kMaxRestarts) {
           std::fprintf(stderr, "\npbgi: warning: worker %d exited (status %d); starting it again\n",
                        c.index, wstatus);
-          auto pid = spawnWorker(exe, (*coordinator)->address(), options.token, c.index, threads,
-                                 (fs::path(logDir) / fmt::format("worker-{}.log", c.index)).string());
-          if (pid.ok()) c.pid = *pid;
+          if (auto pid = start(c.index); pid.ok()) c.pid = *pid;
         }
       }
     }

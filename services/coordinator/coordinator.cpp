@@ -170,17 +170,13 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     spec.name = shot.name;
     spec.shotPath = fs::absolute(request.shot_path()).lexically_normal().string();
     spec.shotText = request.shot_text();
-    for (const std::string& o : overrides) spec.overrides += o + "\n";
+    spec.overrides = joinOverrides(overrides);
     spec.priority = request.priority();
     if (request.frames().empty()) {
       for (int f = shot.firstFrame; f <= shot.lastFrame; ++f) spec.frames.push_back(f);
     }
     for (const int f : request.frames()) {
-      if (f < shot.firstFrame || f > shot.lastFrame) {
-        return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
-                                                 request.shot_path(), f, shot.firstFrame,
-                                                 shot.lastFrame));
-      }
+      PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
       spec.frames.push_back(f);
     }
     std::string pattern = shot.output;
@@ -439,10 +435,9 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     }
     auto view = jobView(request->job());
     if (!view.ok()) return toGrpc(view.status());
-    auto bake = shotBakeRequest((*view)->shot, request->frame());
-    if (!bake.ok()) return toGrpc(bake.status());
-    bake->outDir = jobBakeDir(workDir(request->job()));
-    const std::string path = bakeTreePath((*view)->shot, *bake);
+    auto tree = jobTreePath((*view)->shot, workDir(request->job()), request->frame());
+    if (!tree.ok()) return toGrpc(tree.status());
+    const std::string& path = *tree;
     std::FILE* in = std::fopen(path.c_str(), "rb");
     if (in == nullptr) {
       return grpc::Status(grpc::StatusCode::NOT_FOUND,

@@ -12,6 +12,7 @@
 #include "core/pbgi/gather.h"
 #include "core/util/status.h"
 #include "formats/shot/shot_file.h"
+#include "services/bake/frame_bake.h"
 #include "services/render/frame_render.h"
 
 namespace pbgi::farm {
@@ -27,6 +28,13 @@ std::string jobBakeDir(const std::string& workDir) { return (fs::path(workDir) /
 std::string farmTilePath(const std::string& workDir, int frame, int tile) {
   return (fs::path(workDir) / fmt::format("frame.{:04d}", frame) / fmt::format("tile.{:04d}.exr", tile))
       .string();
+}
+
+absl::StatusOr<std::string> jobTreePath(const ShotDesc& shot, const std::string& workDir,
+                                        int frame) {
+  PBGI_ASSIGN_OR_RETURN(FrameBakeRequest bake, shotBakeRequest(shot, frame));
+  bake.outDir = jobBakeDir(workDir);
+  return bakeTreePath(shot, bake);
 }
 
 namespace {
@@ -83,6 +91,12 @@ absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& over
     }
   }
   return absl::OkStatus();
+}
+
+std::string joinOverrides(const std::vector<std::string>& overrides) {
+  std::string lines;
+  for (const std::string& o : overrides) lines += o + "\n";
+  return lines;
 }
 
 std::vector<std::string> splitOverrides(std::string_view lines) {

@@ -27,12 +27,16 @@ inline constexpr const char* kDefaultCoordinatorAddress = "127.0.0.1:7411";
 std::string jobWorkDir(const std::string& stateDir, int64_t job);
 std::string jobBakeDir(const std::string& workDir);
 std::string farmTilePath(const std::string& workDir, int frame, int tile);
+// The frame's tree in the job's bake folder, where its bake task writes it.
+absl::StatusOr<std::string> jobTreePath(const ShotDesc& shot, const std::string& workDir,
+                                        int frame);
 
 // The overrides a job may carry, "key=value", on the shot's [render] settings: integrator,
 // spp, quality, cache_mb, bake_points, bake_bounces. InvalidArgument names the override and
 // what was expected.
 absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides);
-// One override per line, as the job store keeps them.
+// One override per line, as the job store keeps them, and back.
+std::string joinOverrides(const std::vector<std::string>& overrides);
 std::vector<std::string> splitOverrides(std::string_view lines);
 
 // The shot a job renders: the submitted text, parsed as the file at `shotPath`, with the

@@ -17,6 +17,8 @@
 
 namespace pbgi {
 
+namespace {
+
 std::string previewPathFor(const std::string& exrPath) {
   const size_t dot = exrPath.find_last_of('.');
   const size_t slash = exrPath.find_last_of('/');
@@ -25,8 +27,6 @@ std::string previewPathFor(const std::string& exrPath) {
   }
   return exrPath.substr(0, dot) + ".png";
 }
-
-namespace {
 
 // The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
 // the same shot bytes and bake settings is on disk, else a new bake.
@@ -58,6 +58,17 @@ absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
 
 }  // namespace
 
+std::string writePreviewBeside(const Image& image, const std::string& exrPath,
+                               const std::string& ocioConfig, std::vector<std::string>* warnings) {
+  const std::string path = previewPathFor(exrPath);
+  const std::string config = ocioConfig.empty() ? defaultOcioConfigPath() : ocioConfig;
+  if (absl::Status s = writePreviewPng(image, path, config); !s.ok()) {
+    warnings->push_back(fmt::format("no preview: {}", s.message()));
+    return {};
+  }
+  return path;
+}
+
 const std::vector<std::string>& availableIntegrators() {
   static const std::vector<std::string> names = {"path", "pbgi"};
   return names;
@@ -81,11 +92,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                                                   const FrameRenderRequest& request) {
   FrameRenderReport report;
   StageClock clock(&report.stages);
-  if (request.frame < shot.firstFrame || request.frame > shot.lastFrame) {
-    return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",
-                                             shot.path, request.frame, shot.firstFrame,
-                                             shot.lastFrame));
-  }
+  if (absl::Status s = checkShotFrame(shot, request.frame); !s.ok()) return s;
   RenderSettings settings = shot.render;
   if (!request.integrator.empty()) settings.integrator = request.integrator;
   if (request.spp > 0) settings.spp = request.spp;
@@ -173,13 +180,8 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                        : request.outPath;
   if (absl::Status s = writeExr(*image, report.exrPath); !s.ok()) return s;
   if (request.preview) {
-    const std::string config =
-        request.ocioConfig.empty() ? defaultOcioConfigPath() : request.ocioConfig;
-    report.previewPath = previewPathFor(report.exrPath);
-    if (absl::Status s = writePreviewPng(*image, report.previewPath, config); !s.ok()) {
-      report.warnings.push_back(fmt::format("no preview: {}", s.message()));
-      report.previewPath.clear();
-    }
+    report.previewPath =
+        writePreviewBeside(*image, report.exrPath, request.ocioConfig, &report.warnings);
   }
   clock.lap("write");
   report.wallSeconds = clock.totalSeconds();

@@ -63,8 +63,11 @@ struct FrameRenderReport {
   std::vector<std::string> warnings;
 };
 
-// The PNG preview written beside an EXR: its extension replaced by .png.
-std::string previewPathFor(const std::string& exrPath);
+// Writes the image's OCIO preview beside `exrPath` (its extension replaced by .png) with
+// `ocioConfig` (empty: the shipped config). Returns the PNG's path, or an empty string with a
+// warning added: a missing preview never fails a frame.
+std::string writePreviewBeside(const Image& image, const std::string& exrPath,
+                               const std::string& ocioConfig, std::vector<std::string>* warnings);
 
 // The integrators this build can run, by name.
 const std::vector<std::string>& availableIntegrators();

@@ -12,8 +12,6 @@
 
 #include "core/util/log.h"
 #include "core/util/status.h"
-#include "formats/image/image_io.h"
-#include "formats/image/ocio_config.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
@@ -195,9 +193,8 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
   TaskResult result;
   if (shot.render.integrator == "pbgi") {
     // The bake task made the tree; a tile never bakes one of its own.
-    PBGI_ASSIGN_OR_RETURN(FrameBakeRequest bake, shotBakeRequest(shot, task.frame()));
-    bake.outDir = request.bakeDir;
-    const std::string shared = bakeTreePath(shot, bake);
+    PBGI_ASSIGN_OR_RETURN(const std::string shared,
+                          jobTreePath(shot, task.work_dir(), task.frame()));
     const bool visible = fs::exists(shared);
     if (options_.treeSource == TreeSource::kShared && !visible) {
       return absl::NotFoundError(fmt::format(
@@ -248,12 +245,10 @@ absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
                         assembleFrame(paths, tiles, shot.width, shot.height, task.output_path()));
   TaskResult result;
   result.log = fmt::format("assembled {} tiles into {}\n", tiles.size(), task.output_path());
-  const std::string preview = previewPathFor(task.output_path());
-  if (absl::Status s = writePreviewPng(frame, preview, defaultOcioConfigPath()); !s.ok()) {
-    result.log += fmt::format("warning: no preview: {}\n", s.message());
-  } else {
-    result.log += fmt::format("preview {}\n", preview);
-  }
+  std::vector<std::string> warnings;
+  const std::string preview = writePreviewBeside(frame, task.output_path(), "", &warnings);
+  if (!preview.empty()) result.log += fmt::format("preview {}\n", preview);
+  for (const std::string& w : warnings) result.log += "warning: " + w + "\n";
   return result;
 }
 

@@ -59,11 +59,31 @@ TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
   const auto retried = runPbgi("retry 1 --frame 2 --tile 1" + connection_);
   ASSERT_EQ(retried.exitCode, 0) << retried.output();
   EXPECT_NE(runPbgi("status" + connection_).out.find("active"), std::string::npos);
-  const auto logs = runPbgi("logs 1" + connection_);
-  EXPECT_EQ(logs.exitCode, 0) << logs.output();
   const auto workers = runPbgi("workers" + connection_);
   ASSERT_EQ(workers.exitCode, 0) << workers.output();
   EXPECT_EQ(workers.out, "no workers\n");
+  // A worker runs the retried tile; logs and workers show it.
+  std::string token = testing::slurpFile(dir_ / "state/token");
+  token = token.substr(0, token.find('\n'));
+  std::string address = testing::slurpFile(dir_ / "state/coordinator.addr");
+  address = address.substr(0, address.find('\n'));
+  testing::Process worker({testing::binary("pbgi-worker").string(), "--coordinator", address,
+                           "--id", "cli-worker", "--threads", "1", "--poll-seconds", "0.05"},
+                          dir_ / "worker.log", {"PBGI_TOKEN=" + token});
+  testing::RunResult logs;
+  ASSERT_TRUE(testing::waitFor(
+      [&] {
+        logs = runPbgi("logs 1 --frame 2 --tile 1" + connection_);
+        return logs.out.find(" done on cli-worker") != std::string::npos;
+      },
+      60.0))
+      << logs.output() << worker.log();
+  EXPECT_EQ(logs.exitCode, 0) << logs.output();
+  EXPECT_NE(logs.out.find("frame 2 tile 1 attempt 1 leased on cli-worker"), std::string::npos)
+      << logs.out;
+  EXPECT_NE(logs.out.find("    wrote "), std::string::npos) << logs.out;  // the worker's own log
+  EXPECT_EQ(runPbgi("logs 1 --frame 1" + connection_).out, "");  // nothing ran on frame 1
+  EXPECT_NE(runPbgi("workers" + connection_).out.find("cli-worker"), std::string::npos);
   const auto unknown = runPbgi("status 7" + connection_);
   EXPECT_EQ(unknown.exitCode, 2) << unknown.output();
   EXPECT_NE(unknown.err.find("job 7: no such job"), std::string::npos) << unknown.err;
