@@ -162,8 +162,7 @@ int runEmbedded(const RunOptions& o) {
 
   Progress progress(fmt::format("{} job {}", shot->name, *job));
   farm::v1::GetStatusRequest ask;
-  ask.set_job(*job);
-  ask.set_with_tasks(true);
+  ask.set_job(*job);  // the counts by state are all a poll needs
   absl::StatusOr<farm::v1::GetStatusResponse> status;
   constexpr int kMaxRestarts = 3;
   int exitCode = kExitOk;
@@ -215,7 +214,8 @@ int runEmbedded(const RunOptions& o) {
     (*coordinator)->shutdown();
     return exitCode;
   }
-  // The final state, after the workers have reported.
+  // The final state, after the workers have reported, with every task and output.
+  ask.set_with_tasks(true);
   status = client.getStatus(ask);
   (*coordinator)->shutdown();
   if (!status.ok()) return reportError(status.status());

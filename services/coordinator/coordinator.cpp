@@ -222,10 +222,12 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
             info.tasksByState[s];
       }
       for (const TaskInfo& t : info.dead) fillTask(t, job->add_dead());
+      // Every task of a job is a large read: only for callers that ask for them.
+      if (!request.with_tasks()) continue;
       PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, store->tasks(info.id));
       auto view = jobView(info.id);
       for (const TaskInfo& t : tasks) {
-        if (request.with_tasks()) fillTask(t, job->add_tasks());
+        fillTask(t, job->add_tasks());
         if (view.ok() && t.ref.kind == TaskKind::kAssemble && t.state == TaskState::kDone) {
           job->add_outputs(frameOutput(**view, t.ref.frame));
         }
