@@ -5,7 +5,6 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
-#include <numeric>
 #include <set>
 #include <string_view>
 #include <unordered_map>
@@ -461,17 +460,26 @@ absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::stri
 absl::Status SqliteJobStore::settleJob(int64_t job) {
   PBGI_ASSIGN_OR_RETURN(const JobState current, jobState(job));
   if (current == JobState::kCancelled) return absl::OkStatus();
-  PBGI_ASSIGN_OR_RETURN(const auto counts, countTasksByState(job));
-  const int total = std::accumulate(counts.begin(), counts.end(), 0);
-  const auto count = [&](TaskState s) { return counts[static_cast<size_t>(s)]; };
+  // Every completion settles its job: an index probe per state, not a count of every task
+  // of the job (4096 a frame for a big one).
+  const auto any = [&](TaskState s) -> absl::StatusOr<bool> {
+    Query q = query("SELECT 1 FROM tasks WHERE job = ?1 AND state = ?2 LIMIT 1");
+    q.bind(1, job).bind(2, s);
+    return q.step();
+  };
+  PBGI_ASSIGN_OR_RETURN(const bool blocked, any(TaskState::kBlocked));
+  PBGI_ASSIGN_OR_RETURN(const bool ready, any(TaskState::kReady));
+  PBGI_ASSIGN_OR_RETURN(const bool leased, any(TaskState::kLeased));
+  PBGI_ASSIGN_OR_RETURN(const bool dead, any(TaskState::kDead));
+  PBGI_ASSIGN_OR_RETURN(const bool cancelled, any(TaskState::kCancelled));
   JobState next = JobState::kActive;
-  if (count(TaskState::kDone) == total) {
+  if (!blocked && !ready && !leased && !dead && !cancelled) {
     next = JobState::kDone;
-  } else if (count(TaskState::kReady) + count(TaskState::kLeased) > 0) {
+  } else if (ready || leased) {
     next = JobState::kActive;
-  } else if (count(TaskState::kDead) > 0) {
+  } else if (dead) {
     next = JobState::kFailed;
-  } else if (count(TaskState::kCancelled) > 0) {
+  } else if (cancelled) {
     next = JobState::kCancelled;
   }
   if (next == current) return absl::OkStatus();
