@@ -60,6 +60,21 @@ void evalShBasis(const Vec3f& dir, float out[kShCoefficients]) {
   out[8] = static_cast<float>(kY22) * (x * x - y * y);
 }
 
+void evalShBasisGradient(const Vec3f& dir, Vec3f out[kShCoefficients]) {
+  const float x = dir.x, y = dir.y, z = dir.z;
+  const float a = static_cast<float>(kY1), b = static_cast<float>(kY2a);
+  const float c = static_cast<float>(kY20), e = static_cast<float>(kY22);
+  out[0] = Vec3f(0.0f);
+  out[1] = Vec3f(0.0f, -a, 0.0f);
+  out[2] = Vec3f(0.0f, 0.0f, a);
+  out[3] = Vec3f(-a, 0.0f, 0.0f);
+  out[4] = Vec3f(b * y, b * x, 0.0f);
+  out[5] = Vec3f(0.0f, -b * z, -b * y);
+  out[6] = Vec3f(0.0f, 0.0f, 6.0f * c * z);
+  out[7] = Vec3f(-b * z, 0.0f, -b * x);
+  out[8] = Vec3f(2.0f * e * x, -2.0f * e * y, 0.0f);
+}
+
 void Sh9Rgb::toFloats(float out[kFloats]) const {
   for (int i = 0; i < kShCoefficients; ++i) {
     out[3 * i] = c[i].x;

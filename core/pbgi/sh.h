@@ -24,6 +24,10 @@ inline constexpr int kShCoefficients = 9;
 
 // Fills out[0..8] with the basis at unit direction dir.
 void evalShBasis(const Vec3f& dir, float out[kShCoefficients]);
+// The gradients of the basis polynomials above at dir (in 3D; project onto the tangent plane,
+// (I - dir dir^T) g, for the gradient on the sphere): how a function changes as the direction
+// moves, for first-order expansions.
+void evalShBasisGradient(const Vec3f& dir, Vec3f out[kShCoefficients]);
 
 // A scalar spherical function.
 struct Sh9 {

@@ -1,40 +1,65 @@
 #pragma once
-// An integrator turns the camera rays of one pixel into radiance samples. The tile renderer
-// drives one, pixel by pixel: a whole pixel at a time, so that an integrator can share work
-// between the samples of a pixel (the PBGI gather), and with a status, so that a failure it
-// cannot recover from (a damaged tree page) fails the tile instead of being rendered.
-
+// Integrators, at the level the renderer drives them (pbrt-v4's split between an integrator
+// that renders an image tile and one that shades rays one pixel at a time). The renderer hands
+// an integrator every camera sample of a render unit at once: the pixels of a tile, or, for an
+// integrator that shares work across pixels (the bidirectional cut), every pixel of a block of
+// a fixed grid in all views of a camera array. Integrators that shade pixel by pixel (the path
+// tracer, the per-pixel PBGI gather) derive from PixelIntegrator, which walks the unit's
+// pixels for them. A failure an integrator cannot recover from (a damaged tree page) fails the
+// unit instead of being rendered.
+//
+// Which integrators exist, their parameters, counters and needs: core/render/integrators.h.
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
+#include <string_view>
+#include <vector>
 
 #include <absl/status/status.h>
 
-#include "core/pbgi/gather.h"
+#include "core/math/vec.h"
 #include "core/render/path_tracer.h"
+#include "core/sampling/rng.h"
 
 namespace pbgi {
 
-// What the renderer counts; integrators add their own counts to it.
+// A counter an integrator keeps, by name (printed by the CLI and the workers' logs).
+struct CounterSpec {
+  std::string_view name;
+  std::string_view help;
+};
+
+// What the renderer counts, and the integrator's own counters (by index in its
+// counterSpecs()).
 struct RenderCounters {
   uint64_t cameraSamples = 0;
   uint64_t discardedSamples = 0;  // NaN or Inf radiance, dropped from the pixel's average
-  uint64_t pixelsWithoutHit = 0;  // primary rays found no geometry in any sample: no gather
-  // PBGI: samples whose first hit reflects nothing (an emitter, a black albedo): no gather.
-  uint64_t blackReceivers = 0;
-  // PBGI: gathers made, and samples served by an earlier gather of their own pixel.
-  uint64_t gathers = 0;
-  uint64_t gatherReuses = 0;
-  uint64_t glossyGathers = 0;  // of `gathers`, convolved with a glossy BRDF
-  // PBGI: samples whose first hit the gather cannot serve (a delta or refractive BSDF),
-  // path traced instead.
-  uint64_t pathTracedReceivers = 0;
-  GatherStats gather;
+  uint64_t pixelsWithoutHit = 0;  // primary rays found no geometry in any sample
+  std::vector<uint64_t> values;   // the integrator's, sized by the renderer
 
+  uint64_t& operator[](size_t i) { return values[i]; }
+  uint64_t operator[](size_t i) const { return i < values.size() ? values[i] : 0; }
   void add(const RenderCounters& o);
 };
 
-// Scratch an integrator keeps per thread between pixels (buffers, traversal state).
+// The camera samples of one render unit. Pixels are listed in the order the renderer chose
+// (Morton order within a tile, views one after another within a block); pixel i owns samples
+// [i * spp, (i + 1) * spp). Rays and random streams are keyed (seed, frame, pixel, sample),
+// so a sample's value does not depend on the unit it came in.
+struct TileSamples {
+  int spp = 1;
+  std::span<const Vec2i> pixels;  // image (mosaic) coordinates
+  std::span<const Ray> rays;
+  std::span<Rng> rngs;
+  // Keys an integrator's own random numbers for work that spans pixels: (seed, frame, unit),
+  // the unit being the block of the fixed grid, so it does not depend on the tiling either.
+  uint64_t unitKey = 0;
+
+  size_t pixelCount() const { return pixels.size(); }
+};
+
+// Scratch an integrator keeps per thread between units (buffers, traversal state).
 class IntegratorScratch {
  public:
   virtual ~IntegratorScratch() = default;
@@ -44,17 +69,34 @@ class Integrator {
  public:
   virtual ~Integrator() = default;
   virtual std::string name() const = 0;
+  virtual std::span<const CounterSpec> counterSpecs() const { return {}; }
   // One per rendering thread; null when the integrator needs none.
   virtual std::unique_ptr<IntegratorScratch> newScratch() const { return nullptr; }
-  // Fills out[s] from rays[s], drawing random numbers from rngs[s] only. Must be
-  // deterministic in its inputs (whatever the scratch held before) and safe to call from
-  // many threads, each with its own scratch. An error fails the tile.
+  // 0: pixels are independent of one another, and the renderer may cut the image into any
+  // tiles. > 0: a pixel's value depends on the other pixels of its block, the square of
+  // blockSize() view pixels of a fixed grid, in every view: the renderer then renders whole
+  // blocks (all views), so that a pixel is the same whatever the tiling or region asked for.
+  virtual int blockSize() const { return 0; }
+  // Fills out[s] for every sample of the unit. Must be deterministic in its inputs (whatever
+  // the scratch held before) and safe to call from many threads, each with its own scratch.
+  virtual absl::Status render(const TileSamples& samples, std::span<PathSample> out,
+                              IntegratorScratch* scratch, RenderCounters* counters) const = 0;
+};
+
+// An integrator that shades one pixel's samples at a time.
+class PixelIntegrator : public Integrator {
+ public:
+  absl::Status render(const TileSamples& samples, std::span<PathSample> out,
+                      IntegratorScratch* scratch, RenderCounters* counters) const final;
+  // Fills out[s] from rays[s], drawing random numbers from rngs[s] only. An error fails the
+  // unit (the renderer names the pixel).
   virtual absl::Status shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
                                   std::span<PathSample> out, IntegratorScratch* scratch,
                                   RenderCounters* counters) const = 0;
 };
 
-class PathIntegrator final : public Integrator {
+// The reference: the path tracer, sample by sample.
+class PathIntegrator final : public PixelIntegrator {
  public:
   PathIntegrator(const Scene& scene, PathTracerSettings settings)
       : scene_(scene), settings_(settings) {}

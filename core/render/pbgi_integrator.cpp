@@ -1,36 +1,150 @@
 #include "core/render/pbgi_integrator.h"
 
 #include <algorithm>
-#include <cmath>
 #include <numbers>
 #include <vector>
 
-#include "core/pbgi/gather_reuse.h"
-#include "core/scene/material.h"
+#include "core/render/integrators.h"
+#include "core/render/pbgi_receiver.h"
 
 namespace pbgi {
 
 namespace {
 
-// How near a sample's first hit must lie to an earlier gather of its pixel to share it, as
-// fractions of that gather's distance from the camera: along the gather's normal (the same
-// plane), and in all (the same neighbourhood; a pixel spans about 1/500 of its distance).
-constexpr float kReusePlaneFraction = 0.005f;
-constexpr float kReuseDistanceFraction = 0.05f;
-constexpr float kReuseNormalCos = 0.95f;
-constexpr float kReuseViewCos = 0.999f;
-
-class PbgiScratch final : public IntegratorScratch {
+class PerPixelScratch final : public IntegratorScratch {
  public:
-  PbgiScratch(const PbgiIntegratorSettings& settings)
-      : gatherer(settings.gather),
-        warped(settings.glossy),
-        shared(kReuseNormalCos, kReuseViewCos, static_cast<size_t>(settings.maxGathersPerPixel)) {}
+  explicit PerPixelScratch(const PbgiSettings& settings)
+      : gatherer(settings.perPixel),
+        pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)) {}
   Gatherer gatherer;
-  WarpedGatherer warped;
-  // The pixel's gathers: irradiance for diffuse receivers (key kNoMaterial: any diffuse
-  // material shares it), reflected radiance for glossy ones (their own material and view).
-  GatherReuse shared;
+  PixelGathers pixel;
+};
+
+class PerPixelPbgi final : public PixelIntegrator {
+ public:
+  PerPixelPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
+      : scene_(scene), tree_(tree), settings_(settings) {}
+
+  std::string name() const override { return "pbgi"; }
+  std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
+  std::unique_ptr<IntegratorScratch> newScratch() const override {
+    return std::make_unique<PerPixelScratch>(settings_);
+  }
+
+  absl::Status shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
+                          std::span<PathSample> out, IntegratorScratch* scratch,
+                          RenderCounters* counters) const override {
+    auto& state = static_cast<PerPixelScratch&>(*scratch);
+    state.pixel.newPixel();
+    GatherStats stats;
+    for (size_t s = 0; s < rays.size(); ++s) {
+      const Receiver r = traceReceiver(scene_, rays[s], rngs[s], settings_.pathTracer, &out[s],
+                                       counters);
+      if (r.kind == ReceiverKind::kGlossy) {
+        absl::StatusOr<Rgb> lo =
+            state.pixel.reflect(tree_, scene_, r, out[s].albedo, rngs[s], &stats, counters);
+        if (!lo.ok()) return lo.status();
+        out[s].indirect = *lo;
+        continue;
+      }
+      if (r.kind != ReceiverKind::kDiffuse) continue;
+      Rgb e(0.0f);
+      if (const SharedGather* g = state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
+        e = g->value;
+        ++(*counters)[kGatherReuses];
+      } else {
+        absl::StatusOr<Rgb> gathered = state.gatherer.irradiance(tree_, r.hit.p, r.n, &stats);
+        if (!gathered.ok()) return gathered.status();
+        if (absl::Status st = checkGathered(*gathered); !st.ok()) return st;
+        e = *gathered;
+        ++(*counters)[kGathers];
+        state.pixel.shared().add({.p = r.hit.p,
+                                  .n = r.n,
+                                  .reach = kReuseDistanceFraction * r.hit.t,
+                                  .planeReach = kReusePlaneFraction * r.hit.t,
+                                  .key = kNoMaterial,
+                                  .wo = Vec3f(0.0f),
+                                  .value = e});
+      }
+      out[s].indirect = out[s].albedo * e * std::numbers::inv_pi_v<float>;
+    }
+    addGatherStats(stats, counters);
+    return absl::OkStatus();
+  }
+
+ private:
+  const Scene& scene_;
+  TreePageSource& tree_;
+  PbgiSettings settings_;
+};
+
+class BidirectionalScratch final : public IntegratorScratch {
+ public:
+  explicit BidirectionalScratch(const PbgiSettings& settings)
+      : pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)),
+        cut(settings.cut) {}
+  PixelGathers pixel;
+  BidirectionalCut cut;
+  std::vector<CutReceiver> receivers;
+  std::vector<size_t> sampleOf;  // receiver -> sample
+  std::vector<Rgb> irradiance;
+};
+
+class BidirectionalPbgi final : public Integrator {
+ public:
+  BidirectionalPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
+      : scene_(scene), tree_(tree), settings_(settings) {}
+
+  std::string name() const override { return "pbgi"; }
+  std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
+  std::unique_ptr<IntegratorScratch> newScratch() const override {
+    return std::make_unique<BidirectionalScratch>(settings_);
+  }
+  int blockSize() const override { return settings_.blockSize; }
+
+  absl::Status render(const TileSamples& samples, std::span<PathSample> out,
+                      IntegratorScratch* scratch, RenderCounters* counters) const override {
+    auto& state = static_cast<BidirectionalScratch&>(*scratch);
+    state.receivers.clear();
+    state.sampleOf.clear();
+    GatherStats stats;
+    const size_t spp = static_cast<size_t>(samples.spp);
+    for (size_t i = 0; i < samples.pixelCount(); ++i) {
+      state.pixel.newPixel();
+      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
+        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
+                                         settings_.pathTracer, &out[k], counters);
+        if (r.kind == ReceiverKind::kGlossy) {
+          absl::StatusOr<Rgb> lo = state.pixel.reflect(tree_, scene_, r, out[k].albedo,
+                                                       samples.rngs[k], &stats, counters);
+          if (!lo.ok()) return lo.status();
+          out[k].indirect = *lo;
+        } else if (r.kind == ReceiverKind::kDiffuse) {
+          state.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
+          state.sampleOf.push_back(k);
+        }
+      }
+    }
+    addGatherStats(stats, counters);
+    state.irradiance.resize(state.receivers.size());
+    CutStats cutStats;
+    if (absl::Status s = state.cut.irradiance(tree_, scene_, state.receivers, samples.unitKey,
+                                              state.irradiance, &cutStats);
+        !s.ok()) {
+      return s;
+    }
+    addCutStats(cutStats, counters);
+    for (size_t j = 0; j < state.receivers.size(); ++j) {
+      PathSample& ps = out[state.sampleOf[j]];
+      ps.indirect = ps.albedo * state.irradiance[j] * std::numbers::inv_pi_v<float>;
+    }
+    return absl::OkStatus();
+  }
+
+ private:
+  const Scene& scene_;
+  TreePageSource& tree_;
+  PbgiSettings settings_;
 };
 
 }  // namespace
@@ -43,83 +157,12 @@ WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather) {
   return o;
 }
 
-PbgiIntegrator::PbgiIntegrator(const Scene& scene, TreePageSource& tree,
-                               const PbgiIntegratorSettings& settings)
-    : scene_(scene), tree_(tree), settings_(settings) {}
-
-std::unique_ptr<IntegratorScratch> PbgiIntegrator::newScratch() const {
-  return std::make_unique<PbgiScratch>(settings_);
-}
-
-absl::Status PbgiIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
-                                        std::span<PathSample> out, IntegratorScratch* scratch,
-                                        RenderCounters* counters) const {
-  auto& state = static_cast<PbgiScratch&>(*scratch);
-  state.shared.clear();
-  PathTracerSettings directOnly = settings_.pathTracer;
-  directOnly.maxDepth = 1;
-  for (size_t s = 0; s < rays.size(); ++s) {
-    const Rng start = rngs[s];
-    SurfaceHit hit;
-    out[s] = tracePath(scene_, rays[s], rngs[s], directOnly, &hit);
-    if (!out[s].hit) continue;
-    if (hit.material == kNoMaterial || isBlack(out[s].albedo)) {
-      ++counters->blackReceivers;
-      continue;
-    }
-    const Material& material = scene_.material(hit.material);
-    const Bsdf bsdf(material, out[s].albedo);
-    if (bsdf.isBlack()) {
-      ++counters->blackReceivers;
-      continue;
-    }
-    if (bsdf.isDelta() || material.type == MaterialType::kDielectric) {
-      // The same path as the path tracer's, from the same random numbers: its direct light
-      // is the one just computed, and its indirect light is path traced.
-      rngs[s] = start;
-      out[s] = tracePath(scene_, rays[s], rngs[s], settings_.pathTracer);
-      ++counters->pathTracedReceivers;
-      continue;
-    }
-    // Two-sided surfaces gather on the side the camera sees.
-    const Vec3f wo = -rays[s].dir;
-    const Vec3f n = dot(hit.ng, wo) >= 0.0f ? hit.ns : -hit.ns;
-    const bool diffuse = material.type == MaterialType::kDiffuse;
-    const uint32_t key = diffuse ? kNoMaterial : hit.material;
-    Rgb value(0.0f);
-    if (const SharedGather* r = state.shared.find(hit.p, n, wo, key)) {
-      value = r->value;
-      ++counters->gatherReuses;
-    } else {
-      if (diffuse) {
-        absl::StatusOr<Rgb> e = state.gatherer.irradiance(tree_, hit.p, n, &counters->gather);
-        if (!e.ok()) return e.status();
-        value = *e;
-      } else {
-        const Frame frame(n);
-        const Vec2f jitter(rngs[s].uniform(), rngs[s].uniform());
-        absl::StatusOr<Rgb> lo = state.warped.reflect(tree_, hit.p, frame, bsdf,
-                                                      frame.toLocal(wo), jitter, &counters->gather);
-        if (!lo.ok()) return lo.status();
-        value = *lo;
-        ++counters->glossyGathers;
-      }
-      ++counters->gathers;
-      if (!isFinite(value)) {
-        return absl::DataLossError(
-            "the tree's radiance made a gather non-finite (a damaged or hostile tree)");
-      }
-      state.shared.add({.p = hit.p,
-                        .n = n,
-                        .reach = kReuseDistanceFraction * hit.t,
-                        .planeReach = kReusePlaneFraction * hit.t,
-                        .key = key,
-                        .wo = diffuse ? Vec3f(0.0f) : wo,
-                        .value = value});
-    }
-    out[s].indirect = diffuse ? out[s].albedo * value * std::numbers::inv_pi_v<float> : value;
+std::unique_ptr<Integrator> makePbgiIntegrator(const Scene& scene, TreePageSource& tree,
+                                               const PbgiSettings& settings) {
+  if (settings.gather == PbgiGatherKind::kPerPixel) {
+    return std::make_unique<PerPixelPbgi>(scene, tree, settings);
   }
-  return absl::OkStatus();
+  return std::make_unique<BidirectionalPbgi>(scene, tree, settings);
 }
 
 }  // namespace pbgi

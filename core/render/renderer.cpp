@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <mutex>
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -13,6 +12,7 @@
 #include "core/render/filter.h"
 #include "core/sampling/rng.h"
 #include "core/util/check.h"
+#include "core/util/status.h"
 
 namespace pbgi {
 
@@ -47,105 +47,147 @@ void put(Image& image, int x, int y, int c, const Vec3f& v) {
   image.at(x, y, c + 2) = v.z;
 }
 
-// The cells of an nx x ny grid, in Morton (Z) order of their positions.
-std::vector<std::pair<int, int>> mortonOrder(int nx, int ny) {
-  std::vector<std::pair<uint32_t, std::pair<int, int>>> keyed;
-  keyed.reserve(static_cast<size_t>(nx) * ny);
-  for (int y = 0; y < ny; ++y) {
-    for (int x = 0; x < nx; ++x) keyed.push_back({morton2(x, y), {x, y}});
+TileRect intersect(const TileRect& a, const TileRect& b) {
+  return {std::max(a.x0, b.x0), std::max(a.y0, b.y0), std::min(a.x1, b.x1),
+          std::min(a.y1, b.y1)};
+}
+bool emptyRect(const TileRect& r) { return r.x0 >= r.x1 || r.y0 >= r.y1; }
+
+// One unit of work: a tile (rect in image space) or a block (rect in view space, every view).
+struct RenderUnit {
+  TileRect rect;
+  bool block = false;
+  Vec2i blockIndex{0, 0};
+};
+
+// The units that cover `regions` (or the whole image).
+std::vector<RenderUnit> makeUnits(const Integrator& integrator, const Camera& camera,
+                                  const std::vector<TileRect>& regions, int tileSize) {
+  const TileRect whole{0, 0, camera.imageWidth(), camera.imageHeight()};
+  std::vector<TileRect> wanted;
+  for (const TileRect& r : regions) {
+    const TileRect clipped = intersect(r, whole);
+    if (!emptyRect(clipped)) wanted.push_back(clipped);
   }
-  std::sort(keyed.begin(), keyed.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
-  std::vector<std::pair<int, int>> cells;
-  cells.reserve(keyed.size());
-  for (const auto& [key, xy] : keyed) cells.push_back(xy);
-  return cells;
-}
-
-}  // namespace
-
-const std::vector<std::string>& frameChannels() {
-  static const std::vector<std::string> channels = {
-      "R", "G", "B", "A",
-      "albedo.R", "albedo.G", "albedo.B",
-      "normal.X", "normal.Y", "normal.Z",
-      "depth.Z",
-      "direct.R", "direct.G", "direct.B",
-      "indirect.R", "indirect.G", "indirect.B"};
-  return channels;
-}
-
-std::vector<TileRect> makeTiles(const TileRect& region, int tileSize) {
-  PBGI_CHECK_GT(tileSize, 0);
-  const int nx = (region.width() + tileSize - 1) / tileSize;
-  const int ny = (region.height() + tileSize - 1) / tileSize;
-  std::vector<TileRect> tiles;
-  tiles.reserve(static_cast<size_t>(std::max(nx, 0)) * std::max(ny, 0));
-  for (const auto& [tx, ty] : mortonOrder(nx, ny)) {
-    tiles.push_back({region.x0 + tx * tileSize, region.y0 + ty * tileSize,
-                     std::min(region.x1, region.x0 + (tx + 1) * tileSize),
-                     std::min(region.y1, region.y0 + (ty + 1) * tileSize)});
+  if (regions.empty()) wanted.push_back(whole);
+  std::vector<RenderUnit> units;
+  const int block = integrator.blockSize();
+  if (block <= 0) {
+    for (const TileRect& r : wanted) {
+      for (const TileRect& t : makeTiles(r, tileSize)) units.push_back({t, false, {0, 0}});
+    }
+    return units;
   }
-  return tiles;
+  const int vw = camera.viewWidth(), vh = camera.viewHeight();
+  const int nx = (vw + block - 1) / block, ny = (vh + block - 1) / block;
+  std::vector<uint8_t> needed(static_cast<size_t>(nx) * ny, 0);
+  for (const TileRect& r : wanted) {
+    // The region's part in each view it covers, in that view's coordinates.
+    for (int row = r.y0 / vh; row <= (r.y1 - 1) / vh; ++row) {
+      for (int col = r.x0 / vw; col <= (r.x1 - 1) / vw; ++col) {
+        const TileRect local = intersect(
+            {r.x0 - col * vw, r.y0 - row * vh, r.x1 - col * vw, r.y1 - row * vh},
+            {0, 0, vw, vh});
+        if (emptyRect(local)) continue;
+        for (int by = local.y0 / block; by <= (local.y1 - 1) / block; ++by) {
+          for (int bx = local.x0 / block; bx <= (local.x1 - 1) / block; ++bx) {
+            needed[static_cast<size_t>(by) * nx + bx] = 1;
+          }
+        }
+      }
+    }
+  }
+  for (const Vec2i& b : mortonOrder(nx, ny)) {
+    if (!needed[static_cast<size_t>(b.y) * nx + b.x]) continue;
+    units.push_back({{b.x * block, b.y * block, std::min(vw, (b.x + 1) * block),
+                      std::min(vh, (b.y + 1) * block)},
+                     true,
+                     b});
+  }
+  return units;
 }
 
-std::vector<TileRect> makeTiles(int width, int height, int tileSize) {
-  return makeTiles(TileRect{0, 0, width, height}, tileSize);
+std::string describe(const RenderUnit& u) {
+  if (u.block) {
+    return fmt::format("block ({}, {}) [{}, {}) x [{}, {}) of every view", u.blockIndex.x,
+                       u.blockIndex.y, u.rect.x0, u.rect.x1, u.rect.y0, u.rect.y1);
+  }
+  return fmt::format("tile [{}, {}) x [{}, {})", u.rect.x0, u.rect.x1, u.rect.y0, u.rect.y1);
 }
 
-void RenderCounters::add(const RenderCounters& o) {
-  cameraSamples += o.cameraSamples;
-  discardedSamples += o.discardedSamples;
-  pixelsWithoutHit += o.pixelsWithoutHit;
-  blackReceivers += o.blackReceivers;
-  gathers += o.gathers;
-  gatherReuses += o.gatherReuses;
-  glossyGathers += o.glossyGathers;
-  pathTracedReceivers += o.pathTracedReceivers;
-  gather += o.gather;
-}
+// The buffers one thread reuses from unit to unit.
+struct UnitBuffers {
+  std::vector<Vec2i> pixels;
+  std::vector<Ray> rays;
+  std::vector<Rng> rngs;
+  std::vector<PathSample> samples;
+  std::unique_ptr<IntegratorScratch> scratch;
+};
 
-absl::Status PathIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
-                                        std::span<PathSample> out, IntegratorScratch*,
-                                        RenderCounters*) const {
-  for (size_t s = 0; s < rays.size(); ++s) out[s] = tracePath(scene_, rays[s], rngs[s], settings_);
-  return absl::OkStatus();
-}
-
-absl::Status renderTile(const Integrator& integrator, IntegratorScratch* scratch,
-                        const Camera& camera, const RenderSettings& settings, int frame,
-                        const TileRect& tile, Image& image, RenderCounters* counters) {
+absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
+                        const RenderSettings& settings, int frame, const RenderUnit& unit,
+                        const std::vector<TileRect>& regions, UnitBuffers& buf, Image& image,
+                        RenderCounters* counters) {
   PBGI_CHECK_EQ(image.channelCount(), static_cast<int>(kChannelCount));
+  buf.pixels.clear();
+  const std::vector<Vec2i> order = mortonOrder(unit.rect.width(), unit.rect.height());
+  if (unit.block) {
+    const Vec2i views = camera.views();
+    for (int row = 0; row < views.y; ++row) {
+      for (int col = 0; col < views.x; ++col) {
+        for (const Vec2i& d : order) {
+          buf.pixels.push_back({col * camera.viewWidth() + unit.rect.x0 + d.x,
+                                row * camera.viewHeight() + unit.rect.y0 + d.y});
+        }
+      }
+    }
+  } else {
+    for (const Vec2i& d : order) buf.pixels.push_back({unit.rect.x0 + d.x, unit.rect.y0 + d.y});
+  }
   const FilterSampler filter(settings.filter, settings.filterWidth);
   const int spp = std::max(1, settings.spp);
-  std::vector<Ray> rays(spp);
-  std::vector<Rng> rngs;
-  rngs.reserve(spp);
-  std::vector<PathSample> samples(spp);
-  // Pixels in Morton order: consecutive shading points lie close together, and so do the
-  // tree pages their gathers read.
-  for (const auto& [dx, dy] : mortonOrder(tile.width(), tile.height())) {
-    const int x = tile.x0 + dx, y = tile.y0 + dy;
-    const uint64_t pixel = static_cast<uint64_t>(y) * image.width() + x;
-    rngs.clear();
+  const size_t n = buf.pixels.size() * static_cast<size_t>(spp);
+  buf.rays.resize(n);
+  buf.rngs.resize(n);
+  buf.samples.assign(n, PathSample{});
+  for (size_t i = 0; i < buf.pixels.size(); ++i) {
+    const Vec2i px = buf.pixels[i];
+    const uint64_t pixel = static_cast<uint64_t>(px.y) * image.width() + px.x;
     for (int s = 0; s < spp; ++s) {
-      Rng& rng = rngs.emplace_back(Rng::forKeys(settings.seed, frame, pixel, s));
+      const size_t k = i * spp + s;
+      Rng& rng = buf.rngs[k] = Rng::forKeys(settings.seed, frame, pixel, s);
       const Vec2f uFilter(rng.uniform(), rng.uniform());
       const Vec2f uLens(rng.uniform(), rng.uniform());
       const Vec2f offset = filter.sample(uFilter);
-      rays[s] = camera.generateRay(static_cast<float>(x) + 0.5f + offset.x,
-                                   static_cast<float>(y) + 0.5f + offset.y, uLens);
+      buf.rays[k] = camera.generateRay(static_cast<float>(px.x) + 0.5f + offset.x,
+                                       static_cast<float>(px.y) + 0.5f + offset.y, uLens);
     }
-    if (absl::Status s = integrator.shadePixel(rays, rngs, samples, scratch, counters); !s.ok()) {
-      return absl::Status(s.code(), fmt::format("tile [{}, {}) x [{}, {}), pixel ({}, {}): {}",
-                                                tile.x0, tile.x1, tile.y0, tile.y1, x, y,
-                                                std::string(s.message())));
+  }
+  const TileSamples samples{.spp = spp,
+                            .pixels = buf.pixels,
+                            .rays = buf.rays,
+                            .rngs = buf.rngs,
+                            .unitKey = unit.block ? blockKey(settings.seed, frame,
+                                                             unit.blockIndex.x, unit.blockIndex.y)
+                                                  : 0};
+  if (absl::Status s = integrator.render(samples, buf.samples, buf.scratch.get(), counters);
+      !s.ok()) {
+    return absl::Status(s.code(), fmt::format("{}: {}", describe(unit), s.message()));
+  }
+  for (size_t i = 0; i < buf.pixels.size(); ++i) {
+    const int x = buf.pixels[i].x, y = buf.pixels[i].y;
+    // A block renders whole, but writes only the pixels asked for.
+    if (unit.block && !regions.empty() &&
+        std::none_of(regions.begin(), regions.end(),
+                     [&](const TileRect& r) { return r.contains(x, y); })) {
+      continue;
     }
     Rgb sum(0.0f), direct(0.0f), indirect(0.0f), albedo(0.0f);
     Vec3f normal(0.0f);
     double depth = 0.0;
     int valid = 0, hits = 0;
-    for (const PathSample& ps : samples) {
+    for (int s = 0; s < spp; ++s) {
+      const PathSample& ps = buf.samples[i * spp + s];
       ++counters->cameraSamples;
       const Rgb L = ps.radiance();
       if (!isFinite(L) || !isFinite(ps.direct) || !isFinite(ps.indirect) ||
@@ -178,33 +220,116 @@ absl::Status renderTile(const Integrator& integrator, IntegratorScratch* scratch
   return absl::OkStatus();
 }
 
+}  // namespace
+
+const std::vector<std::string>& frameChannels() {
+  static const std::vector<std::string> channels = {
+      "R", "G", "B", "A",
+      "albedo.R", "albedo.G", "albedo.B",
+      "normal.X", "normal.Y", "normal.Z",
+      "depth.Z",
+      "direct.R", "direct.G", "direct.B",
+      "indirect.R", "indirect.G", "indirect.B"};
+  return channels;
+}
+
+std::vector<Vec2i> mortonOrder(int nx, int ny) {
+  std::vector<std::pair<uint32_t, Vec2i>> keyed;
+  keyed.reserve(static_cast<size_t>(std::max(nx, 0)) * std::max(ny, 0));
+  for (int y = 0; y < ny; ++y) {
+    for (int x = 0; x < nx; ++x) keyed.push_back({morton2(x, y), {x, y}});
+  }
+  std::sort(keyed.begin(), keyed.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<Vec2i> cells;
+  cells.reserve(keyed.size());
+  for (const auto& [key, xy] : keyed) cells.push_back(xy);
+  return cells;
+}
+
+std::vector<TileRect> makeTiles(const TileRect& region, int tileSize) {
+  PBGI_CHECK_GT(tileSize, 0);
+  const int nx = (region.width() + tileSize - 1) / tileSize;
+  const int ny = (region.height() + tileSize - 1) / tileSize;
+  std::vector<TileRect> tiles;
+  for (const Vec2i& t : mortonOrder(nx, ny)) {
+    tiles.push_back({region.x0 + t.x * tileSize, region.y0 + t.y * tileSize,
+                     std::min(region.x1, region.x0 + (t.x + 1) * tileSize),
+                     std::min(region.y1, region.y0 + (t.y + 1) * tileSize)});
+  }
+  return tiles;
+}
+
+std::vector<TileRect> makeTiles(int width, int height, int tileSize) {
+  return makeTiles(TileRect{0, 0, width, height}, tileSize);
+}
+
+uint64_t blockKey(uint64_t seed, int frame, int bx, int by) {
+  return hashKeys(seed, frame, 0x626c6f636bull /* "block" */, bx, by);
+}
+
+void RenderCounters::add(const RenderCounters& o) {
+  cameraSamples += o.cameraSamples;
+  discardedSamples += o.discardedSamples;
+  pixelsWithoutHit += o.pixelsWithoutHit;
+  if (values.size() < o.values.size()) values.resize(o.values.size(), 0);
+  for (size_t i = 0; i < o.values.size(); ++i) values[i] += o.values[i];
+}
+
+absl::Status PixelIntegrator::render(const TileSamples& samples, std::span<PathSample> out,
+                                     IntegratorScratch* scratch, RenderCounters* counters) const {
+  const size_t spp = static_cast<size_t>(samples.spp);
+  for (size_t i = 0; i < samples.pixelCount(); ++i) {
+    const size_t first = i * spp;
+    if (absl::Status s = shadePixel(samples.rays.subspan(first, spp),
+                                    samples.rngs.subspan(first, spp), out.subspan(first, spp),
+                                    scratch, counters);
+        !s.ok()) {
+      return absl::Status(s.code(), fmt::format("pixel ({}, {}): {}", samples.pixels[i].x,
+                                                samples.pixels[i].y, s.message()));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status PathIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
+                                        std::span<PathSample> out, IntegratorScratch*,
+                                        RenderCounters*) const {
+  for (size_t s = 0; s < rays.size(); ++s) out[s] = tracePath(scene_, rays[s], rngs[s], settings_);
+  return absl::OkStatus();
+}
+
 absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& camera,
                                   const RenderSettings& settings, int frame,
                                   const FrameRenderOptions& options,
                                   RenderCounters* countersOut) {
   Image image(camera.imageWidth(), camera.imageHeight(), frameChannels());
   const int tileSize = options.tileSize > 0 ? options.tileSize : settings.tileSize;
-  const std::vector<TileRect> tiles =
-      makeTiles(options.region.value_or(TileRect{0, 0, image.width(), image.height()}), tileSize);
-  std::vector<RenderCounters> perTile(tiles.size());
-  std::vector<absl::Status> errors(tiles.size());
+  const std::vector<RenderUnit> units = makeUnits(integrator, camera, options.regions, tileSize);
+  const size_t counterCount = integrator.counterSpecs().size();
+  std::vector<RenderCounters> perUnit(units.size());
+  for (RenderCounters& c : perUnit) c.values.assign(counterCount, 0);
+  std::vector<absl::Status> errors(units.size());
   std::atomic<bool> failed{false};
   std::atomic<int> done{0};
   const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
-  tbb::enumerable_thread_specific<std::unique_ptr<IntegratorScratch>> scratch(
-      [&] { return integrator.newScratch(); });
+  tbb::enumerable_thread_specific<UnitBuffers> buffers([&] {
+    UnitBuffers b;
+    b.scratch = integrator.newScratch();
+    return b;
+  });
   tbb::task_arena arena(threads);
   arena.execute([&] {
     tbb::parallel_for(
-        tbb::blocked_range<size_t>(0, tiles.size(), 1),
+        tbb::blocked_range<size_t>(0, units.size(), 1),
         [&](const tbb::blocked_range<size_t>& range) {
           for (size_t i = range.begin(); i != range.end(); ++i) {
             if (failed.load(std::memory_order_relaxed)) return;
-            errors[i] = renderTile(integrator, scratch.local().get(), camera, settings, frame,
-                                   tiles[i], image, &perTile[i]);
+            errors[i] = renderUnit(integrator, camera, settings, frame, units[i], options.regions,
+                                   buffers.local(), image, &perUnit[i]);
             if (!errors[i].ok()) failed = true;
             const int n = ++done;
-            if (options.progress) options.progress(n, static_cast<int>(tiles.size()));
+            if (options.progress) options.progress(n, static_cast<int>(units.size()));
           }
         },
         tbb::simple_partitioner());
@@ -214,7 +339,8 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
   }
   if (countersOut) {
     RenderCounters total;
-    for (const auto& c : perTile) total.add(c);
+    total.values.assign(counterCount, 0);
+    for (const auto& c : perUnit) total.add(c);
     *countersOut = total;
   }
   return image;

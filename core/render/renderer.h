@@ -1,11 +1,20 @@
 #pragma once
-// The tile renderer. A frame is cut into square tiles visited in Morton order; each pixel's
-// samples draw their random numbers from (seed, frame, pixel, sample), so a tile is
-// bit-identical whatever the tiling, the thread count or the machine.
+// The renderer: cuts a frame into render units, generates every unit's camera samples, hands
+// them to the integrator and averages each pixel's samples into the image.
+//
+// Units. For an integrator whose pixels are independent (blockSize() 0), a unit is a square
+// tile (Morton order over the frame, pixels in Morton order within). For one that shares work
+// across pixels, a unit is a block of a fixed grid in view space, blockSize() pixels a side,
+// holding that square of every view of a camera array (views share one unit, so a light
+// field's nearly identical samples share the work). Blocks do not move with the tiling: a
+// region asked for renders the whole blocks it touches and keeps its own pixels.
+//
+// Determinism: a sample's random stream is keyed (seed, frame, pixel, sample) and a unit's
+// own (seed, frame, block), so a pixel is bit-identical whatever the tiling, the regions, the
+// thread count or the machine.
 
 #include <cstdint>
 #include <functional>
-#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,15 +31,17 @@ struct TileRect {
   int x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // half-open pixel bounds in the (mosaic) image
   int width() const { return x1 - x0; }
   int height() const { return y1 - y0; }
+  bool contains(int x, int y) const { return x >= x0 && x < x1 && y >= y0 && y < y1; }
+  bool operator==(const TileRect&) const = default;
 };
 
 struct FrameRenderOptions {
   int threads = 0;  // 0: all cores
-  int tileSize = 0; // 0: the shot's render.tile_size
-  std::function<void(int tilesDone, int tilesTotal)> progress;  // called from worker threads
-  // Render only these pixels (a farm tile); the rest of the image stays 0. Pixels do not
-  // depend on the tiling, so they come out as in a render of the whole frame.
-  std::optional<TileRect> region;
+  int tileSize = 0; // 0: the shot's render.tile_size (pixel-independent integrators)
+  std::function<void(int unitsDone, int unitsTotal)> progress;  // called from worker threads
+  // Render only these pixels (a farm tile: rectangles of the mosaic image); empty: every
+  // pixel. The rest of the image stays 0. Pixels come out as in a render of the whole frame.
+  std::vector<TileRect> regions;
 };
 
 // The channels of a rendered frame: RGBA, then the AOV layers.
@@ -41,15 +52,15 @@ std::vector<TileRect> makeTiles(int width, int height, int tileSize);
 // The same over `region` (pixel bounds of the image).
 std::vector<TileRect> makeTiles(const TileRect& region, int tileSize);
 
-// Renders the pixels of `tile` into `image` (which has frameChannels() and the full size),
-// pixel by pixel in Morton order, adding to `counters`. `scratch` is the integrator's
-// (newScratch()) for this thread. The integrator's errors come back naming the tile.
-absl::Status renderTile(const Integrator& integrator, IntegratorScratch* scratch,
-                        const Camera& camera, const RenderSettings& settings, int frame,
-                        const TileRect& tile, Image& image, RenderCounters* counters);
+// The cells of an nx x ny grid, in Morton (Z) order of their positions.
+std::vector<Vec2i> mortonOrder(int nx, int ny);
 
-// Every tile, in parallel. The first tile that fails (in tile order) fails the frame; tiles
-// not yet started are then skipped.
+// The random key of block (bx, by) of a frame: what an integrator's work across the block's
+// pixels draws from.
+uint64_t blockKey(uint64_t seed, int frame, int bx, int by);
+
+// Every unit, in parallel. The first unit that fails (in unit order) fails the frame, its
+// error naming the unit; units not yet started are then skipped. `counters` may be null.
 absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& camera,
                                   const RenderSettings& settings, int frame,
                                   const FrameRenderOptions& options, RenderCounters* counters);

@@ -26,6 +26,8 @@ class Camera {
   // Size of the whole (mosaic) image.
   int imageWidth() const { return width_ * views_.x; }
   int imageHeight() const { return height_ * views_.y; }
+  // Columns and rows of the camera array ({1, 1} for a single view).
+  Vec2i views() const { return views_; }
 
   // A primary ray through the mosaic image position (x, y) in pixels (y down), with a lens
   // sample in [0,1)^2 used only when the aperture is open.

@@ -10,6 +10,7 @@
 #include <absl/status/status.h>
 
 #include "core/math/vec.h"
+#include "core/scene/integrator_params.h"
 #include "core/util/source_location.h"
 
 namespace pbgi {
@@ -107,6 +108,7 @@ enum class FilterType { kBox, kGaussian, kBlackmanHarris };
 
 struct RenderSettings {
   std::string integrator = "path";
+  SourceLocation integratorWhere;  // where the integrator was named, for its errors
   int spp = 4;
   uint64_t seed = 0;
   int maxDepth = 64;
@@ -115,15 +117,9 @@ struct RenderSettings {
   // Project-defined settings (README: "Render settings").
   int tileSize = 32;
   int rouletteDepth = 3;  // Russian roulette starts after this many bounces
-  // The PBGI integrator: its gather, its page cache, and the bake it renders from.
-  std::string quality = "default";  // gather preset: draft | default | high
-  float maxSolidAngle = 0.0f;       // sr; 0: the preset's
-  int microbufferResolution = 0;    // pixels per cube face side; 0: the preset's
-  int gathersPerPixel = 4;          // most gathers a pixel's samples make
-  int cacheMb = 256;                // tree page cache budget
-  uint64_t bakePoints = 0;          // surfels per frame; 0: the baker's default
-  int bakeBounces = 3;              // indirect bounces baked into the tree
-  std::string bakeQuality = "draft";  // gather preset of those bounces
+  // The integrators' own parameters (their gathers, caches and bakes), each declared and
+  // validated by its integrator (core/render/integrators.h).
+  IntegratorParams params;
 };
 
 struct ShotDesc {
@@ -142,6 +138,8 @@ struct ShotDesc {
   std::vector<MaterialDesc> materials;
   std::vector<LightDesc> lights;
   RenderSettings render;
+  // Things the parser accepted but the user may not mean (a parameter of another integrator).
+  std::vector<std::string> warnings;
 };
 
 // OkStatus when `frame` is one of the shot's; OutOfRange naming the shot file and its frames

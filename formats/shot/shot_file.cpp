@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "core/math/vec.h"
+#include "core/render/integrators.h"
 #include "core/util/source_location.h"
 #include "formats/shot/strict_toml.h"
 
@@ -57,12 +58,6 @@ constexpr Range kSppRange{1.0, 1 << 20, false, false};
 constexpr Range kDepthRange{1.0, 65536.0, false, false};
 constexpr Range kFilterWidthRange{0.0, 32.0, true, false};
 constexpr Range kTileSizeRange{4.0, 1024.0, false, false};
-constexpr Range kSolidAngleRange{0.0, 4.0 * 3.14159265358979, true, false};
-constexpr Range kMicrobufferRange{1.0, 64.0, false, false};
-constexpr Range kGathersPerPixelRange{1.0, 64.0, false, false};
-constexpr Range kCacheMbRange{1.0, 1 << 24, false, false};
-constexpr Range kBakePointsRange{1000.0, 1e11, false, false};
-constexpr Range kBakeBouncesRange{0.0, 16.0, false, false};
 
 // Rejects two keys at the same frame, which would silently drop one of them.
 absl::Status checkUniqueFrame(std::map<int, int>& seen, int frame, const Section& key) {
@@ -482,15 +477,50 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
 
 // --- [render] ----------------------------------------------------------------------------
 
-absl::Status parseRender(const Section& s, RenderSettings& r) {
-  PBGI_RETURN_IF_ERROR(s.allowOnly(
-      {"integrator", "spp", "seed", "max_depth", "filter", "filter_width", "tile_size",
-       "roulette_depth", "quality", "max_solid_angle", "microbuffer_resolution",
-       "gathers_per_pixel", "cache_mb", "bake_points", "bake_bounces", "bake_quality"}));
+// The keys every integrator shares; the rest of [render] are integrator parameters, declared
+// by each integrator in the registry (core/render/integrators.h).
+const std::vector<std::string_view> kCommonRenderKeys = {
+    "integrator", "spp", "seed", "max_depth", "filter", "filter_width", "tile_size",
+    "roulette_depth"};
+
+// An integrator parameter, read as its declaration says.
+absl::Status parseParam(const Section& s, const ParamSpec& spec, IntegratorParams& params) {
+  const toml::node& node = *s.find(spec.key);
+  ParamValue value{.where = s.source().at(node.source())};
+  const Range range{spec.lo, spec.hi, spec.loOpen, false};
+  switch (spec.type) {
+    case ParamType::kInt: {
+      PBGI_ASSIGN_OR_RETURN(value.value, s.need<int64_t>(spec.key, range));
+      break;
+    }
+    case ParamType::kFloat: {
+      PBGI_ASSIGN_OR_RETURN(const float v, s.need<float>(spec.key, range));
+      value.value = static_cast<double>(v);
+      break;
+    }
+    case ParamType::kChoice: {
+      std::vector<std::pair<std::string_view, std::string>> options;
+      for (std::string_view c : spec.choices) options.push_back({c, std::string(c)});
+      PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> v,
+                            s.choice<std::string>(spec.key, "value", options));
+      value.value = *v;
+      break;
+    }
+  }
+  return params.set(spec, std::move(value));
+}
+
+absl::Status parseRender(const Section& s, RenderSettings& r, std::vector<std::string>* warnings) {
+  std::vector<std::string_view> allowed = kCommonRenderKeys;
+  for (std::string_view key : allParamKeys()) allowed.push_back(key);
+  PBGI_RETURN_IF_ERROR(s.allowOnly(allowed));
   PBGI_ASSIGN_OR_RETURN(r.integrator, s.getOr<std::string>("integrator", r.integrator));
-  if (r.integrator.empty()) {
-    return s.error(*s.find("integrator"),
-                   "'integrator': expected a name such as \"path\", found \"\"");
+  if (const toml::node* n = s.find("integrator")) {
+    r.integratorWhere = s.source().at(n->source());
+    if (absl::Status st = findIntegrator(r.integrator).status(); !st.ok()) {
+      return s.error(*n, fmt::format("'integrator': unknown integrator \"{}\" (expected one of: {})",
+                                     r.integrator, fmt::join(integratorNames(), ", ")));
+    }
   }
   PBGI_ASSIGN_OR_RETURN(r.spp, s.getOr<int>("spp", r.spp, kSppRange));
   PBGI_ASSIGN_OR_RETURN(const int64_t seed,
@@ -509,30 +539,12 @@ absl::Status parseRender(const Section& s, RenderSettings& r) {
   PBGI_ASSIGN_OR_RETURN(r.tileSize, s.getOr<int>("tile_size", r.tileSize, kTileSizeRange));
   PBGI_ASSIGN_OR_RETURN(r.rouletteDepth,
                              s.getOr<int>("roulette_depth", r.rouletteDepth, kDepthRange));
-  const std::vector<std::pair<std::string_view, std::string>> presets = {
-      {"draft", "draft"}, {"default", "default"}, {"high", "high"}};
-  PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> quality,
-                             s.choice<std::string>("quality", "gather quality preset", presets));
-  r.quality = quality.value_or(r.quality);
-  PBGI_ASSIGN_OR_RETURN(r.maxSolidAngle,
-                             s.getOr<float>("max_solid_angle", r.maxSolidAngle, kSolidAngleRange));
-  PBGI_ASSIGN_OR_RETURN(r.microbufferResolution,
-                             s.getOr<int>("microbuffer_resolution", r.microbufferResolution,
-                                          kMicrobufferRange));
-  PBGI_ASSIGN_OR_RETURN(
-      r.gathersPerPixel, s.getOr<int>("gathers_per_pixel", r.gathersPerPixel, kGathersPerPixelRange));
-  PBGI_ASSIGN_OR_RETURN(r.cacheMb, s.getOr<int>("cache_mb", r.cacheMb, kCacheMbRange));
-  PBGI_ASSIGN_OR_RETURN(const int64_t bakePoints,
-                             s.getOr<int64_t>("bake_points", static_cast<int64_t>(r.bakePoints),
-                                              kBakePointsRange));
-  r.bakePoints = static_cast<uint64_t>(bakePoints);
-  PBGI_ASSIGN_OR_RETURN(r.bakeBounces,
-                             s.getOr<int>("bake_bounces", r.bakeBounces, kBakeBouncesRange));
-  PBGI_ASSIGN_OR_RETURN(
-      const std::optional<std::string> bakeQuality,
-      s.choice<std::string>("bake_quality", "gather quality preset", presets));
-  r.bakeQuality = bakeQuality.value_or(r.bakeQuality);
-  return absl::OkStatus();
+  for (std::string_view key : allParamKeys()) {
+    if (s.find(key) == nullptr) continue;
+    PBGI_RETURN_IF_ERROR(parseParam(s, *findParam(key), r.params));
+  }
+  // The integrator's own checks across its parameters (their messages name file and line).
+  return validateRenderSettings(r, warnings);
 }
 
 // --- the whole file ----------------------------------------------------------------------
@@ -615,7 +627,7 @@ absl::StatusOr<ShotDesc> parseDocument(const Source& source, const toml::table& 
 
   PBGI_ASSIGN_OR_RETURN(const std::optional<Section> render,
                              subTable(top, "render", "[render]"));
-  if (render) PBGI_RETURN_IF_ERROR(parseRender(*render, shot.render));
+  if (render) PBGI_RETURN_IF_ERROR(parseRender(*render, shot.render, &shot.warnings));
   return shot;
 }
 

@@ -16,6 +16,8 @@
 #include "core/pbgi/gather_reuse.h"
 #include "core/pbgi/morton.h"
 #include "core/pbgi/page_cache.h"
+#include "core/render/integrators.h"
+#include "core/util/check.h"
 #include "core/util/spill_file.h"
 #include "core/util/status.h"
 #include "formats/pbgi/tree_file.h"
@@ -50,13 +52,20 @@ std::filesystem::path framePathStem(const ShotDesc& shot, const FrameBakeRequest
 }  // namespace
 
 absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame) {
+  // The bake of the integrator that renders from trees: the shot's own when it is one, else
+  // the first in the registry that is (a bake of a path-traced shot is for comparing).
+  const IntegratorInfo* tree = nullptr;
+  for (const IntegratorInfo& i : integrators()) {
+    if (!i.needsTree) continue;
+    if (tree == nullptr || i.name == shot.render.integrator) tree = &i;
+  }
+  PBGI_CHECK(tree != nullptr);
+  const TreeNeeds needs = tree->treeNeeds(shot.render);
   FrameBakeRequest request;
   request.frame = frame;
-  request.points = shot.render.bakePoints;
-  request.bounces = shot.render.bakeBounces;
-  auto gather = gatherPreset(shot.render.bakeQuality);
-  if (!gather.ok()) return gather.status();
-  request.gather = *gather;
+  request.points = needs.bakePoints;
+  request.bounces = needs.bakeBounces;
+  request.gather = needs.bakeGather;
   request.pbgiVersion = std::string("pbgi ") + PBGI_VERSION;
   return request;
 }

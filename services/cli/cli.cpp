@@ -1,11 +1,14 @@
 #include "services/cli/cli.h"
 
+#include <algorithm>
 #include <charconv>
 #include <cstdio>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
+#include "core/render/integrators.h"
 #include "core/util/log.h"
 
 namespace pbgi::cli {
@@ -47,6 +50,42 @@ absl::StatusOr<uint64_t> parseByteSize(std::string_view text, std::string_view f
         text));
   }
   return value << shift;
+}
+
+void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::string& gather,
+                             std::string& quality) {
+  cmd.add_option("--gather", gather,
+                 "PBGI: how diffuse receivers gather: bidirectional (default) or per-pixel");
+  cmd.add_option("--quality", quality,
+                 "PBGI preset of every gather threshold: draft, default, high (default: the "
+                 "shot's quality)");
+  cmd.add_option("--set", set,
+                 fmt::format("An integrator parameter, KEY=VALUE (repeatable): {}",
+                             fmt::join(allParamKeys(), ", ")));
+}
+
+absl::Status integratorParamFlags(const std::vector<std::string>& set,
+                                  const std::vector<std::pair<std::string_view, std::string>>& named,
+                                  IntegratorParams* params) {
+  for (const auto& [key, text] : named) {
+    if (text.empty()) continue;
+    std::string flag = "--" + std::string(key);
+    std::replace(flag.begin(), flag.end(), '_', '-');
+    if (absl::Status s = setParamText(*params, key, text, {flag}); !s.ok()) return s;
+  }
+  for (const std::string& line : set) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) {
+      return absl::InvalidArgumentError(
+          fmt::format("--set {}: expected KEY=VALUE (keys: {})", line, fmt::join(allParamKeys(), ", ")));
+    }
+    if (absl::Status s = setParamText(*params, line.substr(0, eq), line.substr(eq + 1),
+                                      {"--set " + line});
+        !s.ok()) {
+      return s;
+    }
+  }
+  return absl::OkStatus();
 }
 
 int run(int argc, char** argv) {

@@ -6,12 +6,18 @@
 
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
 
 namespace CLI {
 class App;
+}
+
+namespace pbgi {
+class IntegratorParams;
 }
 
 namespace pbgi::cli {
@@ -40,6 +46,16 @@ absl::StatusOr<uint64_t> parseByteSize(std::string_view text, std::string_view f
 // Prints "pbgi: error: <message>" and returns the exit code for the status: bad input
 // (InvalidArgument, NotFound, FailedPrecondition, OutOfRange) is 2, anything else 1.
 int reportError(const absl::Status& status);
+
+// The integrator parameter flags that render, run and submit share: --gather, --quality, and
+// --set KEY=VALUE for any parameter an integrator declares (repeatable).
+void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::string& gather,
+                             std::string& quality);
+// Fills `params` from the --set lines and named flags ({key, text}; empty text: not given).
+// Errors name the flag and what the parameter expects.
+absl::Status integratorParamFlags(const std::vector<std::string>& set,
+                                  const std::vector<std::pair<std::string_view, std::string>>& named,
+                                  IntegratorParams* params);
 
 int run(int argc, char** argv);
 

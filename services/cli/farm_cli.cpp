@@ -9,7 +9,9 @@
 #include <absl/strings/str_split.h>
 #include <fmt/format.h>
 
+#include "core/render/integrators.h"
 #include "core/util/status.h"
+#include "services/cli/cli.h"
 #include "services/coordinator/farm_job.h"
 
 namespace pbgi::cli {
@@ -19,10 +21,8 @@ void addJobFlags(CLI::App& cmd, JobFlags& flags) {
   cmd.add_option("--integrator", flags.integrator, "Integrator (default: the shot's)");
   cmd.add_option("--spp", flags.spp, "Camera samples per pixel (default: the shot's)")
       ->check(CLI::PositiveNumber);
-  cmd.add_option("--quality", flags.quality, "PBGI gather preset: draft, default, high")
-      ->check(CLI::IsMember({"draft", "default", "high"}));
-  cmd.add_option("--cache-mb", flags.cacheMb, "PBGI: tree page cache budget in MiB")
-      ->check(CLI::PositiveNumber);
+  addIntegratorParamFlags(cmd, flags.set, flags.gather, flags.quality);
+  cmd.add_option("--cache-mb", flags.cacheMb, "PBGI: tree page cache budget in MiB");
   cmd.add_option("--priority", flags.priority, "Higher runs first (default 0)");
 }
 
@@ -56,8 +56,14 @@ absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
   request.set_priority(flags.priority);
   if (!flags.integrator.empty()) request.add_overrides("integrator=" + flags.integrator);
   if (flags.spp > 0) request.add_overrides(fmt::format("spp={}", flags.spp));
-  if (!flags.quality.empty()) request.add_overrides("quality=" + flags.quality);
-  if (flags.cacheMb > 0) request.add_overrides(fmt::format("cache_mb={}", flags.cacheMb));
+  // Every integrator parameter the flags set, checked here as the coordinator will check it.
+  IntegratorParams params;
+  PBGI_RETURN_IF_ERROR(integratorParamFlags(
+      flags.set, {{"gather", flags.gather}, {"quality", flags.quality}, {"cache_mb", flags.cacheMb}},
+      &params));
+  for (const auto& [key, value] : params.values()) {
+    request.add_overrides(fmt::format("{}={}", key, value.toString()));
+  }
   // The coordinator checks the same, but bad input is better caught before anything starts.
   ShotDesc overridden = shot;
   PBGI_RETURN_IF_ERROR(farm::applyOverrides(

@@ -23,8 +23,10 @@ struct JobFlags {
   std::string frames;  // "1-3,7"; empty: every frame
   std::string integrator;
   int spp = 0;
+  std::string gather;
   std::string quality;
-  int cacheMb = 0;
+  std::string cacheMb;
+  std::vector<std::string> set;  // integrator parameters, KEY=VALUE
   int priority = 0;
 };
 void addJobFlags(CLI::App& cmd, JobFlags& flags);

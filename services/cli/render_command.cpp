@@ -23,10 +23,12 @@ struct RenderOptions {
   int tileSize = 0;
   std::string out;
   bool noPreview = false;
+  std::string gather;
   std::string quality;
-  float maxSolidAngle = 0.0f;
-  int resolution = 0;
-  int cacheMb = 0;
+  std::string maxSolidAngle;
+  std::string resolution;
+  std::string cacheMb;
+  std::vector<std::string> set;  // key=value
   std::string tree;
   std::string bakeDir;
   bool rebake = false;
@@ -36,7 +38,7 @@ std::string percent(uint64_t part, uint64_t whole) {
   return whole > 0 ? fmt::format("{:.1f} %", 100.0 * double(part) / double(whole)) : "-";
 }
 
-void printTreeReport(const TreeReadReport& t, const RenderCounters& c) {
+void printTreeReport(const TreeReadReport& t) {
   std::printf("tree %s (%s)\n", t.treePath.c_str(), t.baked ? "baked now" : "reused");
   if (t.baked) std::printf("%s", formatStages(t.bakeStages).c_str());
   std::printf("  gather: %s\n", t.gather.c_str());
@@ -44,15 +46,6 @@ void printTreeReport(const TreeReadReport& t, const RenderCounters& c) {
   std::printf("  pages read %llu of %llu in the file (%s)\n",
               static_cast<unsigned long long>(t.pagesRead),
               static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
-  std::printf("  gathers %llu (%llu glossy), samples sharing a gather %llu\n",
-              static_cast<unsigned long long>(c.gathers),
-              static_cast<unsigned long long>(c.glossyGathers),
-              static_cast<unsigned long long>(c.gatherReuses));
-  std::printf("  skipped: black receivers %llu (pixels that see nothing: below); path traced "
-              "(mirror, glass) %llu\n",
-              static_cast<unsigned long long>(c.blackReceivers),
-              static_cast<unsigned long long>(c.pathTracedReceivers));
-  std::printf("  traversal: %s\n", c.gather.toString().c_str());
 }
 
 int runRender(const RenderOptions& o) {
@@ -66,10 +59,16 @@ int runRender(const RenderOptions& o) {
   request.tileSize = o.tileSize;
   request.outPath = o.out;
   request.preview = !o.noPreview;
-  request.quality = o.quality;
-  request.maxSolidAngle = o.maxSolidAngle;
-  request.microbufferResolution = o.resolution;
-  request.cacheBytes = static_cast<size_t>(o.cacheMb) << 20;
+  if (absl::Status s = integratorParamFlags(o.set,
+                                            {{"gather", o.gather},
+                                             {"quality", o.quality},
+                                             {"max_solid_angle", o.maxSolidAngle},
+                                             {"microbuffer_resolution", o.resolution},
+                                             {"cache_mb", o.cacheMb}},
+                                            &request.params);
+      !s.ok()) {
+    return reportError(s);
+  }
   request.treePath = o.tree;
   request.bakeDir = o.bakeDir;
   request.rebake = o.rebake;
@@ -90,7 +89,8 @@ int runRender(const RenderOptions& o) {
   std::printf("wrote %s\n", report->exrPath.c_str());
   if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
   std::printf("%s", formatStages(report->stages).c_str());
-  if (report->tree) printTreeReport(*report->tree, report->counters);
+  if (report->tree) printTreeReport(*report->tree);
+  std::printf("%s", formatCounters(*report).c_str());
   const RenderCounters& c = report->counters;
   std::printf("  samples %llu, discarded (NaN/Inf) %llu, pixels that see nothing %llu\n",
               static_cast<unsigned long long>(c.cameraSamples),
@@ -117,18 +117,14 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(4, 1024));
   cmd->add_option("--out", options->out, "Output EXR (default: the shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
-  cmd->add_option("--quality", options->quality,
-                  "PBGI gather preset: draft, default, high (default: the shot's quality)")
-      ->check(CLI::IsMember({"draft", "default", "high"}));
+  addIntegratorParamFlags(*cmd, options->set, options->gather, options->quality);
   cmd->add_option("--max-solid-angle", options->maxSolidAngle,
-                  "PBGI: largest solid angle (sr) splatted as one cluster (default: the preset's)")
-      ->check(CLI::Range(1e-6, 12.566));
+                  "PBGI per-pixel: largest solid angle (sr) splatted as one cluster (default: the "
+                  "preset's)");
   cmd->add_option("--microbuffer-resolution", options->resolution,
-                  "PBGI: microbuffer pixels per cube face side (default: the preset's)")
-      ->check(CLI::Range(1, kMaxMicrobufferResolution));
+                  "PBGI: microbuffer pixels per cube face side (default: the preset's)");
   cmd->add_option("--cache-mb", options->cacheMb,
-                  "PBGI: tree page cache budget in MiB (default: the shot's cache_mb, 256)")
-      ->check(CLI::PositiveNumber);
+                  "PBGI: tree page cache budget in MiB (default: the shot's cache_mb, 256)");
   cmd->add_option("--tree", options->tree, "PBGI: render from this .pbgi tree instead of the frame's bake");
   cmd->add_option("--bake-dir", options->bakeDir,
                   "PBGI: where the frame's bake is found or written (default: beside the image)");

@@ -16,11 +16,13 @@
 #include <grpcpp/grpcpp.h>
 #include <httplib.h>
 
+#include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_job.h"
+#include "services/render/frame_assembly.h"
 
 namespace pbgi::farm {
 
@@ -187,8 +189,10 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
       pattern = (dir / fs::path(shot.output).filename()).string();
     }
     PBGI_ASSIGN_OR_RETURN(spec.outputPattern, confineToRoot(pattern, options.outputRoot));
-    spec.tileCount = static_cast<int>(makeTiles(shot.width, shot.height, tileSize()).size());
-    spec.needsBake = shot.render.integrator == "pbgi";
+    spec.tileCount = static_cast<int>(farmTiles(shot, tileSize()).size());
+    PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator,
+                          findIntegrator(shot.render.integrator));
+    spec.needsBake = integrator->needsTree;
     PBGI_ASSIGN_OR_RETURN(const int64_t id, store->submit(spec, wallClock()));
     std::error_code ec;
     fs::create_directories(workDir(id), ec);
@@ -364,9 +368,21 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
       response->set_work_dir(dir);
       switch (l.ref.kind) {
         case TaskKind::kBake: response->set_output_path(jobBakeDir(dir)); break;
-        case TaskKind::kTile:
+        case TaskKind::kTile: {
           response->set_output_path(farmTilePath(dir, l.ref.frame, l.ref.tile));
+          // The tile's rectangles of the mosaic frame, explicitly.
+          const std::vector<FarmTile> tiles = farmTiles((*view)->shot, tileSize());
+          if (l.ref.tile >= 0 && static_cast<size_t>(l.ref.tile) < tiles.size()) {
+            for (const TileRect& r : tiles[static_cast<size_t>(l.ref.tile)]) {
+              v1::Rect* rect = response->add_regions();
+              rect->set_x0(r.x0);
+              rect->set_y0(r.y0);
+              rect->set_x1(r.x1);
+              rect->set_y1(r.y1);
+            }
+          }
           break;
+        }
         case TaskKind::kAssemble:
           response->set_output_path(frameOutput(**view, l.ref.frame));
           break;

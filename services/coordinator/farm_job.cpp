@@ -9,7 +9,7 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
-#include "core/pbgi/gather.h"
+#include "core/render/integrators.h"
 #include "core/util/status.h"
 #include "formats/shot/shot_file.h"
 #include "services/bake/frame_bake.h"
@@ -61,36 +61,24 @@ absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& over
     }
     const std::string key = line.substr(0, eq);
     const std::string value = line.substr(eq + 1);
+    const SourceLocation where{fmt::format("override {}", line)};
     if (key == "integrator") {
-      const auto& names = availableIntegrators();
-      if (std::find(names.begin(), names.end(), value) == names.end()) {
-        return absl::InvalidArgumentError(fmt::format(
-            "override integrator={}: expected one of {}", value, fmt::join(names, ", ")));
-      }
+      PBGI_RETURN_IF_ERROR(findIntegrator(value, where).status());
       r.integrator = value;
-    } else if (key == "quality") {
-      if (!gatherPreset(value).ok()) {
-        return absl::InvalidArgumentError(
-            fmt::format("override quality={}: expected draft, default or high", value));
-      }
-      r.quality = value;
+      r.integratorWhere = where;
     } else if (key == "spp") {
       PBGI_ASSIGN_OR_RETURN(r.spp, overrideNumber<int>(key, value, 1, 1 << 20));
-    } else if (key == "cache_mb") {
-      PBGI_ASSIGN_OR_RETURN(r.cacheMb, overrideNumber<int>(key, value, 1, 1 << 24));
-    } else if (key == "bake_points") {
-      PBGI_ASSIGN_OR_RETURN(r.bakePoints,
-                            overrideNumber<uint64_t>(key, value, 1000, 100'000'000'000ull));
-    } else if (key == "bake_bounces") {
-      PBGI_ASSIGN_OR_RETURN(r.bakeBounces, overrideNumber<int>(key, value, 0, 16));
+    } else if (findParam(key) != nullptr) {
+      PBGI_RETURN_IF_ERROR(setParamText(r.params, key, value, where));
     } else {
       return absl::InvalidArgumentError(fmt::format(
-          "override '{}': unknown key '{}' (expected integrator, spp, quality, cache_mb, "
-          "bake_points or bake_bounces)",
-          line, key));
+          "override '{}': unknown key '{}' (expected integrator, spp or an integrator parameter: "
+          "{})",
+          line, key, fmt::join(allParamKeys(), ", ")));
     }
   }
-  return absl::OkStatus();
+  // The integrator's own checks, now that every value is known.
+  return validateRenderSettings(r);
 }
 
 std::string joinOverrides(const std::vector<std::string>& overrides) {

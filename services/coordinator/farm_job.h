@@ -32,8 +32,9 @@ absl::StatusOr<std::string> jobTreePath(const ShotDesc& shot, const std::string&
                                         int frame);
 
 // The overrides a job may carry, "key=value", on the shot's [render] settings: integrator,
-// spp, quality, cache_mb, bake_points, bake_bounces. InvalidArgument names the override and
-// what was expected.
+// spp, and any integrator parameter the registry declares (quality, gather, cache_mb,
+// bake_points, ...). InvalidArgument names the override and what was expected; the
+// integrator's own checks run on the result.
 absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides);
 // One override per line, as the job store keeps them, and back.
 std::string joinOverrides(const std::vector<std::string>& overrides);

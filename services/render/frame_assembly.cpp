@@ -1,5 +1,6 @@
 #include "services/render/frame_assembly.h"
 
+#include <algorithm>
 #include <filesystem>
 #include <sstream>
 
@@ -24,10 +25,49 @@ void copyBlock(const Image& from, int fx, int fy, Image& to, int tx, int ty, int
   }
 }
 
+bool inside(const TileRect& r, int width, int height) {
+  return r.x0 >= 0 && r.y0 >= 0 && r.x1 <= width && r.y1 <= height && r.x1 > r.x0 && r.y1 > r.y0;
+}
+
+// The size of rectangles stacked top to bottom, left-aligned.
+Vec2i stackedSize(const std::vector<TileRect>& regions) {
+  Vec2i size(0, 0);
+  for (const TileRect& r : regions) {
+    size.x = std::max(size.x, r.width());
+    size.y += r.height();
+  }
+  return size;
+}
+
 }  // namespace
+
+std::vector<FarmTile> farmTiles(int viewWidth, int viewHeight, Vec2i views, int tileSize) {
+  std::vector<FarmTile> tiles;
+  for (const TileRect& t : makeTiles(viewWidth, viewHeight, tileSize)) {
+    FarmTile tile;
+    for (int row = 0; row < views.y; ++row) {
+      for (int col = 0; col < views.x; ++col) {
+        tile.push_back({t.x0 + col * viewWidth, t.y0 + row * viewHeight, t.x1 + col * viewWidth,
+                        t.y1 + row * viewHeight});
+      }
+    }
+    tiles.push_back(std::move(tile));
+  }
+  return tiles;
+}
+
+std::vector<FarmTile> farmTiles(const ShotDesc& shot, int tileSize) {
+  return farmTiles(shot.width, shot.height, shot.camera.views, tileSize);
+}
 
 std::string regionText(const TileRect& r) {
   return fmt::format("{} {} {} {}", r.x0, r.y0, r.x1, r.y1);
+}
+
+std::string regionsText(const std::vector<TileRect>& regions) {
+  std::string text;
+  for (const TileRect& r : regions) text += (text.empty() ? "" : ";") + regionText(r);
+  return text;
 }
 
 absl::StatusOr<TileRect> parseRegion(const std::string& text) {
@@ -42,32 +82,39 @@ absl::StatusOr<TileRect> parseRegion(const std::string& text) {
   return r;
 }
 
-absl::StatusOr<Image> cropImage(const Image& image, const TileRect& r) {
-  if (r.x0 < 0 || r.y0 < 0 || r.x1 > image.width() || r.y1 > image.height() || r.x1 <= r.x0 ||
-      r.y1 <= r.y0) {
-    return absl::OutOfRangeError(fmt::format("region {} leaves the {}x{} image", regionText(r),
-                                             image.width(), image.height()));
+absl::StatusOr<Image> cropRegions(const Image& image, const std::vector<TileRect>& regions) {
+  for (const TileRect& r : regions) {
+    if (!inside(r, image.width(), image.height())) {
+      return absl::OutOfRangeError(fmt::format("region {} leaves the {}x{} image", regionText(r),
+                                               image.width(), image.height()));
+    }
   }
-  Image out(r.width(), r.height(), image.channels());
-  copyBlock(image, r.x0, r.y0, out, 0, 0, r.width(), r.height());
+  const Vec2i size = stackedSize(regions);
+  Image out(size.x, size.y, image.channels());
+  int y = 0;
+  for (const TileRect& r : regions) {
+    copyBlock(image, r.x0, r.y0, out, 0, y, r.width(), r.height());
+    y += r.height();
+  }
   out.metadata() = image.metadata();
   return out;
 }
 
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
-                           const std::vector<TileRect>& regions, int width, int height,
-                           const std::string& outPath) {
-  if (tilePaths.size() != regions.size() || regions.empty()) {
+                                    const std::vector<FarmTile>& tiles, int width, int height,
+                                    const std::string& outPath) {
+  if (tilePaths.size() != tiles.size() || tiles.empty()) {
     return absl::InvalidArgumentError(fmt::format(
-        "assemble {}: {} tile files for {} tiles", outPath, tilePaths.size(), regions.size()));
+        "assemble {}: {} tile files for {} tiles", outPath, tilePaths.size(), tiles.size()));
   }
   Image frame;
-  for (size_t i = 0; i < regions.size(); ++i) {
-    const TileRect& r = regions[i];
+  for (size_t i = 0; i < tiles.size(); ++i) {
     auto where = [&] { return fmt::format("assemble {}: tile {} ({})", outPath, i, tilePaths[i]); };
-    if (r.x0 < 0 || r.y0 < 0 || r.x1 > width || r.y1 > height || r.x1 <= r.x0 || r.y1 <= r.y0) {
-      return absl::OutOfRangeError(
-          fmt::format("{}: region {} leaves the {}x{} frame", where(), regionText(r), width, height));
+    for (const TileRect& r : tiles[i]) {
+      if (!inside(r, width, height)) {
+        return absl::OutOfRangeError(fmt::format("{}: region {} leaves the {}x{} frame", where(),
+                                                 regionText(r), width, height));
+      }
     }
     if (!std::filesystem::exists(tilePaths[i])) {
       return absl::NotFoundError(fmt::format("{}: missing", where()));
@@ -76,22 +123,27 @@ absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
     if (!tile.ok()) {
       return absl::DataLossError(fmt::format("{}: {}", where(), tile.status().message()));
     }
-    if (tile->width() != r.width() || tile->height() != r.height()) {
-      return absl::DataLossError(fmt::format("{}: {}x{} pixels, expected {}x{} for region {}",
-                                             where(), tile->width(), tile->height(), r.width(),
-                                             r.height(), regionText(r)));
+    const Vec2i size = stackedSize(tiles[i]);
+    if (tile->width() != size.x || tile->height() != size.y) {
+      return absl::DataLossError(fmt::format("{}: {}x{} pixels, expected {}x{} for regions {}",
+                                             where(), tile->width(), tile->height(), size.x,
+                                             size.y, regionsText(tiles[i])));
     }
     if (i == 0) {
       frame = Image(width, height, tile->channels());
       for (const MetadataEntry& m : tile->metadata()) {
-        if (m.name != "pbgi/region") frame.setMetadata(m.name, m.value);
+        if (m.name != "pbgi/regions") frame.setMetadata(m.name, m.value);
       }
     } else if (tile->channels() != frame.channels()) {
       return absl::DataLossError(fmt::format("{}: channels differ from tile 0's", where()));
     }
-    copyBlock(*tile, 0, 0, frame, r.x0, r.y0, r.width(), r.height());
+    int y = 0;
+    for (const TileRect& r : tiles[i]) {
+      copyBlock(*tile, 0, y, frame, r.x0, r.y0, r.width(), r.height());
+      y += r.height();
+    }
   }
-  frame.setMetadata("pbgi/assembledTiles", static_cast<int>(regions.size()));
+  frame.setMetadata("pbgi/assembledTiles", static_cast<int>(tiles.size()));
   PBGI_RETURN_IF_ERROR(writeExr(frame, outPath));
   return frame;
 }

@@ -1,9 +1,11 @@
 #pragma once
-// Farm tiles: a frame split into regions (makeTiles with the farm's tile size; a tile's
-// index is its position in that list) that render as separate tasks, each its own EXR, and
-// the assembly that puts them back together. Pixels do not depend on the tiling
-// (ARCHITECTURE invariant 1), so an assembled frame equals, pixel for pixel, the frame
-// rendered whole.
+// Farm tiles: a frame split into tiles that render as separate tasks, each its own EXR, and the
+// assembly that puts them back together. A farm tile is a list of rectangles of the (mosaic)
+// frame: one square of the view, in every view of a camera array, so that the views of a tile
+// render together (an integrator that shares work across views, the bidirectional cut, shares
+// it within the tile). Tile t of a frame is farmTiles(...)[t]; its EXR holds its rectangles
+// stacked top to bottom, left-aligned. Pixels do not depend on the tiling (ARCHITECTURE
+// invariant 1), so an assembled frame equals, pixel for pixel, the frame rendered whole.
 #include <string>
 #include <vector>
 
@@ -12,24 +14,33 @@
 
 #include "core/render/image.h"
 #include "core/render/renderer.h"
+#include "core/scene/shot.h"
 
 namespace pbgi {
 
-// "x0 y0 x1 y1", and back (InvalidArgument naming the text).
+using FarmTile = std::vector<TileRect>;
+
+// The farm tiles of a frame: makeTiles over one view with `tileSize`, each square taken in
+// every view (row by row of the array).
+std::vector<FarmTile> farmTiles(int viewWidth, int viewHeight, Vec2i views, int tileSize);
+std::vector<FarmTile> farmTiles(const ShotDesc& shot, int tileSize);
+
+// "x0 y0 x1 y1", and back (InvalidArgument naming the text); lists joined by ';'.
 std::string regionText(const TileRect& region);
 absl::StatusOr<TileRect> parseRegion(const std::string& text);
+std::string regionsText(const std::vector<TileRect>& regions);
 
-// The pixels of `region` as an image of its own (metadata kept); OutOfRange when the region
-// leaves the image.
-absl::StatusOr<Image> cropImage(const Image& image, const TileRect& region);
+// The pixels of `regions` as an image of their own: stacked top to bottom, left-aligned, as
+// wide as the widest (metadata kept). OutOfRange when a region leaves the image.
+absl::StatusOr<Image> cropRegions(const Image& image, const std::vector<TileRect>& regions);
 
-// Reads every tile EXR (tilePaths[i] holds regions[i]), checks each is present, readable,
-// of its region's size and of the same channels, and writes the width x height frame to
+// Reads every tile EXR (tilePaths[i] holds tiles[i]), checks each is present, readable, of its
+// rectangles' stacked size and of the same channels, and writes the width x height frame to
 // `outPath` atomically (temporary then rename) with the first tile's metadata (less its
-// region). A missing or wrong tile fails the frame naming the tile and its file; nothing is
+// regions). A missing or wrong tile fails the frame naming the tile and its file; nothing is
 // written then. Returns the frame as written.
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
-                           const std::vector<TileRect>& regions, int width, int height,
-                           const std::string& outPath);
+                                    const std::vector<FarmTile>& tiles, int width, int height,
+                                    const std::string& outPath);
 
 }  // namespace pbgi

@@ -6,7 +6,7 @@
 #include <filesystem>
 
 #include "core/render/integrator.h"
-#include "core/render/pbgi_integrator.h"
+#include "core/render/integrators.h"
 #include "formats/pbgi/tree_file.h"
 #include "services/bake/frame_bake.h"
 #include "services/render/frame_assembly.h"
@@ -31,28 +31,31 @@ std::string previewPathFor(const std::string& exrPath) {
 // The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
 // the same shot bytes and bake settings is on disk, else a new bake.
 absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
+                                                    const RenderSettings& settings,
                                                     const FrameRenderRequest& request,
                                                     const Scene& scene, TreeReadReport* report) {
   if (!request.treePath.empty()) {
     report->treePath = request.treePath;
     return TreeFile::open(request.treePath);
   }
-  auto bake = shotBakeRequest(shot, request.frame);
+  ShotDesc baked = shot;
+  baked.render = settings;
+  auto bake = shotBakeRequest(baked, request.frame);
   if (!bake.ok()) return bake.status();
   bake->outDir = request.bakeDir;
   bake->threads = request.threads;
   bake->progress = request.bakeProgress;
-  report->treePath = bakeTreePath(shot, *bake);
+  report->treePath = bakeTreePath(baked, *bake);
   if (!request.rebake && std::filesystem::exists(report->treePath)) {
     auto existing = TreeFile::open(report->treePath);
-    if (existing.ok() && (*existing)->container().info().sceneHash == bakeHash(shot, *bake)) {
+    if (existing.ok() && (*existing)->container().info().sceneHash == bakeHash(baked, *bake)) {
       return existing;
     }
   }
-  auto baked = bakeShotFrame(shot, *bake, &scene);
-  if (!baked.ok()) return baked.status();
+  auto result = bakeShotFrame(baked, *bake, &scene);
+  if (!result.ok()) return result.status();
   report->baked = true;
-  report->bakeStages = baked->stages;
+  report->bakeStages = result->stages;
   return TreeFile::open(report->treePath);
 }
 
@@ -69,79 +72,67 @@ std::string writePreviewBeside(const Image& image, const std::string& exrPath,
   return path;
 }
 
-const std::vector<std::string>& availableIntegrators() {
-  static const std::vector<std::string> names = {"path", "pbgi"};
-  return names;
+std::string formatCounters(const FrameRenderReport& report) {
+  std::string text;
+  for (size_t i = 0; i < report.counterSpecs.size(); ++i) {
+    if (report.counters[i] == 0) continue;
+    text += fmt::format("  {} {}\n", report.counterSpecs[i].name, report.counters[i]);
+  }
+  return text;
 }
 
-absl::StatusOr<GatherOptions> pbgiGatherOptions(const RenderSettings& settings,
-                                                const FrameRenderRequest& request) {
-  auto options = gatherPreset(request.quality.empty() ? settings.quality : request.quality);
-  if (!options.ok()) return options.status();
-  const float solidAngle =
-      request.maxSolidAngle > 0.0f ? request.maxSolidAngle : settings.maxSolidAngle;
-  if (solidAngle > 0.0f) options->maxSolidAngle = solidAngle;
-  const int resolution = request.microbufferResolution > 0 ? request.microbufferResolution
-                                                           : settings.microbufferResolution;
-  if (resolution > 0) options->resolution = resolution;
-  if (absl::Status s = options->validate(); !s.ok()) return s;
-  return *options;
+absl::StatusOr<RenderSettings> requestSettings(const ShotDesc& shot,
+                                               const FrameRenderRequest& request) {
+  RenderSettings settings = shot.render;
+  if (!request.integrator.empty()) {
+    settings.integrator = request.integrator;
+    settings.integratorWhere = {"--integrator"};
+  }
+  if (request.spp > 0) settings.spp = request.spp;
+  for (const auto& [key, value] : request.params.values()) {
+    PBGI_RETURN_IF_ERROR(settings.params.set(*findParam(key), value));
+  }
+  PBGI_RETURN_IF_ERROR(validateRenderSettings(settings));
+  return settings;
 }
 
 absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                                                   const FrameRenderRequest& request) {
   FrameRenderReport report;
   StageClock clock(&report.stages);
-  if (absl::Status s = checkShotFrame(shot, request.frame); !s.ok()) return s;
-  RenderSettings settings = shot.render;
-  if (!request.integrator.empty()) settings.integrator = request.integrator;
-  if (request.spp > 0) settings.spp = request.spp;
-  const auto& names = availableIntegrators();
-  if (std::find(names.begin(), names.end(), settings.integrator) == names.end()) {
-    return absl::InvalidArgumentError(fmt::format(
-        "integrator '{}' is not available in this build (available: {})", settings.integrator,
-        fmt::join(names, ", ")));
-  }
+  PBGI_RETURN_IF_ERROR(checkShotFrame(shot, request.frame));
+  PBGI_ASSIGN_OR_RETURN(const RenderSettings settings, requestSettings(shot, request));
+  PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* info, findIntegrator(settings.integrator));
+  report.integrator = settings.integrator;
+  report.counterSpecs.assign(info->counters.begin(), info->counters.end());
 
   auto frameScene = loadFrameScene(shot, request.frame);
   if (!frameScene.ok()) return frameScene.status();
   report.warnings = frameScene->warnings;
   clock.lap("load");
 
-  PathTracerSettings pt;
-  pt.maxDepth = settings.maxDepth;
-  pt.rouletteDepth = settings.rouletteDepth;
   FrameRenderOptions options;
   options.threads = request.threads;
   options.tileSize = request.tileSize;
   options.progress = request.progress;
-  options.region = request.region;
+  options.regions = request.regions;
 
-  // The PBGI integrator reads its frame's tree through a page cache; both outlive the render.
+  // An integrator that needs the frame's tree reads it through a page cache; both outlive the
+  // render.
   std::unique_ptr<TreeFile> treeFile;
   std::optional<PageCache> cache;
-  std::unique_ptr<Integrator> integrator;
-  if (settings.integrator == "pbgi") {
-    auto gather = pbgiGatherOptions(settings, request);
-    if (!gather.ok()) return gather.status();
+  if (info->needsTree) {
+    const TreeNeeds needs = info->treeNeeds(settings);
     TreeReadReport& tree = report.tree.emplace();
-    tree.gather = gather->toString();
-    auto file = frameTree(shot, request, *frameScene->scene, &tree);
-    if (!file.ok()) return file.status();
-    treeFile = *std::move(file);
+    tree.gather = info->describe(settings);
+    PBGI_ASSIGN_OR_RETURN(treeFile,
+                          frameTree(shot, settings, request, *frameScene->scene, &tree));
     clock.lap(tree.baked ? "bake" : "tree");
-    tree.cacheBudget = request.cacheBytes > 0 ? request.cacheBytes
-                                              : static_cast<size_t>(settings.cacheMb) << 20;
+    tree.cacheBudget = request.cacheBytes > 0 ? request.cacheBytes : needs.cacheBytes;
     cache.emplace(*treeFile, PageCacheOptions{.budgetBytes = tree.cacheBudget});
-    integrator = std::make_unique<PbgiIntegrator>(
-        *frameScene->scene, *cache,
-        PbgiIntegratorSettings{.gather = *gather,
-                               .glossy = glossyGatherOptions(*gather),
-                               .maxGathersPerPixel = settings.gathersPerPixel,
-                               .pathTracer = pt});
-  } else {
-    integrator = std::make_unique<PathIntegrator>(*frameScene->scene, pt);
   }
+  const std::unique_ptr<Integrator> integrator = info->create(
+      {.scene = *frameScene->scene, .settings = settings, .tree = cache ? &*cache : nullptr});
   auto image = renderFrame(*integrator, frameScene->camera, settings, request.frame, options,
                            &report.counters);
   if (!image.ok()) return image.status();
@@ -150,10 +141,8 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
     report.tree->pagesRead = cache->distinctPagesLoaded();
     report.tree->pagesInFile = treeFile->container().directory().size();
   }
-  if (request.region) {
-    absl::StatusOr<Image> cropped = cropImage(*image, *request.region);
-    if (!cropped.ok()) return cropped.status();
-    image = std::move(cropped);
+  if (!request.regions.empty()) {
+    PBGI_ASSIGN_OR_RETURN(image, cropRegions(*image, request.regions));
   }
   clock.lap("render");
   const double renderSeconds = report.stages.back().seconds;
@@ -168,7 +157,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   image->setMetadata("pbgi/renderSeconds", static_cast<float>(renderSeconds));
   image->setMetadata("pbgi/discardedSamples", static_cast<int>(report.counters.discardedSamples));
   image->setMetadata("pbgi/version", std::string(PBGI_VERSION));
-  if (request.region) image->setMetadata("pbgi/region", regionText(*request.region));
+  if (!request.regions.empty()) image->setMetadata("pbgi/regions", regionsText(request.regions));
   if (report.tree) {
     image->setMetadata("pbgi/tree", report.tree->treePath);
     image->setMetadata("pbgi/gather", report.tree->gather);

@@ -25,16 +25,15 @@ struct FrameRenderRequest {
   std::string outPath;     // empty: the shot's output pattern for this frame
   bool preview = true;     // write a PNG preview beside the EXR
   std::string ocioConfig;  // empty: the shipped config
-  std::function<void(int tilesDone, int tilesTotal)> progress;
-  // Render and write only this region of the frame (a farm tile): the EXR holds the region's
-  // pixels, with its origin in the metadata (pbgi/region: "x0 y0 x1 y1").
-  std::optional<TileRect> region;
+  std::function<void(int unitsDone, int unitsTotal)> progress;
+  // Render and write only these rectangles of the (mosaic) frame: a farm tile, one rectangle
+  // per view of a camera array. The EXR holds them stacked top to bottom, left-aligned, and
+  // lists them in its metadata (pbgi/regions: "x0 y0 x1 y1;...").
+  std::vector<TileRect> regions;
 
-  // The PBGI integrator (0 or empty: the shot's [render] settings).
-  std::string quality;         // gather preset
-  float maxSolidAngle = 0.0f;  // sr
-  int microbufferResolution = 0;
-  size_t cacheBytes = 0;       // page cache budget
+  // Overrides of the shot's integrator parameters (flags: --quality, --set key=value, ...).
+  IntegratorParams params;
+  size_t cacheBytes = 0;       // page cache budget; 0: the integrator's cache_mb
   std::string treePath;        // render from this tree; empty: the frame's bake (below)
   std::string bakeDir;         // the frame's bake lives here; empty: beside the image
   bool rebake = false;         // bake even when a matching bake is on disk
@@ -50,10 +49,12 @@ struct TreeReadReport {
   PageCacheCounters cache;
   uint64_t pagesRead = 0;      // distinct pages the render loaded
   uint64_t pagesInFile = 0;
-  std::string gather;          // the gather options, as text
+  std::string gather;          // the integrator's description: its gather and thresholds
 };
 
 struct FrameRenderReport {
+  std::string integrator;
+  std::vector<CounterSpec> counterSpecs;  // names of counters.values
   std::string exrPath;
   std::string previewPath;  // empty when none was written
   std::vector<StageTime> stages;
@@ -69,13 +70,13 @@ struct FrameRenderReport {
 std::string writePreviewBeside(const Image& image, const std::string& exrPath,
                                const std::string& ocioConfig, std::vector<std::string>* warnings);
 
-// The integrators this build can run, by name.
-const std::vector<std::string>& availableIntegrators();
+// The settings a render uses: the shot's [render], the request's integrator, spp and
+// parameters applied, checked by the integrator (errors name where a value was set).
+absl::StatusOr<RenderSettings> requestSettings(const ShotDesc& shot,
+                                               const FrameRenderRequest& request);
 
-// The PBGI integrator's gather options from the shot's settings and the request's overrides;
-// InvalidArgument naming the value that is out of range.
-absl::StatusOr<GatherOptions> pbgiGatherOptions(const RenderSettings& settings,
-                                                const FrameRenderRequest& request);
+// The integrator's counters that are not zero, "  name value" a line.
+std::string formatCounters(const FrameRenderReport& report);
 
 // Renders one frame. For the PBGI integrator, bakes the frame's tree first unless a bake made
 // from the same shot bytes and bake settings is already on disk (or request.treePath names

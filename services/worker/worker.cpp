@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
 #include "services/bake/frame_bake.h"
@@ -172,26 +173,33 @@ absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTas
 
 absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
                                         Heartbeat& beat) {
-  const std::vector<TileRect> tiles = makeTiles(shot.width, shot.height, task.tile_size());
+  // The tile's rectangles come with the lease; they must be this frame's.
+  const std::vector<FarmTile> tiles = farmTiles(shot, task.tile_size());
+  std::vector<TileRect> regions;
+  for (const v1::Rect& r : task.regions()) regions.push_back({r.x0(), r.y0(), r.x1(), r.y1()});
   if (task.tile() < 0 || static_cast<size_t>(task.tile()) >= tiles.size() ||
-      static_cast<int>(tiles.size()) != task.tiles_per_frame()) {
+      static_cast<int>(tiles.size()) != task.tiles_per_frame() ||
+      regions != tiles[static_cast<size_t>(task.tile())]) {
     return absl::InvalidArgumentError(fmt::format(
-        "tile {} of {} at tile size {}: this worker makes {} tiles of a {}x{} frame", task.tile(),
-        task.tiles_per_frame(), task.tile_size(), tiles.size(), shot.width, shot.height));
+        "tile {} of {} at tile size {} with regions '{}': this worker makes {} tiles of a {}x{} "
+        "frame of {}x{} views",
+        task.tile(), task.tiles_per_frame(), task.tile_size(), regionsText(regions), tiles.size(),
+        shot.width, shot.height, shot.camera.views.x, shot.camera.views.y));
   }
   FrameRenderRequest request;
   request.frame = task.frame();
   request.threads = options_.threads;
   request.outPath = task.output_path();
   request.preview = false;
-  request.region = tiles[static_cast<size_t>(task.tile())];
+  request.regions = regions;
   request.cacheBytes = options_.cacheBytes;
   request.bakeDir = jobBakeDir(task.work_dir());
   request.progress = [&beat](int done, int total) {
     if (total > 0) beat.progress(double(done) / double(total));
   };
   TaskResult result;
-  if (shot.render.integrator == "pbgi") {
+  PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
+  if (integrator->needsTree) {
     // The bake task made the tree; a tile never bakes one of its own.
     PBGI_ASSIGN_OR_RETURN(const std::string shared,
                           jobTreePath(shot, task.work_dir(), task.frame()));
@@ -219,8 +227,8 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     }
   }
   PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
-  result.log += fmt::format("wrote {} (region {})\n{}", report.exrPath,
-                            regionText(*request.region), formatStages(report.stages));
+  result.log += fmt::format("wrote {} (regions {})\n{}", report.exrPath,
+                            regionsText(request.regions), formatStages(report.stages));
   if (report.tree) {
     result.cacheHits = report.tree->cache.hits;
     result.cacheMisses = report.tree->cache.misses;
@@ -230,19 +238,21 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
   }
   result.log += fmt::format("samples {}, discarded (NaN/Inf) {}\n", report.counters.cameraSamples,
                             report.counters.discardedSamples);
+  result.log += formatCounters(report);
   for (const std::string& w : report.warnings) result.log += "warning: " + w + "\n";
   return result;
 }
 
 absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
                                             const v1::LeaseTaskResponse& task) {
-  const std::vector<TileRect> tiles = makeTiles(shot.width, shot.height, task.tile_size());
+  const std::vector<FarmTile> tiles = farmTiles(shot, task.tile_size());
   std::vector<std::string> paths;
   for (size_t t = 0; t < tiles.size(); ++t) {
     paths.push_back(farmTilePath(task.work_dir(), task.frame(), static_cast<int>(t)));
   }
   PBGI_ASSIGN_OR_RETURN(const Image frame,
-                        assembleFrame(paths, tiles, shot.width, shot.height, task.output_path()));
+                        assembleFrame(paths, tiles, shot.width * shot.camera.views.x,
+                                      shot.height * shot.camera.views.y, task.output_path()));
   TaskResult result;
   result.log = fmt::format("assembled {} tiles into {}\n", tiles.size(), task.output_path());
   std::vector<std::string> warnings;

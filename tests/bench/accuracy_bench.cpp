@@ -8,21 +8,22 @@
 //   OUT/<shot>.<run>.bias.png where the run's indirect light is too bright (red) or too dark
 //                             (blue), averaged over 8x8 blocks (the mean ratio is printed)
 // and prints, for the path tracer at 256 and 1024 spp (when swept), the render time each PBGI
-// preset needs to reach the same relMSE (log-log interpolated along its spp sweep) and the
-// equal-error speed-up, without and with the bake's time.
+// gather and preset needs to reach the same relMSE (log-log interpolated along its spp sweep)
+// and the equal-error speed-up, without and with the bake's time. The PBGI sweep covers both
+// gathers (--gathers bidirectional,per-pixel) at every preset.
 //
-// Then the page cache: the default preset rendered from the same tree (on a frame scaled down
-// to 96 pixels wide, 4 spp) with a cache of 5 % and 20 % of the tree's decoded pages and
-// without a limit, reporting hit rates, pages read over
-// pages in the file, and whether the images are bit-identical (they must be).
+// Then the page cache: each gather's default preset rendered from the same tree (on a frame
+// scaled down to 96 pixels wide, 4 spp) with a cache of 5 % and 20 % of the tree's decoded
+// pages and without a limit, reporting hit rates, pages read over pages in the file, and
+// whether the images are bit-identical (they must be).
 //
 // Render seconds are the render stage alone (the scene load, the bake and the EXR write are
 // reported apart). Reports numbers; never fails on time.
 //
 // Run: build/bin/accuracy_bench --shot ../shared/scenes/cornell-box/cornell.shot.toml
 //        [--out DIR] [--cache DIR] [--frame N] [--reference-spp 4096] [--pt-spp 4,16,...]
-//        [--pbgi-spp 1,4,...] [--qualities draft,default,high] [--threads N] [--no-cache-runs]
-//        [--bake-points N] [--bake-bounces K]
+//        [--pbgi-spp 1,4,...] [--gathers bidirectional,per-pixel] [--qualities draft,default,high]
+//        [--threads N] [--no-cache-runs] [--bake-points N] [--bake-bounces K] [--set KEY=VALUE]
 
 #include <algorithm>
 #include <cmath>
@@ -43,7 +44,9 @@
 #include "formats/image/plot.h"
 #include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
+#include "core/render/integrators.h"
 #include "services/render/frame_render.h"
+#include "tests/support/params.h"
 #include "tests/support/tree_files.h"
 
 namespace pbgi {
@@ -59,15 +62,18 @@ struct Args {
   int referenceSpp = 4096;
   std::vector<int> ptSpp = {4, 16, 64, 256, 1024};
   std::vector<int> pbgiSpp = {1, 4, 16, 64, 256};
+  std::vector<std::string> gathers = {"bidirectional", "per-pixel"};
   std::vector<std::string> qualities = {"draft", "default", "high"};
   int threads = 0;
   uint64_t bakePoints = 0;  // 0: the shot's bake_points
   int bakeBounces = -1;     // -1: the shot's bake_bounces
   bool cacheRuns = true;
+  std::vector<std::string> set;  // integrator parameters for every PBGI run, KEY=VALUE
 };
 
 struct Run {
   std::string integrator;
+  std::string gather;   // PBGI only
   std::string quality;  // PBGI only
   int spp = 0;
   double renderSeconds = 0.0;
@@ -76,9 +82,13 @@ struct Run {
   ImageMetrics direct;
   ImageMetrics indirect;
   RenderCounters counters;
+  std::string settings;  // the integrator's description
+  std::string series() const {
+    return gather.empty() ? integrator : fmt::format("{} {} {}", integrator, gather, quality);
+  }
   std::string name() const {
-    return integrator == "path" ? fmt::format("path.spp{}", spp)
-                                : fmt::format("pbgi-{}.spp{}", quality, spp);
+    return gather.empty() ? fmt::format("{}.spp{}", integrator, spp)
+                          : fmt::format("{}-{}-{}.spp{}", integrator, gather, quality, spp);
   }
 };
 
@@ -179,7 +189,10 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
                             std::optional<TreeReadReport>* tree = nullptr) {
   request.spp = run.spp;
   request.integrator = run.integrator;
-  request.quality = run.quality;
+  if (!run.gather.empty()) {
+    testing::setParam(request.params, "gather", run.gather);
+    testing::setParam(request.params, "quality", run.quality);
+  }
   request.preview = false;
   request.outPath = (fs::path(outDir) / fmt::format("{}.{}.exr", shot.name, run.name())).string();
   auto report = renderShotFrame(shot, request);
@@ -187,6 +200,7 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
   run.renderSeconds = stageSeconds(report->stages, "render");
   run.bakeSeconds = stageSeconds(report->stages, "bake");
   run.counters = report->counters;
+  run.settings = report->tree ? report->tree->gather : run.integrator;
   if (tree) *tree = report->tree;
   // What was written, read back: the numbers are about the file a user gets.
   auto image = readImage(request.outPath);
@@ -251,11 +265,11 @@ void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<R
       double floor = series.front().rgb.relMse;
       for (const Run& r : series) floor = std::min(floor, r.rgb.relMse);
       if (!t) {
-        std::printf("  pbgi %-8s not reached (lowest relMSE %.3e)\n", series[0].quality.c_str(),
+        std::printf("  %-28s not reached (lowest relMSE %.3e)\n", series[0].series().c_str(),
                     floor);
       } else {
-        std::printf("  pbgi %-8s %.2f s: speed-up %.2fx (%.2fx counting the %.1f s bake)\n",
-                    series[0].quality.c_str(), *t, it->renderSeconds / *t,
+        std::printf("  %-28s %.2f s: speed-up %.2fx (%.2fx counting the %.1f s bake)\n",
+                    series[0].series().c_str(), *t, it->renderSeconds / *t,
                     it->renderSeconds / (*t + bakeSeconds), bakeSeconds);
       }
     }
@@ -269,19 +283,22 @@ void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<R
 constexpr int kCacheRunWidth = 96;
 constexpr int kCacheRunSpp = 4;
 
-int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& treePath,
-              const std::string& outDir, std::FILE* csv) {
+int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gather,
+              const std::string& treePath, const std::string& outDir, std::FILE* csv) {
   auto total = testing::decodedTreeBytes(treePath);
   if (!total.ok()) return std::fprintf(stderr, "%s\n", total.status().ToString().c_str()), 1;
   if (shot.width > kCacheRunWidth) {
     shot.height = std::max(1, shot.height * kCacheRunWidth / shot.width);
     shot.width = kCacheRunWidth;
   }
-  std::printf("page cache (default preset, %dx%d pixels, %d spp, tree %s: %.1f MiB decoded)\n",
-              shot.width, shot.height, kCacheRunSpp, treePath.c_str(), *total / 1048576.0);
+  std::printf("page cache (%s gather, default preset, %dx%d pixels, %d spp, tree %s: %.1f MiB "
+              "decoded)\n",
+              gather.c_str(), shot.width, shot.height, kCacheRunSpp, treePath.c_str(),
+              *total / 1048576.0);
   request.treePath = treePath;
   request.integrator = "pbgi";
-  request.quality = "default";
+  testing::setParam(request.params, "gather", gather);
+  testing::setParam(request.params, "quality", "default");
   request.spp = kCacheRunSpp;
   request.preview = false;
   std::optional<Image> unlimited;
@@ -289,7 +306,7 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& tree
     request.cacheBytes = fraction > 0.0 ? std::max<size_t>(1, static_cast<size_t>(*total * fraction))
                                         : size_t{1} << 40;
     const std::string label = fraction > 0.0 ? fmt::format("{:.0f}%", fraction * 100) : "unlimited";
-    request.outPath = (fs::path(outDir) / fmt::format("{}.cache-{}.exr", shot.name,
+    request.outPath = (fs::path(outDir) / fmt::format("{}.{}.cache-{}.exr", shot.name, gather,
                                                       fraction > 0.0 ? int(fraction * 100) : 100))
                           .string();
     auto report = renderShotFrame(shot, request);
@@ -314,7 +331,7 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& tree
                 100.0 * double(t.pagesRead) / double(std::max<uint64_t>(1, t.pagesInFile)),
                 stageSeconds(report->stages, "render"),
                 identical ? "bit-identical to unlimited" : "DIFFERS from unlimited");
-    std::fprintf(csv, "cache,%s,%zu,%.6f,%llu,%llu,%llu,%llu,%d\n", label.c_str(),
+    std::fprintf(csv, "cache,%s,%s,%zu,%.6f,%llu,%llu,%llu,%llu,%d\n", gather.c_str(), label.c_str(),
                  request.cacheBytes, t.cache.hitRate(), static_cast<unsigned long long>(t.cache.hits),
                  static_cast<unsigned long long>(t.cache.misses),
                  static_cast<unsigned long long>(t.pagesRead),
@@ -327,11 +344,18 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& tree
 int runBench(const Args& args) {
   auto shot = loadShotFile(args.shot);
   if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
-  if (args.bakePoints > 0) shot->render.bakePoints = args.bakePoints;
-  if (args.bakeBounces >= 0) shot->render.bakeBounces = args.bakeBounces;
-  std::printf("bake: %llu surfels (0: the baker's default), %d bounces (%s)\n",
-              static_cast<unsigned long long>(shot->render.bakePoints), shot->render.bakeBounces,
-              shot->render.bakeQuality.c_str());
+  if (args.bakePoints > 0) {
+    testing::setParam(shot->render.params, "bake_points", std::to_string(args.bakePoints));
+  }
+  if (args.bakeBounces >= 0) {
+    testing::setParam(shot->render.params, "bake_bounces", std::to_string(args.bakeBounces));
+  }
+  for (const std::string& line : args.set) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) return std::fprintf(stderr, "--set %s: expected KEY=VALUE\n", line.c_str()), 2;
+    testing::setParam(shot->render.params, line.substr(0, eq), line.substr(eq + 1));
+  }
+  std::printf("bake: %s", shot->render.params.toString().c_str());
   const int frame = args.frame.value_or(shot->firstFrame);
   std::error_code ec;
   fs::create_directories(args.out, ec);
@@ -352,45 +376,46 @@ int runBench(const Args& args) {
   std::vector<std::vector<Run>> pbgi;
   double bakeSeconds = 0.0;
   std::string treePath;
-  for (const std::string& quality : args.qualities) {
-    std::vector<Run>& series = pbgi.emplace_back();
-    for (const int spp : args.pbgiSpp) {
-      std::optional<TreeReadReport> tree;
-      auto run = measure(*shot, base, *ref, args.out,
-                         Run{.integrator = "pbgi", .quality = quality, .spp = spp}, &tree);
-      if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
-      bakeSeconds = std::max(bakeSeconds, run->bakeSeconds);
-      if (tree) treePath = tree->treePath;
-      series.push_back(*run);
+  for (const std::string& gather : args.gathers) {
+    for (const std::string& quality : args.qualities) {
+      std::vector<Run>& series = pbgi.emplace_back();
+      for (const int spp : args.pbgiSpp) {
+        std::optional<TreeReadReport> tree;
+        auto run = measure(
+            *shot, base, *ref, args.out,
+            Run{.integrator = "pbgi", .gather = gather, .quality = quality, .spp = spp}, &tree);
+        if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
+        bakeSeconds = std::max(bakeSeconds, run->bakeSeconds);
+        if (tree) treePath = tree->treePath;
+        series.push_back(*run);
+      }
     }
   }
 
   const std::string csvPath = (fs::path(args.out) / (shot->name + ".csv")).string();
   std::FILE* csv = std::fopen(csvPath.c_str(), "w");
   if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
-  std::fprintf(csv, "integrator,quality,max_solid_angle,resolution,spp,seconds,bake_seconds,rmse,"
-                    "relmse,relmse_direct,relmse_indirect,gathers\n");
+  std::fprintf(csv, "integrator,gather,quality,settings,spp,seconds,bake_seconds,rmse,relmse,"
+                    "relmse_direct,relmse_indirect\n");
   std::vector<PlotSeries> plot;
   plot.push_back({.name = "path", .color = Rgb(0.1f, 0.1f, 0.1f)});
   const Rgb colors[] = {Rgb(0.2f, 0.5f, 0.9f), Rgb(0.9f, 0.4f, 0.1f), Rgb(0.2f, 0.7f, 0.3f),
-                        Rgb(0.7f, 0.2f, 0.7f)};
+                        Rgb(0.7f, 0.2f, 0.7f), Rgb(0.1f, 0.7f, 0.7f), Rgb(0.8f, 0.7f, 0.1f)};
   for (size_t i = 0; i < pbgi.size(); ++i) {
-    plot.push_back({.name = "pbgi " + args.qualities[i], .color = colors[i % 4]});
+    plot.push_back({.name = pbgi[i].empty() ? "" : pbgi[i][0].series(), .color = colors[i % 6]});
   }
-  auto row = [&](const Run& r, const GatherOptions* g) {
-    std::fprintf(csv, "%s,%s,%g,%d,%d,%.4f,%.4f,%.6g,%.6g,%.6g,%.6g,%llu\n", r.integrator.c_str(),
-                 r.quality.c_str(), g ? g->maxSolidAngle : 0.0, g ? g->resolution : 0, r.spp,
-                 r.renderSeconds, r.bakeSeconds, r.rgb.rmse, r.rgb.relMse, r.direct.relMse,
-                 r.indirect.relMse, static_cast<unsigned long long>(r.counters.gathers));
+  auto row = [&](const Run& r) {
+    std::fprintf(csv, "%s,%s,%s,\"%s\",%d,%.4f,%.4f,%.6g,%.6g,%.6g,%.6g\n", r.integrator.c_str(),
+                 r.gather.c_str(), r.quality.c_str(), r.settings.c_str(), r.spp, r.renderSeconds,
+                 r.bakeSeconds, r.rgb.rmse, r.rgb.relMse, r.direct.relMse, r.indirect.relMse);
   };
   for (const Run& r : path) {
-    row(r, nullptr);
+    row(r);
     plot[0].points.push_back({r.renderSeconds, r.rgb.relMse});
   }
   for (size_t i = 0; i < pbgi.size(); ++i) {
-    auto preset = gatherPreset(args.qualities[i]);
     for (const Run& r : pbgi[i]) {
-      row(r, preset.ok() ? &*preset : nullptr);
+      row(r);
       plot[i + 1].points.push_back({r.renderSeconds, r.rgb.relMse});
     }
   }
@@ -411,7 +436,11 @@ int runBench(const Args& args) {
   }
   printSpeedups(path, pbgi, bakeSeconds);
   int rc = 0;
-  if (args.cacheRuns && !treePath.empty()) rc = cacheRuns(*shot, base, treePath, args.out, csv);
+  for (const std::string& gather : args.gathers) {
+    if (rc == 0 && args.cacheRuns && !treePath.empty()) {
+      rc = cacheRuns(*shot, base, gather, treePath, args.out, csv);
+    }
+  }
   std::fclose(csv);
   return rc;
 }
@@ -429,12 +458,14 @@ int main(int argc, char** argv) {
   app.add_option("--reference-spp", args.referenceSpp, "Reference samples per pixel");
   app.add_option("--pt-spp", args.ptSpp, "Path tracer spp sweep")->delimiter(',');
   app.add_option("--pbgi-spp", args.pbgiSpp, "PBGI spp sweep")->delimiter(',');
+  app.add_option("--gathers", args.gathers, "PBGI gathers: bidirectional, per-pixel")->delimiter(',');
   app.add_option("--qualities", args.qualities, "PBGI presets")->delimiter(',');
   app.add_option("--threads", args.threads, "Render threads (default: all cores)");
   app.add_option("--bake-points", args.bakePoints, "Surfels of the PBGI bake (default: the shot's)");
   app.add_option("--bake-bounces", args.bakeBounces, "Bounces of the PBGI bake (default: the shot's)");
   bool noCache = false;
   app.add_flag("--no-cache-runs", noCache, "Skip the page cache runs");
+  app.add_option("--set", args.set, "An integrator parameter for every PBGI run, KEY=VALUE");
   CLI11_PARSE(app, argc, argv);
   args.cacheRuns = !noCache;
   return pbgi::runBench(args);

@@ -36,6 +36,28 @@ TEST(ShTest, BasisMatchesSloanTable) {
 
 // Projecting each basis function must give back the unit vector: integral Y_i Y_j = delta_ij.
 // The quadrature is exact for these polynomials, so the only error is float rounding.
+// The gradients agree with central differences of the basis (in 3D, off the sphere too: the
+// basis is a polynomial).
+TEST(ShTest, BasisGradientMatchesFiniteDifferences) {
+  for (const Vec3f& dir : {Vec3f(0, 0, 1), normalize(Vec3f(0.3f, -0.5f, 0.8f)),
+                           normalize(Vec3f(-1, 2, 0.5f))}) {
+    Vec3f grad[kShCoefficients];
+    evalShBasisGradient(dir, grad);
+    const float h = 1e-3f;
+    for (int axis = 0; axis < 3; ++axis) {
+      Vec3f step(0.0f);
+      step[axis] = h;
+      float plus[kShCoefficients], minus[kShCoefficients];
+      evalShBasis(dir + step, plus);
+      evalShBasis(dir - step, minus);
+      for (int i = 0; i < kShCoefficients; ++i) {
+        EXPECT_NEAR(grad[i][axis], (plus[i] - minus[i]) / (2.0f * h), 1e-3f)
+            << "basis " << i << " axis " << axis;
+      }
+    }
+  }
+}
+
 TEST(ShTest, BasisIsOrthonormalByQuadrature) {
   for (int j = 0; j < kShCoefficients; ++j) {
     const Sh9 p = projectNumerically(

@@ -42,11 +42,11 @@ class FrameAssembly : public ::testing::Test {
   }
 
   // Renders every farm tile of `tileSize` to its own EXR; returns the paths.
-  std::vector<std::string> renderTiles(const std::vector<TileRect>& tiles) {
+  std::vector<std::string> renderTiles(const std::vector<FarmTile>& tiles) {
     std::vector<std::string> paths;
     for (size_t i = 0; i < tiles.size(); ++i) {
       FrameRenderRequest r = request("tile" + std::to_string(i));
-      r.region = tiles[i];
+      r.regions = tiles[i];
       r.threads = 1;
       auto report = renderShotFrame(shot_, r);
       EXPECT_TRUE(report.ok()) << report.status();
@@ -62,7 +62,7 @@ class FrameAssembly : public ::testing::Test {
 TEST_F(FrameAssembly, AssembledTilesAreTheWholeFrameBitForBit) {
   const FrameRenderRequest whole = request("whole");
   ASSERT_TRUE(renderShotFrame(shot_, whole).ok());
-  const std::vector<TileRect> tiles = makeTiles(shot_.width, shot_.height, 16);
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 16);
   ASSERT_EQ(tiles.size(), 6u);  // 3 x 2, ragged at the right and bottom
   const std::vector<std::string> paths = renderTiles(tiles);
   auto tile0 = readImage(paths[0]);
@@ -81,7 +81,7 @@ TEST_F(FrameAssembly, AssembledTilesAreTheWholeFrameBitForBit) {
 }
 
 TEST_F(FrameAssembly, AMissingTileFailsTheFrameByName) {
-  const std::vector<TileRect> tiles = makeTiles(shot_.width, shot_.height, 20);
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 20);
   std::vector<std::string> paths = renderTiles(tiles);
   fs::remove(paths[2]);
   const std::string out = (dir_ / "frame.exr").string();
@@ -93,7 +93,7 @@ TEST_F(FrameAssembly, AMissingTileFailsTheFrameByName) {
 }
 
 TEST_F(FrameAssembly, ATileOfTheWrongSizeFailsTheFrame) {
-  const std::vector<TileRect> tiles = makeTiles(shot_.width, shot_.height, 20);
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 20);
   std::vector<std::string> paths = renderTiles(tiles);
   // 2 x 2 tiles in Morton order: 0 and 1 are 20 x 20, 2 and 3 are 20 x 8 (the bottom row).
   std::swap(paths[0], paths[2]);

@@ -12,6 +12,8 @@
 #include "formats/shot/shot_file.h"
 #include "services/bake/frame_bake.h"
 #include "services/render/frame_render.h"
+#include "core/render/pbgi_receiver.h"
+#include "tests/support/params.h"
 #include "tests/support/test_paths.h"
 #include "tests/support/tree_files.h"
 
@@ -48,10 +50,13 @@ class PbgiRender : public ::testing::Test {
     return report.ok() ? report->treePath : std::string();
   }
 
-  FrameRenderRequest request(const std::string& name, const std::string& tree) const {
+  // A PBGI render; `gather` picks per-pixel or bidirectional.
+  FrameRenderRequest request(const std::string& name, const std::string& tree,
+                             std::string_view gather = "per-pixel") const {
     FrameRenderRequest r;
     r.frame = 1;
     r.integrator = "pbgi";
+    testing::setParam(r.params, "gather", gather);
     r.spp = 4;
     r.treePath = tree;
     r.preview = false;
@@ -107,7 +112,7 @@ TEST_F(PbgiRender, SmallCachesGiveTheBitsOfAnUnlimitedOne) {
               static_cast<unsigned long long>(unlimitedReport.tree->pagesInFile));
   EXPECT_EQ(unlimitedReport.tree->cache.misses, unlimitedReport.tree->pagesRead);
   EXPECT_LE(unlimitedReport.tree->pagesRead, unlimitedReport.tree->pagesInFile);
-  EXPECT_GT(unlimitedReport.counters.gathers, 0u);
+  EXPECT_GT(unlimitedReport.counters[kGathers], 0u);
 }
 
 TEST_F(PbgiRender, TileSizeAndThreadsDoNotChangeABit) {
@@ -130,7 +135,7 @@ TEST_F(PbgiRender, CornellBoxIsCloseToThePathTracer) {
   const std::string tree = bake(200000, 1);
   FrameRenderRequest r = request("pbgi", tree);
   r.spp = 64;
-  r.quality = "default";
+  testing::setParam(r.params, "quality", "default");
   const Image pbgi = render(r);
   FrameRenderRequest p = request("path", "");
   p.integrator = "path";
@@ -200,8 +205,8 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughTheWarpedBuffer) {
   p.integrator = "path";
   p.spp = 1024;
   const Image path = render(p);
-  EXPECT_GT(report.counters.glossyGathers, 0u);
-  EXPECT_GT(report.counters.gathers, report.counters.glossyGathers);
+  EXPECT_GT(report.counters[kGlossyGathers], 0u);
+  EXPECT_GT(report.counters[kGathers], report.counters[kGlossyGathers]);
   int pixels = 0;
   const double error = relMseWhereAlbedo(pbgi, path, specular, 1.0f, &pixels);
   const double withoutIndirect = relMseWhereAlbedo(pbgi, path, specular, 0.0f, &pixels);
@@ -245,17 +250,16 @@ TEST_F(PbgiRender, PixelsThatSeeNothingAndBlackReceiversGatherNothing) {
   const RenderCounters& c = report.counters;
   const uint64_t pixels = 48 * 48;
   EXPECT_GT(c.pixelsWithoutHit, 0u);
-  EXPECT_GT(c.blackReceivers, 0u);
-  EXPECT_GT(c.gathers, 0u);
+  EXPECT_GT(c[kBlackReceivers], 0u);
+  EXPECT_GT(c[kGathers], 0u);
   // Every gather serves a sample whose first hit reflects light: at most every sample of
   // every pixel that sees something, less the black receivers.
-  EXPECT_LE(c.gathers + c.gatherReuses, (pixels - c.pixelsWithoutHit) * 4 - c.blackReceivers);
-  EXPECT_EQ(c.gather.gathers, c.gathers);
+  EXPECT_LE(c[kGathers] + c[kGatherReuses], (pixels - c.pixelsWithoutHit) * 4 - c[kBlackReceivers]);
 }
 
 TEST_F(PbgiRender, AMatchingBakeOnDiskIsReusedAndAChangedShotIsBakedAgain) {
-  shot_.render.bakePoints = 20000;
-  shot_.render.bakeBounces = 0;
+  testing::setParam(shot_.render.params, "bake_points", "20000");
+  testing::setParam(shot_.render.params, "bake_bounces", "0");
   FrameRenderRequest r = request("first", "");
   r.bakeDir = (dir_ / "bakes").string();
   FrameRenderReport first, second, third;
@@ -269,7 +273,7 @@ TEST_F(PbgiRender, AMatchingBakeOnDiskIsReusedAndAChangedShotIsBakedAgain) {
   EXPECT_EQ(second.tree->treePath, first.tree->treePath);
   EXPECT_TRUE(a.pixels() == b.pixels());
   // Other bake settings make another tree.
-  shot_.render.bakePoints = 25000;
+  testing::setParam(shot_.render.params, "bake_points", "25000");
   r.outPath = (dir_ / "third.exr").string();
   render(r, &third);
   ASSERT_TRUE(third.tree);

@@ -1,0 +1,140 @@
+#pragma once
+// The bidirectional cut (Jarabo, Buisan, Gutierrez 2014, "Bidirectional clustering for
+// scalable VPL-based global illumination"): the light that a set of receivers (a block's
+// camera samples, a chunk of surfels in a bake's bounce) gathers from the PBGI tree, computed
+// once for clusters of receivers instead of once per receiver.
+//
+// Two trees. The light tree is the baked tree as it is (surfel leaves, SH clusters), read
+// through a TreePageSource. The receiver tree is an octree built here over the receivers'
+// positions (leaves of at most receiverLeafSize), each node with its bounds and the cone of
+// its receivers' normals; single receivers sit below its leaves.
+//
+// The cut. From the pair (light root, receiver root), a pair (L, E) is
+//   - culled when L lies entirely below the tangent planes of every receiver in E;
+//   - evaluated when it meets the paper's termination criteria: L's projected solid angle
+//     from E, A_L(w) / d^2 with A_L its SH projected area, at most lightSolidAngle (eps_L);
+//     L's bounding sphere pi r_L^2 / d^2 at most lightBound (eps~_L); E's bounding sphere seen
+//     from L at most receiverBound (eps~_E); E's normal cone narrower than normalAngle
+//     (alpha); and the direction to L above the horizon of every normal in E;
+//   - otherwise refined on one side only, the light side when h_L > h_E (the paper's eqs. 7
+//     and 8: h_L = max(Omega_L / eps_L, Omega~_L / eps~_L), h_E = infinity when E's cone is
+//     wider than alpha, else Omega~_E / eps~_E), a single surfel or receiver being refined no
+//     further. A surfel and a single receiver are evaluated exactly (below) whatever the
+//     criteria.
+//
+// Evaluation. A cluster pair adds L's radiance towards E (its SH intensity over its SH
+// projected area) times its solid angle A_L / d^2 and a visibility sample, arriving from the
+// direction of L's centroid, to E's incoming radiance. That radiance is kept as its band-1
+// spherical harmonics, three RGB vectors V: the irradiance a receiver with normal n gets from
+// it is n . V, which is exact (not the 6 %-ringing band-2 convolution of a clamped cosine)
+// because a pair is only evaluated when its light lies above the horizon of every receiver in
+// E. At the end each node's V is pushed down to its receivers. A surfel and a single receiver
+// are a virtual spherical light (Hasan et al. 2009): E = L A |cos_s| cos_r / (d^2 + r^2), the
+// disk's own radius softening the 1/d^2 spike (exact for a coaxial disk).
+//
+// Visibility is a shadow ray in the scene (Embree), not the cluster's approximation: from a
+// random receiver of E (off its surface) towards a random point of L's bounds, up to where
+// the ray enters those bounds (occlusion inside a cluster is the cluster's own business, as
+// in PBGI); to a surfel, up to the surfel. The sample is random rather than fixed so that
+// neighbouring clusters do not band (the paper's figure 5). Random numbers come from (key,
+// light node, receiver node), so the result does not depend on threads or on the order pages
+// arrive in.
+//
+// Pages. Pairs wait in one bucket per light page, and the pages are visited from the highest
+// id down: the tree writer places children before their parents, so every reference points to
+// the same page or a lower one, and each page is asked for once per cut. (A tree that breaks
+// that order is still rendered right, at the cost of asking for a page again.)
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <absl/status/status.h>
+#include <absl/status/statusor.h>
+
+#include "core/math/vec.h"
+#include "core/pbgi/tree.h"
+#include "core/pbgi/tree_page.h"
+
+namespace pbgi {
+
+class Scene;
+
+struct CutOptions {
+  float lightSolidAngle = 0.01f;   // eps_L (sr)
+  float lightBound = 0.1f;         // eps~_L (sr)
+  float receiverBound = 0.001f;    // eps~_E (sr)
+  float normalAngle = 0.3f;        // alpha (radians)
+  int receiverLeafSize = 8;
+  // Surfels whose disk, grown by this factor, holds the receiver are not gathered (its own).
+  float selfSkipRadius = 1.0f;
+
+  bool operator==(const CutOptions&) const = default;
+  // InvalidArgument naming the field when a value is out of range. Zero thresholds are
+  // allowed: the cut then refines down to every surfel against every receiver.
+  absl::Status validate() const;
+  std::string toString() const;
+};
+
+// A receiver: a point that gathers on the side of its normal.
+struct CutReceiver {
+  Vec3f p{0.0f};
+  Vec3f n{0.0f, 0.0f, 1.0f};   // unit shading normal, on the gathering side
+  Vec3f ng{0.0f, 0.0f, 1.0f};  // geometric normal on that side: shadow rays leave along it
+};
+
+struct CutStats {
+  uint64_t cuts = 0;
+  uint64_t receivers = 0;
+  uint64_t receiverNodes = 0;
+  uint64_t pairs = 0;            // pairs looked at
+  uint64_t clusterPairs = 0;     // a light cluster (an interior node) evaluated
+  uint64_t leafPairs = 0;        // a light leaf evaluated, surfel by surfel
+  uint64_t surfelTerms = 0;      // surfels in those leaves
+  uint64_t receiversServed = 0;  // evaluations times the receivers under them: the cost unshared
+  uint64_t refinedLight = 0;
+  uint64_t refinedReceiver = 0;
+  uint64_t culled = 0;           // below every receiver's horizon, or the receiver's own surfel
+  uint64_t shadowRays = 0;
+  uint64_t occluded = 0;
+  uint64_t pageRequests = 0;     // pages asked of the source
+  uint64_t peakPendingPairs = 0;
+
+  CutStats& operator+=(const CutStats& o);
+  std::string toString() const;
+};
+
+// Reusable buffers for cuts, so that cuts after the first allocate little. One per thread.
+class BidirectionalCut {
+ public:
+  // Options must be valid (validate() first when they come from a user).
+  explicit BidirectionalCut(const CutOptions& options);
+  ~BidirectionalCut();
+  BidirectionalCut(BidirectionalCut&&) noexcept;
+
+  const CutOptions& options() const { return options_; }
+
+  // out[i] = irradiance at receivers[i] from the light the tree holds (out has the receivers'
+  // size). `key` seeds every random number. Errors: InvalidArgument for a non-finite receiver
+  // or a zero normal; the source's error for a page it cannot give; DataLoss for a damaged
+  // tree (references outside a page, a tree deeper than any the builder makes) or radiance
+  // that makes the result non-finite.
+  absl::Status irradiance(TreePageSource& tree, const Scene& scene,
+                          std::span<const CutReceiver> receivers, uint64_t key,
+                          std::span<Rgb> out, CutStats* stats);
+
+ private:
+  struct State;
+  CutOptions options_;
+  std::unique_ptr<State> state_;
+};
+
+// The same light by brute force: every surfel of the tree against every receiver, each pair as
+// the cut evaluates a surfel and a single receiver (the same visibility samples). For tests:
+// a cut with all thresholds 0 must agree with it.
+absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
+                                  std::span<const CutReceiver> receivers, const CutOptions& options,
+                                  std::span<Rgb> out);
+
+}  // namespace pbgi

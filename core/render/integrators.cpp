@@ -1,0 +1,302 @@
+#include "core/render/integrators.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include "core/render/pbgi_integrator.h"
+#include "core/render/pbgi_receiver.h"
+
+namespace pbgi {
+
+namespace {
+
+constexpr double kFourPi = 4.0 * 3.14159265358979323846;
+
+// ---- path ---------------------------------------------------------------------------------
+
+std::unique_ptr<Integrator> createPath(const IntegratorContext& c) {
+  return std::make_unique<PathIntegrator>(
+      c.scene, PathTracerSettings{c.settings.maxDepth, c.settings.rouletteDepth});
+}
+
+// ---- pbgi ---------------------------------------------------------------------------------
+
+const std::vector<ParamSpec>& pbgiParams() {
+  static const std::vector<ParamSpec> specs = {
+      {.key = "gather", .type = ParamType::kChoice, .choices = {"bidirectional", "per-pixel"},
+       .defaultText = "bidirectional",
+       .help = "how diffuse receivers gather: one bidirectional cut per block of pixels, or a "
+               "microbuffer per pixel"},
+      {.key = "quality", .type = ParamType::kChoice, .choices = {"draft", "default", "high"},
+       .defaultText = "default", .help = "preset of every threshold below"},
+      {.key = "light_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
+       .defaultText = "the preset's",
+       .help = "bidirectional: eps_L, largest SH projected solid angle (sr) of a light cluster"},
+      {.key = "light_bound", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
+       .defaultText = "the preset's",
+       .help = "bidirectional: eps~_L, largest solid angle (sr) of a light cluster's bounding "
+               "sphere"},
+      {.key = "receiver_bound", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
+       .defaultText = "the preset's",
+       .help = "bidirectional: eps~_E, largest solid angle (sr) of a receiver cluster's bounding "
+               "sphere seen from the light"},
+      {.key = "normal_angle_deg", .type = ParamType::kFloat, .lo = 0.0, .hi = 180.0,
+       .defaultText = "the preset's",
+       .help = "bidirectional: alpha, widest half-angle (degrees) of a receiver cluster's normals"},
+      {.key = "cut_block", .type = ParamType::kInt, .lo = 8, .hi = 1024, .defaultText = "64",
+       .help = "bidirectional: pixels a side of the blocks whose samples share one cut"},
+      {.key = "max_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
+       .loOpen = true, .defaultText = "the preset's",
+       .help = "per-pixel: largest solid angle (sr) splatted as one cluster"},
+      {.key = "microbuffer_resolution", .type = ParamType::kInt, .lo = 1,
+       .hi = kMaxMicrobufferResolution, .defaultText = "the preset's",
+       .help = "per-pixel and glossy: microbuffer pixels per cube face side"},
+      {.key = "gathers_per_pixel", .type = ParamType::kInt, .lo = 1, .hi = 64, .defaultText = "4",
+       .help = "most microbuffer gathers the samples of one pixel make"},
+      {.key = "cache_mb", .type = ParamType::kInt, .lo = 1, .hi = 1 << 24, .defaultText = "256",
+       .help = "tree page cache budget in MiB"},
+      {.key = "bake_points", .type = ParamType::kInt, .lo = 1000, .hi = 1e11,
+       .defaultText = "1000000", .help = "surfels per frame in the bake"},
+      {.key = "bake_bounces", .type = ParamType::kInt, .lo = 0, .hi = 16, .defaultText = "3",
+       .help = "indirect bounces baked into the tree"},
+      {.key = "bake_quality", .type = ParamType::kChoice, .choices = {"draft", "default", "high"},
+       .defaultText = "draft", .help = "gather preset of the baked bounces"},
+  };
+  return specs;
+}
+
+// The cut's thresholds per quality preset (eps_L, eps~_L, eps~_E, alpha in degrees).
+CutOptions cutPreset(std::string_view quality) {
+  CutOptions o;
+  if (quality == "draft") {
+    o.lightSolidAngle = 0.03f;
+    o.lightBound = 0.3f;
+    o.receiverBound = 0.01f;
+    o.normalAngle = radians(30.0f);
+  } else if (quality == "high") {
+    o.lightSolidAngle = 0.003f;
+    o.lightBound = 0.05f;
+    o.receiverBound = 0.001f;
+    o.normalAngle = radians(10.0f);
+  } else {
+    o.lightSolidAngle = 0.01f;
+    o.lightBound = 0.1f;
+    o.receiverBound = 0.003f;
+    o.normalAngle = radians(20.0f);
+  }
+  return o;
+}
+
+PbgiSettings pbgiSettings(const RenderSettings& r) {
+  const IntegratorParams& p = r.params;
+  PbgiSettings s;
+  s.gather = p.choiceOr("gather", "bidirectional") == "per-pixel" ? PbgiGatherKind::kPerPixel
+                                                                  : PbgiGatherKind::kBidirectional;
+  const std::string quality = p.choiceOr("quality", "default");
+  s.perPixel = *gatherPreset(quality);
+  s.perPixel.maxSolidAngle = static_cast<float>(p.floatOr("max_solid_angle", s.perPixel.maxSolidAngle));
+  s.perPixel.resolution = static_cast<int>(p.intOr("microbuffer_resolution", s.perPixel.resolution));
+  s.glossy = glossyGatherOptions(s.perPixel);
+  s.maxGathersPerPixel = static_cast<int>(p.intOr("gathers_per_pixel", 4));
+  s.cut = cutPreset(quality);
+  s.cut.lightSolidAngle = static_cast<float>(p.floatOr("light_solid_angle", s.cut.lightSolidAngle));
+  s.cut.lightBound = static_cast<float>(p.floatOr("light_bound", s.cut.lightBound));
+  s.cut.receiverBound = static_cast<float>(p.floatOr("receiver_bound", s.cut.receiverBound));
+  s.cut.normalAngle = radians(
+      static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
+  s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
+  s.pathTracer = {r.maxDepth, r.rouletteDepth};
+  return s;
+}
+
+absl::Status validatePbgi(const RenderSettings& r) {
+  const PbgiSettings s = pbgiSettings(r);
+  if (s.cut.lightSolidAngle > s.cut.lightBound) {
+    // One of the two was set (the presets agree with themselves); the error is where.
+    const ParamValue* set = r.params.find("light_solid_angle");
+    if (set == nullptr) set = r.params.find("light_bound");
+    return absl::InvalidArgumentError(fmt::format(
+        "{}: 'light_solid_angle' {:g} exceeds 'light_bound' {:g}: the bounding sphere's test is "
+        "the weaker one, so eps_L <= eps~_L",
+        set != nullptr ? set->where.toString() : std::string("[render]"), s.cut.lightSolidAngle,
+        s.cut.lightBound));
+  }
+  if (absl::Status st = s.perPixel.validate(); !st.ok()) return st;
+  if (absl::Status st = s.glossy.validate(); !st.ok()) return st;
+  return s.cut.validate();
+}
+
+TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
+  TreeNeeds t;
+  t.cacheBytes = static_cast<size_t>(r.params.intOr("cache_mb", 256)) << 20;
+  t.bakePoints = static_cast<uint64_t>(r.params.intOr("bake_points", 0));
+  t.bakeBounces = static_cast<int>(r.params.intOr("bake_bounces", 3));
+  t.bakeGather = *gatherPreset(r.params.choiceOr("bake_quality", "draft"));
+  return t;
+}
+
+std::string describePbgi(const RenderSettings& r) {
+  const PbgiSettings s = pbgiSettings(r);
+  if (s.gather == PbgiGatherKind::kPerPixel) return "per-pixel " + s.perPixel.toString();
+  return fmt::format("bidirectional {} block={}", s.cut.toString(), s.blockSize);
+}
+
+const std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
+    {"black_receivers", "samples whose first hit reflects nothing: no gather"},
+    {"path_traced_receivers", "mirrors and glass: path traced"},
+    {"gathers", "microbuffer gathers (per-pixel and glossy)"},
+    {"gather_reuses", "samples that took an earlier gather of their pixel"},
+    {"glossy_gathers", "of the gathers, into a glossy receiver's warped microbuffer"},
+    {"nodes_visited", "microbuffer traversals: nodes visited"},
+    {"culled_plane", "nodes behind the receiver's tangent plane"},
+    {"culled_cone", "nodes whose normals all face away"},
+    {"clusters", "nodes splatted as clusters"},
+    {"clusters_invisible", "small nodes with no projected area towards the receiver"},
+    {"disks", "surfels splatted as disks"},
+    {"near_field", "surfels ray-cast in the near field"},
+    {"surfels_skipped", "surfels on the receiver's own surface"},
+    {"surfels_back_facing", "surfels seen from behind"},
+    {"pages_touched", "pages the microbuffer traversals asked for"},
+    {"faces_skipped", "microbuffer faces below the horizon"},
+    {"pixels_skipped", "microbuffer pixels below the horizon"},
+    {"cuts", "bidirectional cuts (one per block)"},
+    {"cut_receivers", "shading points in the cuts"},
+    {"cut_receiver_nodes", "nodes of the shading-point trees"},
+    {"cut_pairs", "light x receiver pairs looked at"},
+    {"cut_cluster_pairs", "light clusters evaluated against receivers"},
+    {"cut_receivers_served", "evaluations times the shading points under them (the cost unshared)"},
+    {"cut_leaf_pairs", "light leaves evaluated surfel by surfel"},
+    {"cut_surfel_terms", "surfels in those leaves"},
+    {"cut_refined_light", "pairs refined on the light side"},
+    {"cut_refined_receiver", "pairs refined on the receiver side"},
+    {"cut_culled", "pairs below every receiver's horizon"},
+    {"cut_shadow_rays", "visibility rays between clusters and surfels"},
+    {"cut_occluded", "of the visibility rays, blocked"},
+    {"cut_page_requests", "tree pages the cuts asked for"},
+}};
+
+const std::vector<IntegratorInfo>& registry() {
+  static const std::vector<IntegratorInfo> list = {
+      IntegratorInfo{
+          .name = "path",
+          .summary = "the reference: unidirectional path tracing with next-event estimation "
+                     "and MIS",
+          .params = {},
+          .counters = {},
+          .needsTree = false,
+          .validate = [](const RenderSettings&) { return absl::OkStatus(); },
+          .create = createPath,
+          .treeNeeds = nullptr,
+          .describe = [](const RenderSettings& r) {
+            return fmt::format("path(max_depth={} roulette_depth={})", r.maxDepth,
+                               r.rouletteDepth);
+          },
+      },
+      IntegratorInfo{
+          .name = "pbgi",
+          .summary = "point-based global illumination from the frame's baked tree: the "
+                     "bidirectional cut (default) or the per-pixel microbuffer gather",
+          .params = pbgiParams(),
+          .counters = kPbgiCounters,
+          .needsTree = true,
+          .validate = validatePbgi,
+          .create =
+              [](const IntegratorContext& c) {
+                return makePbgiIntegrator(c.scene, *c.tree, pbgiSettings(c.settings));
+              },
+          .treeNeeds = pbgiTreeNeeds,
+          .describe = describePbgi,
+      },
+  };
+  return list;
+}
+
+}  // namespace
+
+std::span<const CounterSpec> pbgiCounterSpecs() { return kPbgiCounters; }
+
+const ParamSpec* IntegratorInfo::param(std::string_view key) const {
+  for (const ParamSpec& p : params) {
+    if (p.key == key) return &p;
+  }
+  return nullptr;
+}
+
+const std::vector<IntegratorInfo>& integrators() { return registry(); }
+
+std::vector<std::string_view> integratorNames() {
+  std::vector<std::string_view> names;
+  for (const IntegratorInfo& i : integrators()) names.push_back(i.name);
+  return names;
+}
+
+absl::StatusOr<const IntegratorInfo*> findIntegrator(std::string_view name,
+                                                     const SourceLocation& where) {
+  for (const IntegratorInfo& i : integrators()) {
+    if (i.name == name) return &i;
+  }
+  const std::string prefix = where.file.empty() ? std::string() : where.toString() + ": ";
+  return absl::InvalidArgumentError(fmt::format("{}integrator '{}' unknown (expected one of: {})",
+                                                prefix, name, fmt::join(integratorNames(), ", ")));
+}
+
+const ParamSpec* findParam(std::string_view key, std::vector<std::string_view>* owners) {
+  const ParamSpec* found = nullptr;
+  for (const IntegratorInfo& i : integrators()) {
+    if (const ParamSpec* p = i.param(key)) {
+      if (found == nullptr) found = p;
+      if (owners) owners->push_back(i.name);
+    }
+  }
+  return found;
+}
+
+std::vector<std::string_view> allParamKeys() {
+  std::vector<std::string_view> keys;
+  for (const IntegratorInfo& i : integrators()) {
+    for (const ParamSpec& p : i.params) keys.push_back(p.key);
+  }
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  return keys;
+}
+
+absl::Status setParamText(IntegratorParams& params, std::string_view key, std::string_view value,
+                          const SourceLocation& where) {
+  const ParamSpec* spec = findParam(key);
+  if (spec == nullptr) {
+    return absl::InvalidArgumentError(
+        fmt::format("{}: unknown parameter '{}' (integrator parameters: {})", where.toString(), key,
+                    fmt::join(allParamKeys(), ", ")));
+  }
+  return params.setText(*spec, value, where);
+}
+
+absl::Status validateRenderSettings(const RenderSettings& settings,
+                                    std::vector<std::string>* unused) {
+  absl::StatusOr<const IntegratorInfo*> info =
+      findIntegrator(settings.integrator, settings.integratorWhere);
+  if (!info.ok()) return info.status();
+  for (const auto& [key, value] : settings.params.values()) {
+    if ((*info)->param(key) != nullptr) continue;
+    std::vector<std::string_view> owners;
+    if (findParam(key, &owners) == nullptr) {
+      return absl::InvalidArgumentError(
+          fmt::format("{}: unknown parameter '{}' (integrator parameters: {})",
+                      value.where.toString(), key, fmt::join(allParamKeys(), ", ")));
+    }
+    if (unused) {
+      unused->push_back(fmt::format("{}: '{}' is a parameter of {}, not of the {} integrator: "
+                                    "ignored in this render",
+                                    value.where.toString(), key, fmt::join(owners, ", "),
+                                    settings.integrator));
+    }
+  }
+  return (*info)->validate(settings);
+}
+
+}  // namespace pbgi

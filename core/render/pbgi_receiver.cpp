@@ -1,0 +1,120 @@
+#include "core/render/pbgi_receiver.h"
+
+#include "core/pbgi/bidirectional_cut.h"
+#include "core/scene/material.h"
+
+namespace pbgi {
+
+namespace {
+
+constexpr float kReuseNormalCos = 0.95f;
+constexpr float kReuseViewCos = 0.999f;
+
+}  // namespace
+
+void addGatherStats(const GatherStats& s, RenderCounters* c) {
+  (*c)[kNodesVisited] += s.nodesVisited;
+  (*c)[kNodesCulledPlane] += s.nodesCulledPlane;
+  (*c)[kNodesCulledCone] += s.nodesCulledCone;
+  (*c)[kClustersSplatted] += s.clustersSplatted;
+  (*c)[kClustersInvisible] += s.clustersInvisible;
+  (*c)[kDisksSplatted] += s.disksSplatted;
+  (*c)[kNearFieldRayCasts] += s.nearFieldRayCasts;
+  (*c)[kSurfelsSkipped] += s.surfelsSkipped;
+  (*c)[kSurfelsBackFacing] += s.surfelsBackFacing;
+  (*c)[kPagesTouched] += s.pagesTouched;
+  (*c)[kFacesSkipped] += s.facesSkipped;
+  (*c)[kPixelsSkipped] += s.pixelsSkipped;
+}
+
+void addCutStats(const CutStats& s, RenderCounters* c) {
+  (*c)[kCuts] += s.cuts;
+  (*c)[kCutReceivers] += s.receivers;
+  (*c)[kCutReceiverNodes] += s.receiverNodes;
+  (*c)[kCutPairs] += s.pairs;
+  (*c)[kCutClusterPairs] += s.clusterPairs;
+  (*c)[kCutReceiversServed] += s.receiversServed;
+  (*c)[kCutLeafPairs] += s.leafPairs;
+  (*c)[kCutSurfelTerms] += s.surfelTerms;
+  (*c)[kCutRefinedLight] += s.refinedLight;
+  (*c)[kCutRefinedReceiver] += s.refinedReceiver;
+  (*c)[kCutCulled] += s.culled;
+  (*c)[kCutShadowRays] += s.shadowRays;
+  (*c)[kCutOccluded] += s.occluded;
+  (*c)[kCutPageRequests] += s.pageRequests;
+}
+
+Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
+                       const PathTracerSettings& pathTracer, PathSample* out,
+                       RenderCounters* counters) {
+  Receiver r;
+  const Rng start = rng;
+  PathTracerSettings directOnly = pathTracer;
+  directOnly.maxDepth = 1;
+  *out = tracePath(scene, ray, rng, directOnly, &r.hit);
+  if (!out->hit) return r;
+  if (r.hit.material == kNoMaterial || isBlack(out->albedo)) {
+    ++(*counters)[kBlackReceivers];
+    r.kind = ReceiverKind::kBlack;
+    return r;
+  }
+  const Material& material = scene.material(r.hit.material);
+  const Bsdf bsdf(material, out->albedo);
+  if (bsdf.isBlack()) {
+    ++(*counters)[kBlackReceivers];
+    r.kind = ReceiverKind::kBlack;
+    return r;
+  }
+  if (bsdf.isDelta() || material.type == MaterialType::kDielectric) {
+    // The same path as the path tracer's, from the same random numbers: its direct light is
+    // the one just computed, and its indirect light is path traced.
+    rng = start;
+    *out = tracePath(scene, ray, rng, pathTracer);
+    ++(*counters)[kPathTracedReceivers];
+    r.kind = ReceiverKind::kPathTraced;
+    return r;
+  }
+  r.wo = -ray.dir;
+  const bool front = dot(r.hit.ng, r.wo) >= 0.0f;
+  r.n = front ? r.hit.ns : -r.hit.ns;
+  r.ng = front ? r.hit.ng : -r.hit.ng;
+  r.kind = material.type == MaterialType::kDiffuse ? ReceiverKind::kDiffuse : ReceiverKind::kGlossy;
+  return r;
+}
+
+PixelGathers::PixelGathers(const WarpedGatherOptions& glossy, size_t maxGathersPerPixel)
+    : warped_(glossy), shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {}
+
+absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& scene,
+                                          const Receiver& r, const Rgb& albedo, Rng& rng,
+                                          GatherStats* stats, RenderCounters* counters) {
+  if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, r.hit.material)) {
+    ++(*counters)[kGatherReuses];
+    return g->value;
+  }
+  const Bsdf bsdf(scene.material(r.hit.material), albedo);
+  const Frame frame(r.n);
+  const Vec2f jitter(rng.uniform(), rng.uniform());
+  absl::StatusOr<Rgb> lo =
+      warped_.reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats);
+  if (!lo.ok()) return lo.status();
+  if (absl::Status s = checkGathered(*lo); !s.ok()) return s;
+  ++(*counters)[kGathers];
+  ++(*counters)[kGlossyGathers];
+  shared_.add({.p = r.hit.p,
+               .n = r.n,
+               .reach = kReuseDistanceFraction * r.hit.t,
+               .planeReach = kReusePlaneFraction * r.hit.t,
+               .key = r.hit.material,
+               .wo = r.wo,
+               .value = *lo});
+  return *lo;
+}
+
+absl::Status checkGathered(const Rgb& value) {
+  if (isFinite(value)) return absl::OkStatus();
+  return absl::DataLossError(
+      "the tree's radiance made a gather non-finite (a damaged or hostile tree)");
+}
+
+}  // namespace pbgi

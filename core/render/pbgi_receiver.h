@@ -1,0 +1,114 @@
+#pragma once
+// What both PBGI integrators (per-pixel and bidirectional) do with a camera sample before
+// gathering: its primary visibility and direct light from the path tracer's own code
+// (tracePath with one scattering vertex, so that PBGI and the path tracer draw the same random
+// numbers and differ only in indirect light), and what its first hit needs:
+//   - nothing, when the ray escapes, or the hit reflects nothing (an emitter, black albedo);
+//   - the path tracer, for mirrors and glass (delta or refractive BSDFs), whose indirect light
+//     PBGI cannot gather;
+//   - the warped microbuffer gather for glossy receivers (Ritschel et al. 2009), shared
+//     between a pixel's samples that see the same material the same way;
+//   - a diffuse gather: the per-pixel microbuffer or the bidirectional cut.
+// Surfaces are two-sided, as for the path tracer: a receiver gathers on the side its camera
+// ray arrives from.
+#include <cstdint>
+#include <span>
+
+#include <absl/status/status.h>
+
+#include "core/pbgi/bidirectional_cut.h"
+#include "core/pbgi/gather.h"
+#include "core/pbgi/gather_reuse.h"
+#include "core/pbgi/warped_gather.h"
+#include "core/render/integrator.h"
+#include "core/render/path_tracer.h"
+#include "core/scene/scene.h"
+
+namespace pbgi {
+
+// The PBGI integrator's counters, by index into pbgiCounterSpecs() (integrators.h).
+enum PbgiCounter : size_t {
+  kBlackReceivers,       // first hit reflects nothing: no gather
+  kPathTracedReceivers,  // mirrors and glass: path traced
+  kGathers,              // microbuffer gathers (per-pixel diffuse and glossy)
+  kGatherReuses,         // samples that took an earlier gather of their pixel
+  kGlossyGathers,
+  kNodesVisited,
+  kNodesCulledPlane,
+  kNodesCulledCone,
+  kClustersSplatted,
+  kClustersInvisible,
+  kDisksSplatted,
+  kNearFieldRayCasts,
+  kSurfelsSkipped,
+  kSurfelsBackFacing,
+  kPagesTouched,
+  kFacesSkipped,
+  kPixelsSkipped,
+  kCuts,                 // bidirectional: one per block
+  kCutReceivers,
+  kCutReceiverNodes,
+  kCutPairs,
+  kCutClusterPairs,
+  kCutReceiversServed,
+  kCutLeafPairs,
+  kCutSurfelTerms,
+  kCutRefinedLight,
+  kCutRefinedReceiver,
+  kCutCulled,
+  kCutShadowRays,
+  kCutOccluded,
+  kCutPageRequests,
+  kPbgiCounterCount
+};
+
+void addGatherStats(const GatherStats& s, RenderCounters* counters);
+void addCutStats(const CutStats& s, RenderCounters* counters);
+
+enum class ReceiverKind { kNone, kBlack, kPathTraced, kGlossy, kDiffuse };
+
+struct Receiver {
+  ReceiverKind kind = ReceiverKind::kNone;
+  SurfaceHit hit;
+  Vec3f n{0.0f, 0.0f, 1.0f};   // shading normal on the camera's side
+  Vec3f ng{0.0f, 0.0f, 1.0f};  // geometric normal on the camera's side
+  Vec3f wo{0.0f, 0.0f, 1.0f};  // towards the camera
+};
+
+// Fills `out` with the sample's direct light and AOVs (its indirect light too, for receivers
+// the path tracer serves) and says what the rest needs. Counts black and path-traced
+// receivers.
+Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
+                       const PathTracerSettings& pathTracer, PathSample* out,
+                       RenderCounters* counters);
+
+// How near a sample's first hit must lie to an earlier gather of its pixel to share it, as
+// fractions of that gather's distance from the camera: along the gather's normal (the same
+// plane), and in all (the same neighbourhood; a pixel spans about 1/500 of its distance).
+inline constexpr float kReusePlaneFraction = 0.005f;
+inline constexpr float kReuseDistanceFraction = 0.05f;
+
+// A pixel's gathers, shared between its samples: glossy receivers' warped gathers (key: their
+// material, and their view direction) and, for the per-pixel integrator, diffuse irradiance
+// (key kNoMaterial: any diffuse material shares it).
+class PixelGathers {
+ public:
+  PixelGathers(const WarpedGatherOptions& glossy, size_t maxGathersPerPixel);
+  // Forget the pixel's gathers: call before each pixel.
+  void newPixel() { shared_.clear(); }
+  GatherReuse& shared() { return shared_; }
+  // The glossy reflected radiance towards the camera; jitter drawn from `rng` when it gathers
+  // anew.
+  absl::StatusOr<Rgb> reflect(TreePageSource& tree, const Scene& scene, const Receiver& r,
+                              const Rgb& albedo, Rng& rng, GatherStats* stats,
+                              RenderCounters* counters);
+
+ private:
+  WarpedGatherer warped_;
+  GatherReuse shared_;
+};
+
+// A gathered value that is not finite means a damaged or hostile tree.
+absl::Status checkGathered(const Rgb& value);
+
+}  // namespace pbgi

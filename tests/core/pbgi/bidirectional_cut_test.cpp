@@ -1,0 +1,232 @@
+#include "core/pbgi/bidirectional_cut.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "core/bake/surfel_sampler.h"
+#include "core/bake/surfel_shading.h"
+#include "core/sampling/rng.h"
+#include "tests/core/render/test_scenes.h"
+#include "tests/support/memory_tree.h"
+#include "tests/support/surfel_shapes.h"
+
+namespace pbgi {
+namespace {
+
+using testing::FailingPageSource;
+using testing::memoryTree;
+using testing::MemoryTreeSource;
+
+// The box scene's surfels, lit directly, and receivers on its floor, walls and block (points
+// where camera rays from the open side land, facing the camera).
+struct BoxCase {
+  std::unique_ptr<Scene> scene;
+  std::vector<Surfel> surfels;
+  std::vector<CutReceiver> receivers;
+};
+
+BoxCase boxCase(uint64_t surfelCount, int receiverCount) {
+  BoxCase c;
+  c.scene = testing::makeBoxScene();
+  PBGI_CHECK(c.scene != nullptr);
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = surfelCount;
+  auto surfels = collectSurfels(*c.scene, sampling);
+  PBGI_CHECK(surfels.ok());
+  c.surfels = *std::move(surfels);
+  shadeSurfelsDirect(*c.scene, c.surfels, 0, {});
+  Rng rng(7);
+  while (static_cast<int>(c.receivers.size()) < receiverCount) {
+    // Rays from in front of the box's open side, towards the inside.
+    const Vec3f origin(0.5f, 0.5f, -1.0f);
+    const Vec3f target(rng.uniform(), rng.uniform(), 0.8f + 0.2f * rng.uniform());
+    Ray ray{origin, normalize(target - origin)};
+    SurfaceHit hit;
+    if (!c.scene->intersect(ray, &hit) || hit.material == kNoMaterial) continue;
+    const bool front = dot(hit.ng, ray.dir) < 0.0f;
+    c.receivers.push_back({hit.p, front ? hit.ns : -hit.ns, front ? hit.ng : -hit.ng});
+  }
+  return c;
+}
+
+CutOptions zeroThresholds() {
+  CutOptions o;
+  o.lightSolidAngle = 0.0f;
+  o.lightBound = 0.0f;
+  o.receiverBound = 0.0f;
+  o.normalAngle = 0.0f;
+  return o;
+}
+
+double meanLuminance(const std::vector<Rgb>& v) {
+  double sum = 0.0;
+  for (const Rgb& e : v) sum += luminance(e);
+  return sum / static_cast<double>(v.size());
+}
+
+// With every threshold at zero the cut refines down to every surfel against every receiver,
+// which is the brute force sum (the same visibility rays), whatever pages the tree is in.
+TEST(BidirectionalCut, ZeroThresholdsEqualBruteForce) {
+  BoxCase c = boxCase(3000, 64);
+  for (int splitDepth : {0, 2, 4}) {
+    auto tree = memoryTree(c.surfels, kDefaultLeafSize, splitDepth);
+    ASSERT_TRUE(tree.ok()) << tree.status();
+    std::vector<Rgb> brute(c.receivers.size()), cut(c.receivers.size());
+    ASSERT_TRUE(bruteForceIrradiance(**tree, *c.scene, c.receivers, zeroThresholds(), brute).ok());
+    BidirectionalCut bc(zeroThresholds());
+    CutStats stats;
+    ASSERT_TRUE(bc.irradiance(**tree, *c.scene, c.receivers, 1, cut, &stats).ok());
+    int lit = 0;
+    for (size_t i = 0; i < c.receivers.size(); ++i) {
+      for (int ch = 0; ch < 3; ++ch) {
+        EXPECT_NEAR(cut[i][ch], brute[i][ch], 1e-4f * std::max(1.0f, std::abs(brute[i][ch])))
+            << "receiver " << i << " channel " << ch << " split " << splitDepth;
+      }
+      lit += luminance(brute[i]) > 0.0f;
+    }
+    EXPECT_GT(lit, 48);  // the test sees light, not zeros
+    // Nothing was evaluated as a cluster: every light surfel met every receiver.
+    EXPECT_EQ(stats.clusterPairs, 0u);
+    EXPECT_LE(stats.leafPairs, uint64_t{c.surfels.size()} * c.receivers.size());
+    // Each page is asked for once.
+    EXPECT_EQ(stats.pageRequests, (*tree)->pageCount()) << stats.toString();
+  }
+}
+
+// One surfel, one receiver: the cut is a single shadow connection, the virtual spherical
+// light's value.
+TEST(BidirectionalCut, OneLeafAgainstOneReceiverIsOneShadowConnection) {
+  auto scene = testing::makeBoxScene();
+  ASSERT_NE(scene, nullptr);
+  Surfel s;
+  s.position = {0.5f, 0.5f, 0.999f};  // on the back wall, facing -z
+  s.normal = {0.0f, 0.0f, -1.0f};
+  s.radius = 0.01f;
+  s.radiance = Rgb(2.0f, 1.0f, 0.5f);
+  auto tree = memoryTree(std::vector<Surfel>{s});
+  ASSERT_TRUE(tree.ok());
+  // On the floor behind the block, in view of the surfel.
+  const CutReceiver r{{0.5f, 0.0f, 0.95f}, {0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, 0.0f}};
+  std::vector<Rgb> out(1);
+  BidirectionalCut cut(CutOptions{});
+  CutStats stats;
+  ASSERT_TRUE(cut.irradiance(**tree, *scene, std::vector<CutReceiver>{r}, 3, out, &stats).ok());
+  EXPECT_EQ(stats.shadowRays, 1u) << stats.toString();
+  EXPECT_EQ(stats.occluded, 0u) << stats.toString();
+  EXPECT_EQ(stats.leafPairs + stats.clusterPairs, 1u) << stats.toString();
+  const Vec3f v = s.position - r.p;
+  const float d2 = v.length2();
+  const Vec3f w = v / std::sqrt(d2);
+  const Rgb expected = s.radiance * (s.area() * -dot(s.normal, w) * dot(r.n, w) /
+                                     (d2 + s.radius * s.radius));
+  // The leaf is small from the receiver: a cluster of one, a point source (no softening, r^2
+  // against d^2 = 0.3 here).
+  for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(out[0][ch], expected[ch], 1e-3f * expected[ch]);
+}
+
+// A blocker between the surfel and the receiver: the shadow ray sees it.
+TEST(BidirectionalCut, AnOccluderBlocksALeafConnection) {
+  SceneBuilder b;
+  const uint32_t m = b.addMaterial(Material{});
+  b.addMesh(testing::makeQuadMesh({-1, 0.5f, -1}, {0, 0, 2}, {2, 0, 0}, m));  // y = 0.5 plane
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok());
+  Surfel s;
+  s.position = {0.0f, 1.0f, 0.0f};
+  s.normal = {0.0f, -1.0f, 0.0f};
+  s.radius = 0.01f;
+  s.radiance = Rgb(1.0f);
+  auto tree = memoryTree(std::vector<Surfel>{s});
+  ASSERT_TRUE(tree.ok());
+  const CutReceiver r{{0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, 0.0f}};
+  std::vector<Rgb> out(1);
+  BidirectionalCut cut(CutOptions{});
+  CutStats stats;
+  ASSERT_TRUE(cut.irradiance(**tree, **scene, std::vector<CutReceiver>{r}, 3, out, &stats).ok());
+  EXPECT_EQ(stats.occluded, 1u);
+  EXPECT_EQ(out[0], Rgb(0.0f));
+}
+
+// The preset thresholds stay close to the brute force on average, with far fewer pairs, and
+// smaller thresholds come closer.
+TEST(BidirectionalCut, ThresholdsTradePairsForError) {
+  BoxCase c = boxCase(20000, 2000);
+  auto tree = memoryTree(c.surfels, kDefaultLeafSize, 3);
+  ASSERT_TRUE(tree.ok());
+  std::vector<Rgb> brute(c.receivers.size());
+  ASSERT_TRUE(bruteForceIrradiance(**tree, *c.scene, c.receivers, CutOptions{}, brute).ok());
+  const double reference = meanLuminance(brute);
+  double previousError = 1e30;
+  uint64_t previousPairs = 0;
+  for (const float scale : {4.0f, 1.0f, 0.25f}) {
+    CutOptions o;
+    o.lightSolidAngle *= scale;
+    o.lightBound *= scale;
+    o.receiverBound *= scale;
+    std::vector<Rgb> out(c.receivers.size());
+    BidirectionalCut cut(o);
+    CutStats stats;
+    ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 11, out, &stats).ok());
+    double sq = 0.0;
+    for (size_t i = 0; i < out.size(); ++i) {
+      const double d = luminance(out[i]) - luminance(brute[i]);
+      sq += d * d;
+    }
+    const double rmse = std::sqrt(sq / out.size()) / reference;
+    const double meanError = std::abs(meanLuminance(out) / reference - 1.0);
+    std::printf("scale %.2f: mean %+.4f, relative RMSE %.4f, %llu pairs (%llu clusters, %llu "
+                "leaves), %llu shadow rays; brute force %zu pairs\n",
+                scale, meanLuminance(out) / reference - 1.0, rmse,
+                static_cast<unsigned long long>(stats.pairs),
+                static_cast<unsigned long long>(stats.clusterPairs),
+                static_cast<unsigned long long>(stats.leafPairs),
+                static_cast<unsigned long long>(stats.shadowRays), c.surfels.size() * out.size());
+    EXPECT_LT(meanError, 0.05);
+    EXPECT_LT(stats.shadowRays, c.surfels.size() * out.size() / 8);
+    EXPECT_LT(rmse, previousError * 1.05);
+    EXPECT_GT(stats.pairs, previousPairs);
+    previousError = rmse;
+    previousPairs = stats.pairs;
+  }
+}
+
+// The same receivers, the same key: the same bits; another key: other visibility samples.
+TEST(BidirectionalCut, DeterministicInItsKey) {
+  BoxCase c = boxCase(5000, 500);
+  auto tree = memoryTree(c.surfels, kDefaultLeafSize, 2);
+  ASSERT_TRUE(tree.ok());
+  std::vector<Rgb> a(c.receivers.size()), b(c.receivers.size()), d(c.receivers.size());
+  BidirectionalCut cut(CutOptions{});
+  ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 5, a, nullptr).ok());
+  BidirectionalCut other(CutOptions{});
+  ASSERT_TRUE(other.irradiance(**tree, *c.scene, c.receivers, 5, b, nullptr).ok());
+  ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 6, d, nullptr).ok());
+  EXPECT_EQ(a, b);
+  EXPECT_NE(a, d);
+}
+
+TEST(BidirectionalCut, BadInputAndDamagedPagesAreErrors) {
+  BoxCase c = boxCase(2000, 8);
+  auto tree = memoryTree(c.surfels, kDefaultLeafSize, 2);
+  ASSERT_TRUE(tree.ok());
+  std::vector<Rgb> out(c.receivers.size());
+  BidirectionalCut cut(CutOptions{});
+  std::vector<CutReceiver> bad = c.receivers;
+  bad[3].p.x = std::nanf("");
+  absl::Status s = cut.irradiance(**tree, *c.scene, bad, 1, out, nullptr);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
+  EXPECT_NE(s.message().find("receiver 3"), std::string::npos) << s;
+  FailingPageSource failing(tree->get(), 1);
+  s = cut.irradiance(failing, *c.scene, c.receivers, 1, out, nullptr);
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
+  EXPECT_NE(s.message().find("page 1"), std::string::npos) << s;
+  CutOptions o;
+  o.normalAngle = -1.0f;
+  EXPECT_EQ(o.validate().code(), absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace pbgi
