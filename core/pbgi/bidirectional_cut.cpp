@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <queue>
 #include <unordered_map>
 
@@ -151,6 +152,98 @@ bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s,
   return visible(scene, from, s.position, stop, stats);
 }
 
+// What a node sends a receiver at p facing n, as the cut would evaluate it alone: its SH
+// intensity towards p times the cosine at p over the squared distance (0 behind p).
+float nodeContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) {
+  const Vec3f v = a.centroid - p;
+  const float d2 = v.length2();
+  if (!(d2 > 0.0f)) return 0.0f;
+  const Vec3f dir = v / std::sqrt(d2);
+  const float cosR = dot(n, dir);
+  if (!(cosR > 0.0f)) return 0.0f;
+  ClusterView view;
+  viewCluster(a, dir, &view);
+  return std::max(0.0f, luminance(clusterRadiance(a, view))) * view.area * cosR / d2;
+}
+
+// Descends from `ref` (a node of `page`) to one of its surfels, choosing each child in
+// proportion to what it sends the receiver `to` and the surfel in proportion to its own share:
+// the fraction of rays to such surfels that arrive estimates the fraction of the cluster's
+// light that reaches that receiver. nullopt when the node sends it nothing. Pages other than
+// `page` come from the source.
+absl::StatusOr<std::optional<Surfel>> pickSurfel(TreePageSource& tree, const TreePage& page,
+                                                 NodeRef ref, uint32_t depth,
+                                                 const CutReceiver& to, Rng& rng) {
+  std::shared_ptr<const TreePage> held;  // keeps `at` alive when it is not `page`
+  const TreePage* at = &page;
+  for (;;) {
+    if (ref.page != at->id) {
+      absl::StatusOr<std::shared_ptr<const TreePage>> next = tree.page(ref.page);
+      if (!next.ok()) return next.status();
+      held = *std::move(next);
+      at = held.get();
+    }
+    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(*at, ref);
+    if (!nodeOr.ok()) return nodeOr.status();
+    const TreeNode& node = **nodeOr;
+    const float u = rng.uniform();
+    if (node.leaf()) {
+      if (absl::Status s = checkLeaf(*at, node, ref); !s.ok()) return s;
+      const std::span<const Surfel> surfels = at->surfelsOf(node);
+      float weights[kMaxLeafSize + 1];
+      float total = 0.0f;
+      for (size_t k = 0; k < surfels.size(); ++k) {
+        const Surfel& s = surfels[k];
+        const Vec3f v = s.position - to.p;
+        const float d2 = v.length2();
+        const float w = d2 > 0.0f ? std::max(0.0f, luminance(s.radiance)) * s.area() *
+                                        std::max(0.0f, -dot(s.normal, v)) *
+                                        std::max(0.0f, dot(to.n, v)) / (d2 * d2)
+                                  : 0.0f;
+        weights[k] = w;
+        total += w;
+      }
+      if (!(total > 0.0f)) return std::optional<Surfel>();
+      float x = u * total;
+      for (size_t k = 0; k < surfels.size(); ++k) {
+        x -= weights[k];
+        if (x < 0.0f) return std::optional<Surfel>(surfels[k]);
+      }
+      return std::optional<Surfel>(surfels.back());
+    }
+    if (absl::Status s = checkInterior(*at, node, ref, depth); !s.ok()) return s;
+    const std::span<const NodeRef> children = at->childrenOf(node);
+    float weights[8] = {};
+    float total = 0.0f;
+    for (size_t c = 0; c < children.size() && c < 8; ++c) {
+      std::shared_ptr<const TreePage> childHeld;
+      const TreePage* childPage = at;
+      if (children[c].page != at->id) {
+        absl::StatusOr<std::shared_ptr<const TreePage>> next = tree.page(children[c].page);
+        if (!next.ok()) return next.status();
+        childHeld = *std::move(next);
+        childPage = childHeld.get();
+      }
+      absl::StatusOr<const TreeNode*> child = nodeAt(*childPage, children[c]);
+      if (!child.ok()) return child.status();
+      weights[c] = nodeContribution((*child)->attributes, to.p, to.n);
+      total += weights[c];
+    }
+    if (!(total > 0.0f)) return std::optional<Surfel>();
+    float x = u * total;
+    size_t pick = children.size() - 1;
+    for (size_t c = 0; c < children.size() && c < 8; ++c) {
+      x -= weights[c];
+      if (x < 0.0f) {
+        pick = c;
+        break;
+      }
+    }
+    ref = children[pick];
+    ++depth;
+  }
+}
+
 // A surfel as a point source towards direction w (unit, from the surfel to the receivers), or
 // false when it sends nothing that way.
 bool surfelSource(const Surfel& s, const Vec3f& w, PointSource* src) {
@@ -239,6 +332,30 @@ absl::Status CutOptions::validate() const {
         "cut options: receiverLeafSize must be in [1, 64], got {}", receiverLeafSize));
   }
   return absl::OkStatus();
+}
+
+absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
+  CutOptions o;
+  if (name == "draft") {
+    o.lightSolidAngle = 0.03f;
+    o.lightBound = 0.3f;
+    o.receiverBound = 0.05f;
+    o.normalAngle = radians(45.0f);
+  } else if (name == "default") {
+    o.lightSolidAngle = 0.02f;
+    o.lightBound = 0.2f;
+    o.receiverBound = 0.03f;
+    o.normalAngle = radians(30.0f);
+  } else if (name == "high") {
+    o.lightSolidAngle = 0.005f;
+    o.lightBound = 0.05f;
+    o.receiverBound = 0.01f;
+    o.normalAngle = radians(20.0f);
+  } else {
+    return absl::InvalidArgumentError(
+        fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
+  }
+  return o;
 }
 
 std::string CutOptions::toString() const {
@@ -630,23 +747,14 @@ absl::Status BidirectionalCut::irradiance(TreePageSource& tree, const Scene& sce
         if (isBlack(src.intensity)) return absl::OkStatus();
         Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
         const CutReceiver& from = originOf(pair.receiver, rng);
-        // Towards the centroid, jittered by up to an eighth of the bounds each way: the
-        // centroid lies among the cluster's surfels, while a point anywhere in the bounds can
-        // lie behind a surface the cluster touches and see it as an occluder (measured against
-        // the brute force on the test box: -1.8 % with points anywhere, -0.4 % this way).
-        const Vec3f u(rng.uniform(), rng.uniform(), rng.uniform());
-        Vec3f target = a.centroid + (u - Vec3f(0.5f)) * lightBounds.diagonal() * 0.25f;
-        if (dot(target - from.p, from.ng) <= 0.0f) target = a.centroid;
-        Vec3f ray = target - from.p;
-        const float rayLength = length(ray);
-        bool lit = true;
-        if (rayLength > 0.0f) {
-          ray /= rayLength;
-          // Up to where the ray enters the cluster's bounds: what lies inside is the cluster's.
-          const float entry = boxEntry(lightBounds, from.p, ray);
-          const float stop = std::isfinite(entry) ? entry * (1.0f - kShortFraction) : rayLength;
-          lit = visible(scene, from, from.p + ray * stop, 0.0f, &stats);
-        }
+        // Towards one of the cluster's surfels, picked in proportion to the light it sends:
+        // the fraction of rays that arrive is then the fraction of the cluster's light that
+        // does, wherever the light sits in the cluster (a floor cluster reaching under a block
+        // has its centroid, or points of its bounds, where no light is).
+        absl::StatusOr<std::optional<Surfel>> target =
+            pickSurfel(tree, page, pair.light, pair.depth, from, rng);
+        if (!target.ok()) return target.status();
+        const bool lit = !target->has_value() || visibleSurfel(scene, from, **target, &stats);
         if (lit) deposit(pair.receiver, src, 1.0f);
         return absl::OkStatus();
       }

@@ -48,6 +48,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <absl/status/status.h>
@@ -76,6 +77,9 @@ struct CutOptions {
   absl::Status validate() const;
   std::string toString() const;
 };
+
+// Quality presets: "draft", "default", "high". Unknown names are InvalidArgument.
+absl::StatusOr<CutOptions> cutPreset(std::string_view name);
 
 // A receiver: a point that gathers on the side of its normal.
 struct CutReceiver {

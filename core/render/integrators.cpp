@@ -69,28 +69,6 @@ const std::vector<ParamSpec>& pbgiParams() {
   return specs;
 }
 
-// The cut's thresholds per quality preset (eps_L, eps~_L, eps~_E, alpha in degrees).
-CutOptions cutPreset(std::string_view quality) {
-  CutOptions o;
-  if (quality == "draft") {
-    o.lightSolidAngle = 0.03f;
-    o.lightBound = 0.3f;
-    o.receiverBound = 0.01f;
-    o.normalAngle = radians(30.0f);
-  } else if (quality == "high") {
-    o.lightSolidAngle = 0.003f;
-    o.lightBound = 0.05f;
-    o.receiverBound = 0.001f;
-    o.normalAngle = radians(10.0f);
-  } else {
-    o.lightSolidAngle = 0.01f;
-    o.lightBound = 0.1f;
-    o.receiverBound = 0.003f;
-    o.normalAngle = radians(20.0f);
-  }
-  return o;
-}
-
 PbgiSettings pbgiSettings(const RenderSettings& r) {
   const IntegratorParams& p = r.params;
   PbgiSettings s;
@@ -102,7 +80,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.perPixel.resolution = static_cast<int>(p.intOr("microbuffer_resolution", s.perPixel.resolution));
   s.glossy = glossyGatherOptions(s.perPixel);
   s.maxGathersPerPixel = static_cast<int>(p.intOr("gathers_per_pixel", 4));
-  s.cut = cutPreset(quality);
+  s.cut = *cutPreset(quality);
   s.cut.lightSolidAngle = static_cast<float>(p.floatOr("light_solid_angle", s.cut.lightSolidAngle));
   s.cut.lightBound = static_cast<float>(p.floatOr("light_bound", s.cut.lightBound));
   s.cut.receiverBound = static_cast<float>(p.floatOr("receiver_bound", s.cut.receiverBound));
@@ -135,7 +113,7 @@ TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
   t.cacheBytes = static_cast<size_t>(r.params.intOr("cache_mb", 256)) << 20;
   t.bakePoints = static_cast<uint64_t>(r.params.intOr("bake_points", 0));
   t.bakeBounces = static_cast<int>(r.params.intOr("bake_bounces", 3));
-  t.bakeGather = *gatherPreset(r.params.choiceOr("bake_quality", "draft"));
+  t.bakeCut = *cutPreset(r.params.choiceOr("bake_quality", "draft"));
   return t;
 }
 

@@ -14,6 +14,7 @@
 
 #include <absl/status/statusor.h>
 
+#include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/pbgi/tree_page.h"
 #include "core/render/integrator.h"
@@ -28,7 +29,7 @@ struct TreeNeeds {
   size_t cacheBytes = size_t{256} << 20;  // the page cache's budget
   uint64_t bakePoints = 0;                 // surfels; 0: the baker's default
   int bakeBounces = 3;
-  GatherOptions bakeGather;                // how the bake's bounces gather
+  CutOptions bakeCut;                      // how the bake's bounces gather
 };
 
 struct IntegratorContext {

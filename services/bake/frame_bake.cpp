@@ -12,8 +12,7 @@
 #include <tbb/task_arena.h>
 #include <xxhash.h>
 
-#include "core/pbgi/gather.h"
-#include "core/pbgi/gather_reuse.h"
+#include "core/bake/surfel_bounce.h"
 #include "core/pbgi/morton.h"
 #include "core/pbgi/page_cache.h"
 #include "core/render/integrators.h"
@@ -31,13 +30,11 @@ namespace {
 
 // Surfels shaded per batch: enough to keep every core busy, small next to any budget.
 constexpr size_t kChunkSurfels = 64 * 1024;
-// Bounce gathers are shared within groups of this many consecutive sorted surfels, between
-// surfels at most kBounceReuseRadii of the gathering surfel's radius apart whose normals
-// agree to kBounceReuseCos. Indirect light varies slowly; measured on the Cornell box at 1M
-// surfels, this cuts a bounce's gathers about fourfold (see the README's Baking section).
-constexpr size_t kBounceGroup = 8;
-constexpr float kBounceReuseRadii = 6.0f;
-constexpr float kBounceReuseCos = 0.95f;
+static_assert(kChunkSurfels % kBounceChunkSurfels == 0);
+// How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail.
+constexpr int kBounceRevision = 3;
+// A surfel's spilled irradiance: 3 x f32, little-endian.
+constexpr size_t kIrradianceBytes = 12;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -65,7 +62,7 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
   request.frame = frame;
   request.points = needs.bakePoints;
   request.bounces = needs.bakeBounces;
-  request.gather = needs.bakeGather;
+  request.bounceCut = needs.bakeCut;
   request.pbgiVersion = std::string("pbgi ") + PBGI_VERSION;
   return request;
 }
@@ -76,90 +73,163 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
   std::string text = shot.source;
   const uint64_t points = request.points > 0 ? request.points : kDefaultBakePoints;
   text += fmt::format(
-      "|frame={}|points={}|light_samples={}|bounces={}|bounce_gather={}|encoding={}|leaf={}"
-      "|page={}|power={}|area={}|exact={}|bounce_group={}|version={}",
+      "|frame={}|points={}|light_samples={}|bounces={}|bounce_cut={}|encoding={}|leaf={}"
+      "|page={}|power={}|area={}|exact={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
-      request.bounces > 0 ? fmt::format("{} revision {}", request.gather.toString(), kGatherRevision)
-                          : "",
-      treeEncodingName(request.tree.encoding),
-      request.tree.build.leafSize, request.tree.pageSize, request.tree.powerCentres,
-      request.tree.areaCentres, request.tree.exactNodes, kBounceGroup, request.pbgiVersion);
+      request.bounces > 0
+          ? fmt::format("{} chunk {} tail {} revision {}", request.bounceCut.toString(),
+                        kBounceChunkSurfels, request.bounceTail, kBounceRevision)
+          : "",
+      treeEncodingName(request.tree.encoding), request.tree.build.leafSize, request.tree.pageSize,
+      request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
+      request.pbgiVersion);
   return XXH3_64bits(text.data(), text.size());
 }
 
 namespace {
 
-// Lights every surfel of the sorted spill with one more bounce gathered from the tree at
-// `fromPath` through a page cache, and writes the next tree to `toPath`. Surfels keep their
-// direct light (and emission); only diffuse surfels reflect the gathered light, as in the
-// direct pass.
-absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const std::string& toPath,
-                                           SpillFile& sorted, const TreeFileWriteOptions& options,
-                                           const FrameBakeRequest& request, uint64_t surfels,
-                                           GatherStats* gatherStats, uint64_t* sharedGathers) {
+absl::Status readSurfels(SpillFile& sorted, size_t n, std::vector<uint8_t>& bytes,
+                         std::vector<SortedSurfel>& batch) {
+  bytes.resize(n * kSurfelRecordBytes);
+  if (auto s = sorted.read(bytes); !s.ok()) return s;
+  batch.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    if (auto s = decodeSurfelRecord(bytes.data() + i * kSurfelRecordBytes, &batch[i]); !s.ok()) {
+      return absl::DataLossError(fmt::format("{}: {}", sorted.name(), s.message()));
+    }
+  }
+  return absl::OkStatus();
+}
+
+// n surfels' irradiance from `spill`, or black when there is none (before the first bounce).
+absl::Status readIrradiance(SpillFile* spill, size_t n, std::vector<uint8_t>& bytes,
+                            std::vector<Rgb>& out) {
+  out.assign(n, Rgb(0.0f));
+  if (spill == nullptr) return absl::OkStatus();
+  bytes.resize(n * kIrradianceBytes);
+  if (auto s = spill->read(bytes); !s.ok()) return s;
+  for (size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) out[i][c] = loadF32(bytes.data() + i * kIrradianceBytes + 4 * c);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status writeIrradiance(SpillFile& spill, std::span<const Rgb> e, std::vector<uint8_t>& bytes) {
+  bytes.resize(e.size() * kIrradianceBytes);
+  for (size_t i = 0; i < e.size(); ++i) {
+    for (int c = 0; c < 3; ++c) storeF32(bytes.data() + i * kIrradianceBytes + 4 * c, e[i][c]);
+  }
+  return spill.write(bytes);
+}
+
+struct BounceSpills {
+  SpillFile* previous = nullptr;  // the last bounce's irradiance, null before the first
+  SpillFile* next = nullptr;      // this bounce's
+};
+
+// Lights every surfel of the sorted spill with bounce `bounce`, gathered from the tree at
+// `fromPath` through a page cache: writes each surfel's irradiance to spills.next, adds the
+// bounce's own reflected power (what its irradiance adds over the last bounce's) to `power`,
+// and, when `toPath` is given, writes the next tree (direct light plus albedo / pi of the
+// irradiance; only diffuse surfels reflect it, as in the direct pass).
+absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
+                                           const std::string* toPath, SpillFile& sorted,
+                                           BounceSpills spills, const TreeFileWriteOptions& options,
+                                           const FrameBakeRequest& request, uint64_t seed,
+                                           uint64_t surfels, int bounce, const Scene& scene,
+                                           CutStats* cutStats, Rgb* power) {
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
   PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4});
+  std::unique_ptr<TreeFileWriter> writer;
+  if (toPath != nullptr) {
+    auto created = TreeFileWriter::create(*toPath, options);
+    if (!created.ok()) return created.status();
+    writer = *std::move(created);
+  }
+  if (auto s = sorted.rewind(); !s.ok()) return s;
+  if (spills.previous != nullptr) {
+    if (auto s = spills.previous->rewind(); !s.ok()) return s;
+  }
+  tbb::enumerable_thread_specific<SurfelBouncer> bouncers(
+      [&] { return SurfelBouncer(request.bounceCut); });
+  tbb::enumerable_thread_specific<CutStats> stats;
+  std::vector<SortedSurfel> batch;
+  std::vector<Surfel> chunk;
+  std::vector<Rgb> previous, irradiance;
+  std::vector<absl::Status> errors;
+  std::vector<uint8_t> bytes;
+  double sum[3] = {0.0, 0.0, 0.0};
+  for (uint64_t done = 0; done < surfels;) {
+    const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
+    if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
+    if (auto s = readIrradiance(spills.previous, n, bytes, previous); !s.ok()) return s;
+    chunk.resize(n);
+    for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
+    irradiance.assign(n, Rgb(0.0f));
+    // The cut's chunks start at multiples of kBounceChunkSurfels in the sorted order and key
+    // their random numbers by it, whatever the threads.
+    const size_t cuts = (n + kBounceChunkSurfels - 1) / kBounceChunkSurfels;
+    errors.assign(cuts, absl::OkStatus());
+    tbb::parallel_for(size_t{0}, cuts, [&](size_t g) {
+      const size_t first = g * kBounceChunkSurfels;
+      const size_t count = std::min(kBounceChunkSurfels, n - first);
+      errors[g] = bouncers.local().gather(
+          cache, scene, std::span<const Surfel>(chunk).subspan(first, count),
+          hashKeys(seed, request.frame, bounce, done + first),
+          std::span<Rgb>(irradiance).subspan(first, count), &stats.local());
+    });
+    for (const absl::Status& e : errors) {
+      if (!e.ok()) return e;
+    }
+    if (auto s = writeIrradiance(*spills.next, irradiance, bytes); !s.ok()) return s;
+    for (size_t i = 0; i < n; ++i) {
+      const Rgb p = reflectedPower(chunk[i], irradiance[i] - previous[i]);
+      for (int c = 0; c < 3; ++c) sum[c] += p[c];
+      if (writer == nullptr) continue;
+      SortedSurfel lit = batch[i];
+      if (reflectsLight(lit.surfel)) lit.surfel.radiance += lit.surfel.albedo * kInvPi * irradiance[i];
+      if (auto s = writer->add(lit); !s.ok()) return s;
+    }
+    done += n;
+    if (request.progress) request.progress(fmt::format("bounce {}", bounce), done, surfels);
+  }
+  for (const CutStats& s : stats) *cutStats += s;
+  *power = Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
+  if (writer == nullptr) return TreeWriteResult{};
+  return writer->finish();
+}
+
+// The tree of the last bounce with the light of the bounces past it: every reflecting surfel
+// reflects albedo / pi (E_K + (E_K - E_{K-1}) tail) on top of its direct light.
+absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& toPath, SpillFile& sorted,
+                                               SpillFile& last, SpillFile* previous,
+                                               const Rgb& tail,
+                                               const TreeFileWriteOptions& options,
+                                               uint64_t surfels) {
   auto writer = TreeFileWriter::create(toPath, options);
   if (!writer.ok()) return writer.status();
-  if (auto s = sorted.rewind(); !s.ok()) return s;
-  tbb::enumerable_thread_specific<Gatherer> gatherers(
-      [&] { return Gatherer(request.gather); });
-  tbb::enumerable_thread_specific<GatherStats> stats;
-  std::atomic<uint64_t> sharedCount{0};
+  for (SpillFile* f : {&sorted, &last, previous}) {
+    if (f == nullptr) continue;
+    if (auto s = f->rewind(); !s.ok()) return s;
+  }
   std::vector<SortedSurfel> batch;
-  std::vector<absl::Status> errors;
+  std::vector<Rgb> e, ePrevious;
   std::vector<uint8_t> bytes;
   for (uint64_t done = 0; done < surfels;) {
     const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
-    bytes.resize(n * kSurfelRecordBytes);
-    if (auto s = sorted.read(bytes); !s.ok()) return s;
-    batch.resize(n);
-    errors.assign(n, absl::OkStatus());
+    if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
+    if (auto s = readIrradiance(&last, n, bytes, e); !s.ok()) return s;
+    if (auto s = readIrradiance(previous, n, bytes, ePrevious); !s.ok()) return s;
     for (size_t i = 0; i < n; ++i) {
-      if (auto s = decodeSurfelRecord(bytes.data() + i * kSurfelRecordBytes, &batch[i]); !s.ok()) {
-        return absl::DataLossError(fmt::format("{}: {}", sorted.name(), s.message()));
+      Surfel& s = batch[i].surfel;
+      if (reflectsLight(s)) {
+        s.radiance += s.albedo * kInvPi * (e[i] + vmax(e[i] - ePrevious[i], Rgb(0.0f)) * tail);
       }
-    }
-    // Groups of consecutive surfels (neighbours along the Morton curve) share gathers:
-    // a surfel takes the irradiance of an earlier one of its group that lies within a few
-    // radii and faces the same way, else gathers its own. Groups start at multiples of
-    // kBounceGroup in the sorted order, whatever the threads.
-    static_assert(kChunkSurfels % kBounceGroup == 0);
-    tbb::parallel_for(size_t{0}, (n + kBounceGroup - 1) / kBounceGroup, [&](size_t g) {
-      GatherReuse shared(kBounceReuseCos, 1.0f, kBounceGroup);
-      GatherStats& st = stats.local();
-      for (size_t i = g * kBounceGroup; i < std::min(n, (g + 1) * kBounceGroup); ++i) {
-        Surfel& s = batch[i].surfel;
-        if (s.materialClass != MaterialClass::kDiffuse || isBlack(s.albedo)) continue;
-        Rgb e(0.0f);
-        if (const SharedGather* found = shared.find(s.position, s.normal, Vec3f(0.0f), 0)) {
-          e = found->value;
-          sharedCount.fetch_add(1, std::memory_order_relaxed);
-        } else {
-          auto gathered = gatherers.local().irradiance(cache, s.position, s.normal, &st);
-          if (!gathered.ok()) {
-            errors[i] = gathered.status();
-            return;
-          }
-          e = *gathered;
-          shared.add({.p = s.position,
-                      .n = s.normal,
-                      .reach = kBounceReuseRadii * s.radius,
-                      .value = e});
-        }
-        s.radiance += s.albedo * kInvPi * e;
-      }
-    });
-    for (size_t i = 0; i < n; ++i) {
-      if (!errors[i].ok()) return errors[i];
-      if (auto s = (*writer)->add(batch[i]); !s.ok()) return s;
+      if (auto st = (*writer)->add(batch[i]); !st.ok()) return st;
     }
     done += n;
-    if (request.progress) request.progress("bounce", done, surfels);
   }
-  for (const GatherStats& s : stats) *gatherStats += s;
-  *sharedGathers += sharedCount.load();
   return (*writer)->finish();
 }
 
@@ -177,7 +247,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     return absl::InvalidArgumentError(
         fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));
   }
-  if (auto s = request.gather.validate(); !s.ok()) return s;
+  if (auto s = request.bounceCut.validate(); !s.ok()) return s;
   if (request.lightSamples < 1) {
     return absl::InvalidArgumentError(
         fmt::format("light samples {}: expected at least 1", request.lightSamples));
@@ -320,6 +390,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     SortedSurfel next;
     uint8_t record[kSurfelRecordBytes];
     uint64_t built = 0;
+    double directPower[3] = {0.0, 0.0, 0.0};  // what the reflecting surfels send of direct light
     while (true) {
       auto more = sorter.next(&next);
       if (!more.ok()) return result = more.status(), void();
@@ -328,6 +399,9 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       if (sorted) {
         encodeSurfelRecord(next, record);
         if (auto s = sorted->write(record); !s.ok()) return result = s, void();
+        if (reflectsLight(next.surfel)) {
+          for (int c = 0; c < 3; ++c) directPower[c] += next.surfel.area() * next.surfel.radiance[c];
+        }
       }
       if (request.progress && (++built & 0xffff) == 0) {
         request.progress("build", built, report.sampling.surfels);
@@ -340,15 +414,46 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     // The sorter merges its runs lazily, as the build pulls surfels: both are in this stage.
     clock.lap("merge+build");
 
+    // Bounce k gathers from tree k - 1 and writes tree k, except the last, which only gathers:
+    // the final tree is written after it, with the estimated tail (or without one).
+    report.bouncePower.push_back(Rgb(static_cast<float>(directPower[0]),
+                                     static_cast<float>(directPower[1]),
+                                     static_cast<float>(directPower[2])));
+    std::vector<SpillFile> irradiance;  // the last two bounces' irradiance per surfel
     for (int bounce = 1; bounce <= request.bounces; ++bounce) {
-      auto lit = bakeBounce(bounceTreePath(bounce - 1), bounceTreePath(bounce), *sorted,
-                            treeOptions, request, report.sampling.surfels, &report.gather,
-                            &report.sharedGathers);
+      auto spill = SpillFile::create(request.tempDir, "pbgi-bake-irradiance");
+      if (!spill.ok()) return result = spill.status(), void();
+      if (irradiance.size() == 2) irradiance.erase(irradiance.begin());
+      irradiance.push_back(std::move(*spill));
+      const bool last = bounce == request.bounces;
+      const std::string to = bounceTreePath(bounce);
+      Rgb power(0.0f);
+      auto lit = bakeBounce(bounceTreePath(bounce - 1), last ? nullptr : &to, *sorted,
+                            {.previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
+                             .next = &irradiance.back()},
+                            treeOptions, request, shot.render.seed, report.sampling.surfels,
+                            bounce, scene, &report.bounceCut, &power);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
       if (!lit.ok()) return result = lit.status(), void();
-      report.tree = *lit;
+      report.bouncePower.push_back(power);
+      if (!last) report.tree = *lit;
       clock.lap(fmt::format("bounce {}", bounce));
+    }
+    if (request.bounces > 0) {
+      const auto power = [&](int k) {
+        const Rgb& p = report.bouncePower[static_cast<size_t>(k)];
+        return std::array<double, 3>{p.x, p.y, p.z};
+      };
+      report.tail = request.bounceTail
+                        ? tailFactor(power(request.bounces), power(request.bounces - 1))
+                        : Rgb(0.0f);
+      auto final = writeFinalTree(report.treePath, *sorted, irradiance.back(),
+                                  irradiance.size() == 2 ? &irradiance[0] : nullptr, report.tail,
+                                  treeOptions, report.sampling.surfels);
+      if (!final.ok()) return result = final.status(), void();
+      report.tree = *final;
+      clock.lap("final tree");
     }
     report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
 

@@ -10,7 +10,11 @@
 //
 // Bounces (Christensen's multi-pass): the sorted surfels are kept in a spill with their
 // direct light; each bounce gathers irradiance for every diffuse surfel from the previous
-// bounce's tree (read through a page cache of a quarter of the budget) and builds the next.
+// bounce's tree (read through a page cache of a quarter of the budget), chunk by chunk of the
+// sorted stream through the bidirectional cut (core/bake/surfel_bounce.h), and builds the
+// next. Each surfel's irradiance is kept in a spill too, so that after the last bounce the
+// light of the bounces not baked is estimated from the last two (a geometric tail) and added
+// as the final tree is built.
 //
 // Memory: surfels stream through in chunks; the external sort gets half the budget, the
 // tree's spill and page buffers a few MiB. The point cloud is the one part OpenVDB builds in
@@ -26,7 +30,7 @@
 #include "core/bake/surfel_sampler.h"
 #include "core/bake/surfel_shading.h"
 #include "core/pbgi/external_sort.h"
-#include "core/pbgi/gather.h"
+#include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/tree_writer.h"
 #include "core/scene/shot.h"
 #include "services/util/stage_time.h"
@@ -41,7 +45,8 @@ struct FrameBakeRequest {
   uint64_t points = 0;       // 0: kDefaultBakePoints
   size_t memoryBudget = size_t{1} << 30;
   int bounces = 0;           // indirect bounces gathered over the tree itself
-  GatherOptions gather;      // how those bounces gather
+  CutOptions bounceCut;      // how those bounces gather
+  bool bounceTail = true;    // estimate the bounces past the last (see above)
   int lightSamples = 16;     // per surfel, for direct light
   int threads = 0;           // 0: all cores
   TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes (seed: the shot's)
@@ -61,13 +66,17 @@ struct FrameBakeReport {
   SurfelShadingStats shading;
   SortStats sort;
   TreeWriteResult tree;
-  GatherStats gather;  // of the bounces
-  uint64_t sharedGathers = 0;  // bounce receivers that took a neighbour's gather
+  CutStats bounceCut;  // the bounces' cuts
+  std::vector<Rgb> bouncePower;  // reflected power of the direct light (0), then each bounce
+  Rgb tail{0.0f};      // r / (1 - r) per channel: the last bounce's light scaled by 1 + this
   uint64_t treeFileBytes = 0;
   std::vector<StageTime> stages;
   std::vector<std::string> warnings;
   double wallSeconds = 0.0;
 };
+
+// The cut's chunks: a bounce's receivers are this many consecutive sorted surfels.
+inline constexpr size_t kBounceChunkSurfels = 4096;
 
 // The bake a shot's [render] settings ask for (bake_points, bake_bounces, bake_quality) of
 // `frame`, as `pbgi bake` and the PBGI renderer both start from it, so that one reuses the

@@ -31,6 +31,7 @@ struct BakeOptions {
   std::string pointCloud = "auto";
   std::string tempDir;
   std::optional<std::string> bounceQuality;
+  bool noTail = false;
 };
 
 int runBake(const BakeOptions& o) {
@@ -66,10 +67,11 @@ int runBake(const BakeOptions& o) {
                                                  : PointCloudMode::kAuto;
   if (o.bounces) request.bounces = *o.bounces;
   if (o.bounceQuality) {
-    auto gather = gatherPreset(*o.bounceQuality);
-    if (!gather.ok()) return reportError(gather.status());
-    request.gather = *gather;
+    auto cut = cutPreset(*o.bounceQuality);
+    if (!cut.ok()) return reportError(cut.status());
+    request.bounceCut = *cut;
   }
+  request.bounceTail = !o.noTail;
   request.lightSamples = o.lightSamples;
   request.threads = o.threads;
   request.tempDir = o.tempDir;
@@ -102,9 +104,16 @@ int runBake(const BakeOptions& o) {
   }
   std::printf("  sort: %s\n", report->sort.toString().c_str());
   if (request.bounces > 0) {
-    std::printf("  bounces: %s, receivers sharing a neighbour's gather %llu\n",
-                report->gather.toString().c_str(),
-                static_cast<unsigned long long>(report->sharedGathers));
+    std::printf("  bounces: %s\n    cuts: %s\n", request.bounceCut.toString().c_str(),
+                report->bounceCut.toString().c_str());
+    std::printf("    reflected power per bounce (relative to the direct light's):");
+    const Rgb& direct = report->bouncePower.front();
+    for (size_t k = 1; k < report->bouncePower.size(); ++k) {
+      std::printf(" %zu: %.3f", k, luminance(report->bouncePower[k]) / std::max(luminance(direct), 1e-30f));
+    }
+    std::printf("\n    bounces past the last: %s (the last bounce's light times 1 + (%.3f, %.3f, %.3f))\n",
+                request.bounceTail ? "estimated" : "left out", report->tail.x, report->tail.y,
+                report->tail.z);
   }
   std::printf("%s", formatStages(report->stages).c_str());
   std::printf("wall time %.3f s\n", report->wallSeconds);
@@ -132,6 +141,8 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
                   "Gather preset for the bounces: draft, default, high (default: the shot's "
                   "bake_quality)")
       ->check(CLI::IsMember({"draft", "default", "high"}));
+  cmd->add_flag("--no-tail", options->noTail,
+               "Leave out the light of the bounces past the last instead of estimating it");
   cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")
       ->check(CLI::PositiveNumber);
   cmd->add_option("--threads", options->threads, "Worker threads (default: all cores)")

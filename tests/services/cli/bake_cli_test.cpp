@@ -130,9 +130,9 @@ TEST(BakeCli, BouncesAddLessAndLessLight) {
   const fs::path dir = testing::makeTempDir("bake-cli-bounces");
   float power[3];
   for (int k = 0; k < 3; ++k) {
-    const std::string tree = bake(dir / std::to_string(k),
-                                  fmt::format("--bounces {} --bounce-quality draft --point-cloud never", k),
-                                  8000);
+    const std::string tree = bake(
+        dir / std::to_string(k),
+        fmt::format("--bounces {} --bounce-quality draft --point-cloud never --no-tail", k), 8000);
     power[k] = rootPower(tree);
     // No temporary tree of an earlier bounce is left behind.
     EXPECT_EQ(testing::filesIn(dir / std::to_string(k)).size(), 1u);
@@ -141,7 +141,28 @@ TEST(BakeCli, BouncesAddLessAndLessLight) {
   EXPECT_GT(power[1], power[0] * 1.1f) << power[0] << " " << power[1];
   EXPECT_GT(power[2], power[1]) << power[1] << " " << power[2];
   EXPECT_LT(power[2] - power[1], power[1] - power[0]);
-  std::cout << "root power by bounces: " << power[0] << " " << power[1] << " " << power[2] << "\n";
+  std::cout << "root power by bounces, no tail: " << power[0] << " " << power[1] << " "
+            << power[2] << "\n";
+}
+
+// With the light past the last bounce estimated, one, two and three bounces make nearly the
+// same tree: the estimate stands in for the bounces not baked. Without it, three bounces fall
+// short by what the fourth and later would add.
+TEST(BakeCli, TheTailEstimatesTheBouncesNotBaked) {
+  const fs::path dir = testing::makeTempDir("bake-cli-tail");
+  float withTail[4] = {};
+  for (int k = 1; k <= 3; ++k) {
+    withTail[k] = rootPower(bake(
+        dir / std::to_string(k),
+        fmt::format("--bounces {} --bounce-quality draft --point-cloud never", k), 8000));
+  }
+  const float withoutTail = rootPower(bake(
+      dir / "notail", "--bounces 3 --bounce-quality draft --point-cloud never --no-tail", 8000));
+  std::cout << "root power with the tail after 1, 2, 3 bounces: " << withTail[1] << " "
+            << withTail[2] << " " << withTail[3] << "; 3 without: " << withoutTail << "\n";
+  EXPECT_NEAR(withTail[2], withTail[3], 0.03f * withTail[3]);
+  EXPECT_NEAR(withTail[1], withTail[3], 0.08f * withTail[3]);
+  EXPECT_GT(withTail[3], withoutTail * 1.02f);
 }
 
 }  // namespace

@@ -1,0 +1,56 @@
+#pragma once
+// One bounce of indirect light for the surfels of a bake (Christensen's multi-pass): every
+// surfel that reflects light (diffuse, non-black albedo) gathers the irradiance the previous
+// bounce's tree sends it, and reflects albedo / pi of it on top of its direct light. The
+// surfels of a chunk (neighbours along the Morton curve) gather together, through one
+// bidirectional cut whose receivers are the surfels themselves: the same machinery as a
+// frame's shading points, so that bounce light and the image agree on how light is gathered.
+//
+// The light past the last bounce. K bounces leave out bounces K+1, K+2, ...: with power P_k in
+// bounce k, their sum is close to a geometric tail, P_K r / (1 - r) with r = P_K / P_{K-1},
+// spread as the last bounce spreads (higher bounces converge to the same distribution). So the
+// last bounce's light is scaled by 1 + r / (1 - r) instead of being baked further.
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <absl/status/status.h>
+
+#include "core/pbgi/bidirectional_cut.h"
+#include "core/pbgi/surfel.h"
+#include "core/pbgi/tree_page.h"
+#include "core/scene/scene.h"
+
+namespace pbgi {
+
+// Whether a surfel reflects gathered light at all.
+bool reflectsLight(const Surfel& s);
+
+// Gathers for chunks of surfels, reusing its buffers. One per thread.
+class SurfelBouncer {
+ public:
+  explicit SurfelBouncer(const CutOptions& options);
+
+  // irradiance[i] = what surfels[i]'s front side gathers from `tree` (black for surfels that
+  // reflect nothing). `key` seeds the cut: derive it from the chunk's place in the bake, so
+  // that the result does not depend on the threads.
+  absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
+                      uint64_t key, std::span<Rgb> irradiance, CutStats* stats);
+
+ private:
+  BidirectionalCut cut_;
+  std::vector<CutReceiver> receivers_;
+  std::vector<uint32_t> of_;  // receiver -> surfel
+  std::vector<Rgb> gathered_;
+};
+
+// The power (per channel, area times radiance) that surfels reflect from irradiance `e`.
+Rgb reflectedPower(const Surfel& s, const Rgb& e);
+
+// The factor r / (1 - r), per channel, that estimates bounces K+1, K+2, ... from bounce K's
+// power over bounce K-1's (r held to [0, kMaxBounceRatio]; 0 where either power is 0).
+inline constexpr float kMaxBounceRatio = 0.95f;
+Rgb tailFactor(const std::array<double, 3>& lastPower, const std::array<double, 3>& previousPower);
+
+}  // namespace pbgi
