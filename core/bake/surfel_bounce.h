@@ -1,7 +1,8 @@
 #pragma once
 // One bounce of indirect light for the surfels of a bake (Christensen's multi-pass): every
 // surfel that reflects light (diffuse, non-black albedo) gathers the irradiance the previous
-// bounce's tree sends it, and reflects albedo / pi of it on top of its direct light. The
+// bounce's tree sends each of its two sides (surfaces are two-sided), and reflects albedo / pi
+// of each on top of that side's direct light. The
 // surfels of a chunk (neighbours along the Morton curve) gather together, through one
 // bidirectional cut whose receivers are the surfels themselves: the same machinery as a
 // frame's shading points, so that bounce light and the image agree on how light is gathered.
@@ -27,16 +28,22 @@ namespace pbgi {
 // Whether a surfel reflects gathered light at all.
 bool reflectsLight(const Surfel& s);
 
+// The irradiance on a surfel's two sides.
+struct SurfelIrradiance {
+  Rgb front{0.0f};
+  Rgb back{0.0f};
+};
+
 // Gathers for chunks of surfels, reusing its buffers. One per thread.
 class SurfelBouncer {
  public:
   explicit SurfelBouncer(const CutOptions& options);
 
-  // irradiance[i] = what surfels[i]'s front side gathers from `tree` (black for surfels that
+  // irradiance[i] = what surfels[i]'s two sides gather from `tree` (black for surfels that
   // reflect nothing). `key` seeds the cut: derive it from the chunk's place in the bake, so
   // that the result does not depend on the threads.
   absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
-                      uint64_t key, std::span<Rgb> irradiance, CutStats* stats);
+                      uint64_t key, std::span<SurfelIrradiance> irradiance, CutStats* stats);
 
  private:
   BidirectionalCut cut_;
@@ -45,8 +52,11 @@ class SurfelBouncer {
   std::vector<Rgb> gathered_;
 };
 
-// The power (per channel, area times radiance) that surfels reflect from irradiance `e`.
-Rgb reflectedPower(const Surfel& s, const Rgb& e);
+// The power (per channel, area times radiance, both sides) that a surfel reflects from `e`.
+Rgb reflectedPower(const Surfel& s, const SurfelIrradiance& e);
+
+// A surfel lit by `e` on top of its direct light: radiance += albedo / pi * (front, back).
+void addReflected(Surfel& s, const SurfelIrradiance& e);
 
 // The factor r / (1 - r), per channel, that estimates bounces K+1, K+2, ... from bounce K's
 // power over bounce K-1's (r held to [0, kMaxBounceRatio]; 0 where either power is 0).

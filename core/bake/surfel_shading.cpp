@@ -43,33 +43,41 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
           PBGI_CHECK_LT(local, meshes[m].triangleCount());
           const Material& material = scene.material(meshes[m].materials[local]);
 
-          Rgb radiance(0.0f);
+          // Emissive materials emit on both sides, as the scene's triangle lights do.
+          Rgb radiance(0.0f), backRadiance(0.0f);
           if (!isBlack(material.radiance) && isFinite(material.radiance)) {
             radiance += material.radiance;
+            backRadiance += material.radiance;
             ++localEmissive;
           }
           const Rgb diffuse = material.type == MaterialType::kDiffuse ? surfel.albedo : Rgb(0.0f);
           if (!isBlack(diffuse)) {
+            // Two-sided, as for the path tracer: each light sample lights the side it arrives
+            // on, so a wall wound the wrong way is lit on the side the light reaches.
             Rng rng = Rng::forKeys(options.seed, options.frame, firstSurfelIndex + i,
                                    kSurfelDirectLightDomain);
-            Rgb irradiance(0.0f);
+            Rgb front(0.0f), back(0.0f);
             for (int s = 0; s < options.lightSamples; ++s) {
-              const Rgb e =
-                  sampleIrradiance(scene, surfel.position, surfel.normal, surfel.normal, rng);
-              if (isFinite(e)) {
-                irradiance += e;
+              const TwoSidedIrradiance e =
+                  sampleIrradianceBothSides(scene, surfel.position, surfel.normal, rng);
+              if (isFinite(e.front) && isFinite(e.back)) {
+                front += e.front;
+                back += e.back;
               } else {
                 ++localDiscarded;
               }
             }
-            radiance += diffuse * (irradiance * (invSamples * kInvPi));
+            radiance += diffuse * (front * (invSamples * kInvPi));
+            backRadiance += diffuse * (back * (invSamples * kInvPi));
           }
           // A NaN albedo (a broken texture) must not reach the tree's sums.
-          if (!isFinite(radiance)) {
+          if (!isFinite(radiance) || !isFinite(backRadiance)) {
             radiance = Rgb(0.0f);
+            backRadiance = Rgb(0.0f);
             ++localNonFinite;
           }
           surfel.radiance = radiance;
+          surfel.backRadiance = backRadiance;
         }
         emissive.fetch_add(localEmissive, std::memory_order_relaxed);
         discarded.fetch_add(localDiscarded, std::memory_order_relaxed);

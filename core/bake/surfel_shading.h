@@ -1,10 +1,12 @@
 #pragma once
 // Direct lighting of surfels: the outgoing diffuse radiance that the PBGI tree aggregates.
 //
-// radiance = emitted + diffuseAlbedo / pi * E, where E is the irradiance on the surfel's front
-// side estimated with the path tracer's own light sampling (sampleIrradiance: every light
-// type, Embree shadow rays), so that the PBGI integrators differ from the reference only in
-// how they gather indirect light.
+// radiance = emitted + diffuseAlbedo / pi * E_front, backRadiance = emitted + diffuseAlbedo /
+// pi * E_back, where E_front and E_back are the irradiance on the surfel's two sides (surfaces
+// are two-sided, as for the path tracer) estimated with the path tracer's own light sampling
+// (sampleIrradianceBothSides: every light type, Embree shadow rays; each sample lights the side
+// it arrives on), so that the PBGI integrators differ from the reference only in how they
+// gather indirect light.
 //
 // Only the Lambertian part of a material reflects into this radiance. Conductors and
 // dielectrics have no Lambertian lobe, so glossy and transmissive surfels reflect nothing

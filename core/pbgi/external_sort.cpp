@@ -38,8 +38,8 @@ Vec3f getVec3(const uint8_t* p) { return {loadF32(p), loadF32(p + 4), loadF32(p 
 
 // Byte offsets of the fields; the last one is the record size.
 constexpr size_t kOffKey = 0, kOffSequence = 8, kOffPosition = 16, kOffNormal = 28, kOffRadius = 40,
-                 kOffAlbedo = 44, kOffRadiance = 56, kOffMaterial = 68, kOffTriangle = 69,
-                 kOffBarycentric = 73, kOffEnd = 81;
+                 kOffAlbedo = 44, kOffRadiance = 56, kOffBackRadiance = 68, kOffMaterial = 80,
+                 kOffTriangle = 81, kOffBarycentric = 85, kOffEnd = 93;
 static_assert(kOffEnd == kSurfelRecordBytes);
 
 
@@ -84,6 +84,7 @@ void encodeSurfelRecord(const SortedSurfel& r, uint8_t* out) {
   storeF32(out + kOffRadius, s.radius);
   putVec3(out + kOffAlbedo, s.albedo);
   putVec3(out + kOffRadiance, s.radiance);
+  putVec3(out + kOffBackRadiance, s.backRadiance);
   out[kOffMaterial] = static_cast<uint8_t>(s.materialClass);
   storeU32(out + kOffTriangle, s.triangle);
   storeF32(out + kOffBarycentric, s.barycentric.x);
@@ -105,6 +106,7 @@ absl::Status decodeSurfelRecord(const uint8_t* in, SortedSurfel* out) {
   s.radius = loadF32(in + kOffRadius);
   s.albedo = getVec3(in + kOffAlbedo);
   s.radiance = getVec3(in + kOffRadiance);
+  s.backRadiance = getVec3(in + kOffBackRadiance);
   s.materialClass = static_cast<MaterialClass>(material);
   s.triangle = loadU32(in + kOffTriangle);
   s.barycentric = Vec2f(loadF32(in + kOffBarycentric), loadF32(in + kOffBarycentric + 4));

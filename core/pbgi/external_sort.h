@@ -37,10 +37,11 @@ struct SortedSurfel {
 
 // Spill files hold records in an explicit little-endian fixed-width layout, never a struct
 // image (Surfel has padding): key u64, sequence u64, position 3xf32, normal 3xf32, radius f32,
-// albedo 3xf32, radiance 3xf32, material class u8, triangle u32, barycentric 2xf32. Floats are
+// albedo 3xf32, radiance 3xf32, back radiance 3xf32, material class u8, triangle u32,
+// barycentric 2xf32. Floats are
 // stored as their bit patterns, so a record decodes to exactly what was encoded (NaN payloads
 // and -0 included).
-inline constexpr size_t kSurfelRecordBytes = 81;
+inline constexpr size_t kSurfelRecordBytes = 93;
 
 void encodeSurfelRecord(const SortedSurfel& record, uint8_t* out);
 // Fails (InvalidArgument) on a material class byte that names no MaterialClass.

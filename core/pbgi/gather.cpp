@@ -18,11 +18,12 @@ using gather_internal::clusterRadiance;
 using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
 using gather_internal::clusterDepthExtent;
-using gather_internal::cullSurfel;
+using gather_internal::facingSide;
+using gather_internal::FacingSide;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
 using gather_internal::NodeBounds;
-using gather_internal::SurfelCull;
+using gather_internal::skipSurfel;
 using gather_internal::viewCluster;
 
 absl::Status receiverError(const Vec3f& position, const Vec3f& normal) {
@@ -85,7 +86,6 @@ GatherStats& GatherStats::operator+=(const GatherStats& o) {
   gathers += o.gathers;
   nodesVisited += o.nodesVisited;
   nodesCulledPlane += o.nodesCulledPlane;
-  nodesCulledCone += o.nodesCulledCone;
   clustersSplatted += o.clustersSplatted;
   clustersInvisible += o.clustersInvisible;
   disksSplatted += o.disksSplatted;
@@ -100,10 +100,10 @@ GatherStats& GatherStats::operator+=(const GatherStats& o) {
 
 std::string GatherStats::toString() const {
   return fmt::format(
-      "gathers={} nodes_visited={} culled_plane={} culled_cone={} clusters={} "
+      "gathers={} nodes_visited={} culled_plane={} clusters={} "
       "clusters_invisible={} disks={} near_field={} surfels_skipped={} surfels_back_facing={} "
       "pages_touched={} faces_skipped={} pixels_skipped={}",
-      gathers, nodesVisited, nodesCulledPlane, nodesCulledCone, clustersSplatted, clustersInvisible,
+      gathers, nodesVisited, nodesCulledPlane, clustersSplatted, clustersInvisible,
       disksSplatted, nearFieldRayCasts, surfelsSkipped, surfelsBackFacing, pagesTouched,
       facesSkipped, pixelsSkipped);
 }
@@ -118,16 +118,19 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
   for (const Surfel& s : page.surfelsOf(leaf)) {
     Vec3f v;
     float dist2;
-    const SurfelCull cull = cullSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2);
-    if (cull != SurfelCull::kNone) {
-      ++(cull == SurfelCull::kSkipped ? stats->surfelsSkipped : stats->surfelsBackFacing);
+    if (skipSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2)) {
+      ++stats->surfelsSkipped;
       continue;
     }
+    // Two-sided: the side facing the receiver, with its own radiance.
+    const FacingSide side = facingSide(s, v);
+    if (side.back) ++stats->surfelsBackFacing;
     if (dist2 < sqr(options_.nearFieldFactor * s.radius)) {
-      buffer_.rayCastDisk(s.position, s.normal, s.radius, s.radiance);
+      buffer_.rayCastDisk(s.position, side.normal, s.radius, side.radiance);
       ++stats->nearFieldRayCasts;
     } else {
-      buffer_.splatDisk(s.position, s.normal, s.radius, s.radiance, kLayerExtentFactor * s.radius);
+      buffer_.splatDisk(s.position, side.normal, s.radius, side.radiance,
+                        kLayerExtentFactor * s.radius);
       ++stats->disksSplatted;
     }
   }
@@ -148,7 +151,7 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
     const Vec3f dir = toCentroid / distance;
     ClusterView view;
     viewCluster(a, dir, &view);
-    const float area = view.area;
+    const float area = view.coverage();  // both sides: a node seen from behind covers too
     if (area > maxSolidAngle * distance2) return false;
     if (!(area > 0.0f)) {
       ++stats->clustersInvisible;

@@ -4,8 +4,8 @@
 // cube microbuffer around it.
 //
 // Per node, from the receiver at p with normal n:
-//   - culled when its bounds lie entirely behind the tangent plane at p, or when its normal
-//     cone faces entirely away from p (seen from behind, surfels and nodes are transparent);
+//   - culled when its bounds lie entirely behind the tangent plane at p (surfels are
+//     two-sided: seen from behind, a surfel occludes and sends its back side's radiance);
 //   - splatted as a cluster when small from p: its projected area towards p (from its SH,
 //     held within what its normal cone allows) over its distance squared is at most
 //     maxSolidAngle, and its bounding sphere not much larger; with the mean radiance its
@@ -64,13 +64,12 @@ struct GatherStats {
   uint64_t gathers = 0;
   uint64_t nodesVisited = 0;
   uint64_t nodesCulledPlane = 0;  // entirely behind the receiver's tangent plane
-  uint64_t nodesCulledCone = 0;   // normals all facing away from the receiver
   uint64_t clustersSplatted = 0;
   uint64_t clustersInvisible = 0;  // small, but no projected area towards the receiver
   uint64_t disksSplatted = 0;
   uint64_t nearFieldRayCasts = 0;
   uint64_t surfelsSkipped = 0;  // behind or on the tangent plane, or holding the receiver
-  uint64_t surfelsBackFacing = 0;
+  uint64_t surfelsBackFacing = 0;  // seen from behind: their back side gathered
   uint64_t pagesTouched = 0;   // page() calls
   uint64_t facesSkipped = 0;   // microbuffer faces entirely below the horizon
   uint64_t pixelsSkipped = 0;  // microbuffer pixels below the horizon, never rasterized

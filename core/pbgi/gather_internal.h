@@ -43,29 +43,19 @@ inline constexpr float kLayerExtentFactor = 2.0f;
 // Surfels centred within this fraction of their radius of the receiver's tangent plane
 // (or behind it) are on the receiver's own surface.
 inline constexpr float kCoplanarFraction = 0.01f;
+// A receiver within this fraction of a radius of a surfel's plane (and within the self-skip
+// radius of its centre) lies on the surfel's disk.
+inline constexpr float kOwnSurfaceFraction = 0.1f;
 
 inline float absDotExtent(const Vec3f& n, const Vec3f& half) {
   return std::abs(n.x) * half.x + std::abs(n.y) * half.y + std::abs(n.z) * half.z;
 }
 
-// True when every surfel under a node with normal cone `cone`, inside the sphere (centre at
-// `distance` from the receiver along -toReceiver, radius `radius`), faces away from the
-// receiver: the angle between the cone's axis and toReceiver (unit) exceeds 90 degrees plus
-// the cone's half-angle plus the angle the sphere subtends.
-inline bool facesAway(const NormalCone& cone, const Vec3f& toReceiver, float distance,
-                      float radius) {
-  const float sinB = radius / distance;
-  const float cosB = safeSqrt(1.0f - sinB * sinB);
-  const float cosG = cone.cosAngle;
-  const float sinG = safeSqrt(1.0f - cosG * cosG);
-  if (cosG * cosB - sinG * sinB <= 0.0f) return false;  // the two angles reach 90 degrees
-  return dot(cone.axis, toReceiver) < -(sinG * cosB + cosG * sinB);
-}
-
 // How the traversal sees a node from the receiver at p with normal n (unit): culled when its
-// bounds lie entirely behind the tangent plane (their largest height above it is at most 0)
-// or, seen from outside its bounding sphere, when its normals all face away.
-enum class NodeCull { kNone, kPlane, kCone };
+// bounds lie entirely behind the tangent plane (their largest height above it is at most 0).
+// Surfels are two-sided (each side sends its own radiance and both occlude), so a node whose
+// normals all face away is not culled: the receiver sees its back sides.
+enum class NodeCull { kNone, kPlane };
 struct NodeBounds {
   float boundRadius2 = 0.0f;     // of the sphere around the bounds' centre
   float centerDistance2 = 0.0f;  // from the receiver to that centre
@@ -82,38 +72,41 @@ inline NodeCull cullNode(const NodeAttributes& a, const Vec3f& p, const Vec3f& n
   }
   b->boundRadius2 = half.length2();
   b->centerDistance2 = fromReceiver.length2();
-  if (b->outside()) {
-    const float centerDistance = std::sqrt(b->centerDistance2);
-    if (facesAway(a.cone, fromReceiver / -centerDistance, centerDistance,
-                  std::sqrt(b->boundRadius2))) {
-      return NodeCull::kCone;
-    }
-  }
   return NodeCull::kNone;
 }
 
 // How the traversal sees a surfel: skipped when centred on or behind the receiver's tangent
-// plane or when its disk, grown by selfSkipRadius, holds the receiver (the receiver's own
-// surface: it would shadow the receiver with itself); back-facing surfels are transparent.
-// `v` receives the surfel's centre from the receiver and `dist2` its length squared.
-enum class SurfelCull { kNone, kSkipped, kBackFacing };
-
-inline SurfelCull cullSurfel(const Surfel& s, const Vec3f& p, const Vec3f& n, float slack,
-                             float selfSkipRadius, Vec3f* v, float* dist2) {
+// plane, or when the receiver lies on its disk grown by selfSkipRadius (within that many radii
+// of its centre and within a tenth of a radius of its plane: the receiver's own surface, which
+// would shadow the receiver with itself). A surfel on another surface right next to the
+// receiver (a wall at the floor's edge) is gathered however near. `v` receives the surfel's
+// centre from the receiver and `dist2` its length squared.
+inline bool skipSurfel(const Surfel& s, const Vec3f& p, const Vec3f& n, float slack,
+                       float selfSkipRadius, Vec3f* v, float* dist2) {
   *v = s.position - p;
   *dist2 = v->length2();
-  if (dot(*v, n) <= kCoplanarFraction * s.radius + slack ||
-      *dist2 <= sqr(selfSkipRadius * s.radius)) {
-    return SurfelCull::kSkipped;
-  }
-  return dot(s.normal, *v) >= 0.0f ? SurfelCull::kBackFacing : SurfelCull::kNone;
+  return dot(*v, n) <= kCoplanarFraction * s.radius + slack ||
+         (*dist2 <= sqr(selfSkipRadius * s.radius) &&
+          std::abs(dot(*v, s.normal)) <= kOwnSurfaceFraction * s.radius);
 }
 
-// The projected area of a node towards w (unit, from the node to the receiver): its SH
-// estimate held within what the normal cone allows, area * cos(angle to w) between the
-// cone's extremes. Band-2 SH overshoot a clamped cosine by 6 % face-on and ring above 0 past
-// 90 degrees; coverage is energy here, so a flat cluster (narrow cone) must get its exact
-// area * cos, and only a curved one the SH's shape.
+// The side of a two-sided surfel that faces a receiver at `v` from it (v: receiver to
+// surfel): its normal and radiance on that side, and whether it is the back.
+struct FacingSide {
+  Vec3f normal;
+  Rgb radiance;
+  bool back;
+};
+inline FacingSide facingSide(const Surfel& s, const Vec3f& v) {
+  if (dot(s.normal, v) < 0.0f) return {s.normal, s.radiance, false};
+  return {-s.normal, s.backRadiance, true};
+}
+
+// The projected area of a node's front sides towards w (unit, from the node to the
+// receiver): its SH estimate held within what the normal cone allows, area * cos(angle to w)
+// between the cone's extremes. Band-2 SH overshoot a clamped cosine by 6 % face-on and ring
+// above 0 past 90 degrees; coverage is energy here, so a flat cluster (narrow cone) must get
+// its exact area * cos, and only a curved one the SH's shape.
 inline float boundedProjectedArea(const NodeAttributes& a, float shArea, const Vec3f& w) {
   const float cosT = dot(a.cone.axis, w);
   const float sinT = safeSqrt(1.0f - cosT * cosT);
@@ -142,30 +135,44 @@ inline float clusterDepthExtent(const NodeAttributes& a, const Vec3f& dir) {
 }
 
 // A node seen from the receiver along unit `dir` (receiver to centroid): the SH basis
-// towards the receiver, the raw SH projected area and the bounded one.
+// towards the receiver, the raw SH projected area of the front sides and the bounded one, the
+// bounded area of the back sides (the front area seen from the other way: a surfel shows the
+// receiver its back when its front faces away), and all it covers.
 struct ClusterView {
   float basis[kShCoefficients];
   float shArea = 0.0f;
-  float area = 0.0f;
+  float area = 0.0f;      // front sides
+  float backArea = 0.0f;  // back sides
+  float coverage() const { return area + backArea; }
 };
 
 inline void viewCluster(const NodeAttributes& a, const Vec3f& dir, ClusterView* view) {
   evalShBasis(-dir, view->basis);  // towards the receiver, as the node's functions expect
-  float shArea = 0.0f;
-  for (int i = 0; i < kShCoefficients; ++i) shArea += a.areaSh.c[i] * view->basis[i];
+  float shArea = 0.0f, shBack = 0.0f;
+  for (int i = 0; i < kShCoefficients; ++i) {
+    const float term = a.areaSh.c[i] * view->basis[i];
+    shArea += term;
+    // At dir rather than -dir: band 1 (i = 1..3) changes sign, bands 0 and 2 do not.
+    shBack += (i >= 1 && i <= 3) ? -term : term;
+  }
   view->shArea = shArea;
   view->area = boundedProjectedArea(a, shArea, -dir);
+  view->backArea = boundedProjectedArea(a, shBack, dir);
 }
 
-// The mean radiance the cluster sends the receiver: the SH ratio, in which their common
-// ringing cancels.
+// The mean radiance the cluster sends the receiver over all it covers: its front sides' from
+// the SH ratio (in which their common ringing cancels), its back sides' the mean back
+// radiance, weighted by the areas each side shows.
 inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view) {
-  Rgb radiance(0.0f);
+  Rgb front(0.0f);
   if (view.shArea > 0.0f) {
-    for (int i = 0; i < kShCoefficients; ++i) radiance += a.powerSh.c[i] * view.basis[i];
-    radiance = vmax(radiance, Rgb(0.0f)) / view.shArea;
+    for (int i = 0; i < kShCoefficients; ++i) front += a.powerSh.c[i] * view.basis[i];
+    front = vmax(front, Rgb(0.0f)) / view.shArea;
   }
-  return radiance;
+  const float covered = view.coverage();
+  if (!(covered > 0.0f)) return Rgb(0.0f);
+  const Rgb back = a.area > 0.0f ? vmax(a.backPower, Rgb(0.0f)) / a.area : Rgb(0.0f);
+  return (front * view.area + back * view.backArea) / covered;
 }
 
 // The node a reference names, DataLoss when the page has no such node.
@@ -291,7 +298,7 @@ absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
     NodeBounds bounds;
     const NodeCull cull = cullNode(node.attributes, p, n, planeSlack, &bounds);
     if (cull != NodeCull::kNone) {
-      ++(cull == NodeCull::kPlane ? stats->nodesCulledPlane : stats->nodesCulledCone);
+      ++stats->nodesCulledPlane;
       continue;
     }
     if (bounds.outside() && splat(node.attributes, bounds)) continue;

@@ -60,6 +60,7 @@ NodeAttributes leafAttributes(std::span<const Surfel> surfels) {
     weighted += s.position * a;
     node.areaSh += projectedAreaSh(s.normal, a);
     node.powerSh += lambertianIntensitySh(s.normal, a, s.radiance);
+    node.backPower += s.backRadiance * a;
   }
   node.pointCount = surfels.size();
   node.centroid = node.area > 0.0f ? weighted / node.area
@@ -82,6 +83,7 @@ NodeAttributes mergeAttributes(std::span<const NodeAttributes> children) {
     weighted += c.centroid * c.area;
     node.areaSh += c.areaSh;
     node.powerSh += c.powerSh;
+    node.backPower += c.backPower;
   }
   node.centroid = node.area > 0.0f ? weighted / node.area
                   : children.empty() ? Vec3f(0.0f)

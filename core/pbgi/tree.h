@@ -5,7 +5,12 @@
 // Per node: tight bounds, the area-weighted centroid, a cone bounding the surfels' normals,
 // the total disk area, the projected area as a spherical function (9 SH coefficients), and
 // the radiant intensity it sends out (9 x RGB SH coefficients, "outgoing power" in
-// Christensen's words). Both spherical functions are sums over the surfels, so a parent's
+// Christensen's words). Surfels are two-sided, as surfaces are for the path tracer: each side
+// sends its own radiance, and a tree's surfels face their brighter side (the writer turns them,
+// so a wall wound the wrong way is lit and seen as it is). The SH describe the front sides;
+// the back sides, dimmer and most often black, are kept as their summed power (area times
+// back radiance): seen from direction w, a node's back sides cover evaluate(areaSh, -w) and
+// send its mean back radiance. Both spherical functions are sums over the surfels, so a parent's
 // are the sums of its children's: a node is built from its children alone, never from the
 // points below them, which is what lets the out-of-core build hold only m + 1 points.
 //
@@ -39,7 +44,8 @@ struct NodeAttributes {
   float area = 0.0f;       // sum of the disks' areas
   uint64_t pointCount = 0;  // surfels below the node
   Sh9 areaSh;              // projected area towards w
-  Sh9Rgb powerSh;          // radiant intensity towards w (W/sr)
+  Sh9Rgb powerSh;          // radiant intensity towards w (W/sr) of the front sides
+  Rgb backPower{0.0f};     // sum of area times back radiance
 
   bool operator==(const NodeAttributes&) const = default;
   std::string toString() const;

@@ -129,6 +129,7 @@ absl::Status TreeBuilder::add(const SortedSurfel& point) {
       buffer_.clear();
     }
     buffer_.push_back(point);
+    facingBrighterSide(buffer_.back().surfel);
     stats_.peakBufferedPoints = std::max<uint64_t>(stats_.peakBufferedPoints, buffer_.size());
     if (buffer_.size() > static_cast<size_t>(options_.leafSize)) return splitBuffer();
     return absl::OkStatus();

@@ -156,6 +156,7 @@ void writeFloatAttributes(ByteWriter& w, const NodeAttributes& a) {
   float power[Sh9Rgb::kFloats];
   a.powerSh.toFloats(power);
   for (float c : power) w.f32(c);
+  writeVec3(w, a.backPower);
 }
 
 void readFloatAttributes(ByteReader& r, NodeAttributes* a) {
@@ -169,6 +170,7 @@ void readFloatAttributes(ByteReader& r, NodeAttributes* a) {
   float power[Sh9Rgb::kFloats];
   for (float& c : power) c = r.f32();
   a->powerSh = Sh9Rgb::fromFloats(power);
+  a->backPower = readVec3(r);
 }
 
 void writeFloatSurfel(ByteWriter& w, const Surfel& s) {
@@ -176,6 +178,7 @@ void writeFloatSurfel(ByteWriter& w, const Surfel& s) {
   writeVec3(w, s.normal);
   w.f32(s.radius);
   writeVec3(w, s.radiance);
+  writeVec3(w, s.backRadiance);
   writeVec3(w, s.albedo);
   w.u8(static_cast<uint8_t>(s.materialClass));
 }
@@ -185,6 +188,7 @@ absl::Status readFloatSurfel(ByteReader& r, Surfel* s) {
   s->normal = readVec3(r);
   s->radius = r.f32();
   s->radiance = readVec3(r);
+  s->backRadiance = readVec3(r);
   s->albedo = readVec3(r);
   const uint8_t material = r.u8();
   if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {
@@ -365,6 +369,7 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
     w.u16(half >= kPi ? 0 : quantizeCosDown(std::cos(half)));
     w.f32(a.area);
     writeVec3(w, a.powerSh.c[0]);
+    writeVec3(w, a.backPower);
     const uint32_t powerIndex = n.exact ? exactMarker(encoding) : n.powerIndex;
     const uint32_t areaIndex = n.exact ? 0 : n.areaIndex;
     if (!n.exact) {
@@ -401,6 +406,7 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
       w.u16(v);
       w.u16(toHalf(s.radius).bits());
       for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.radiance[ch]).bits());
+      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.backRadiance[ch]).bits());
       for (int ch = 0; ch < 3; ++ch) {
         w.u8(static_cast<uint8_t>(std::lround(std::clamp(s.albedo[ch], 0.0f, 1.0f) * 255.0f)));
       }
@@ -534,6 +540,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
     a.cone.cosAngle = fromUnorm16(r.u16());
     a.area = r.f32();
     const Rgb dc = readVec3(r);
+    a.backPower = readVec3(r);
     uint32_t powerIndex, areaIndex;
     if (encoding == TreeEncoding::kQuantized8) {
       powerIndex = r.u8();
@@ -599,6 +606,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
     s.normal = octDecode(u, v);
     s.radius = halfBits(r.u16());
     for (int ch = 0; ch < 3; ++ch) s.radiance[ch] = halfBits(r.u16());
+    for (int ch = 0; ch < 3; ++ch) s.backRadiance[ch] = halfBits(r.u16());
     for (int ch = 0; ch < 3; ++ch) s.albedo[ch] = r.u8() / 255.0f;
     const uint8_t material = r.u8();
     if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {

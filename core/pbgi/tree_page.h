@@ -15,7 +15,8 @@
 // leaf's bounds and radiance in half floats. Quantized bounds and cones are conservative:
 // dequantized bounds contain the float ones and a dequantized cone contains its normals.
 //
-// Payload layout, version 1 (little-endian, fixed width, no padding):
+// Payload layout, version 2 (little-endian, fixed width, no padding; version 1 had no back
+// radiance or back power):
 //   u32 node count, u32 child-reference count, u32 surfel count, u32 exact count, u8 encoding (0 float,
 //   1 quantized, 2 quantized with 8-bit indices), 6 x f32 page bounds (min xyz, max xyz),
 //   then the node records, the child references (u32 page, u32 index each), the surfel
@@ -24,18 +25,20 @@
 // Node record: u8 child count (0 for a leaf), u8 surfel count (leaves), u32 first child
 //   reference or first surfel, u32 point count, then
 //   float:     bounds 6 x f32, centroid 3 x f32, cone axis 3 x f32, cone cos f32, area f32,
-//              area SH 9 x f32, power SH 27 x f32 (coefficient-major, RGB)           = 210
+//              area SH 9 x f32, power SH 27 x f32 (coefficient-major, RGB), back power
+//              3 x f32                                                                = 222
 //   quantized: bounds 6 x u16, centroid 3 x u16 (in the node's bounds), cone axis 2 x u16
-//              (octahedral), cone cos u16, area f32, power DC 3 x f32, power shape index
-//              u16, area shape index u16                                              =  54
-//              (u8 indices in kQuantized8                                             =  52)
+//              (octahedral), cone cos u16, area f32, power DC 3 x f32, back power 3 x f32,
+//              power shape index u16, area shape index u16                            =  66
+//              (u8 indices in kQuantized8                                             =  64)
 //              A power index of all ones (0xffff, 0xff) marks an exact node: the biggest
 //              clusters, few but carrying most of the light, keep their SH in float.
 // Surfel record:
-//   float:     position 3 x f32, normal 3 x f32, radius f32, radiance 3 x f32, albedo
-//              3 x f32, material class u8                                             =  53
+//   float:     position 3 x f32, normal 3 x f32, radius f32, radiance 3 x f32, back
+//              radiance 3 x f32, albedo 3 x f32, material class u8                    =  65
 //   quantized: position 3 x u16 (in the leaf's bounds), normal 2 x u16 (octahedral),
-//              radius f16, radiance 3 x f16, albedo 3 x u8, material class u8         =  22
+//              radius f16, radiance 3 x f16, back radiance 3 x f16, albedo 3 x u8,
+//              material class u8                                                      =  28
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -61,7 +64,7 @@ inline constexpr uint32_t kChildRefBytes = 8;
 enum class TreeEncoding : uint8_t { kFloat = 0, kQuantized = 1, kQuantized8 = 2 };
 
 inline constexpr uint32_t nodeRecordBytes(TreeEncoding e) {
-  return e == TreeEncoding::kFloat ? 210 : e == TreeEncoding::kQuantized ? 54 : 52;
+  return e == TreeEncoding::kFloat ? 222 : e == TreeEncoding::kQuantized ? 66 : 64;
 }
 inline constexpr bool quantized(TreeEncoding e) { return e != TreeEncoding::kFloat; }
 // The largest codebook an encoding's indices address.
@@ -70,7 +73,7 @@ inline constexpr int maxCodebookEntries(TreeEncoding e) {
   return e == TreeEncoding::kQuantized8 ? 255 : 65535;
 }
 inline constexpr uint32_t surfelRecordBytes(TreeEncoding e) {
-  return e == TreeEncoding::kFloat ? 53 : 22;
+  return e == TreeEncoding::kFloat ? 65 : 28;
 }
 
 struct NodeRef {

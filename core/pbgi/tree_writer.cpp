@@ -21,8 +21,8 @@ namespace {
 // Spill record: u32 child count, u32 surfel count, u64 point count, the float attributes,
 // then the surfels as float surfel records.
 constexpr size_t kSpillHeaderBytes = 16;
-constexpr size_t kFloatAttributeBytes = 200;  // nodeRecordBytes(kFloat) less its 10-byte head
-constexpr size_t kFloatSurfelBytes = 53;
+constexpr size_t kFloatAttributeBytes = 212;  // nodeRecordBytes(kFloat) less its 10-byte head
+constexpr size_t kFloatSurfelBytes = 65;
 static_assert(nodeRecordBytes(TreeEncoding::kFloat) == 10 + kFloatAttributeBytes);
 static_assert(surfelRecordBytes(TreeEncoding::kFloat) == kFloatSurfelBytes);
 
@@ -289,7 +289,8 @@ class TreeWriter::Impl {
         powerSums.add(errors[i].powerD2, errors[i].powerN2, errors[i].powerFinite);
         areaSums.add(errors[i].areaD2, errors[i].areaN2, errors[i].areaFinite);
         for (const Surfel& s : batch[i].surfels) {
-          if (maxComponent(s.radiance) > static_cast<float>(HALF_MAX)) {
+          if (std::max(maxComponent(s.radiance), maxComponent(s.backRadiance)) >
+              static_cast<float>(HALF_MAX)) {
             ++result->quantization.clampedSurfelRadiance;
           }
         }

@@ -19,11 +19,12 @@ using gather_internal::clusterRadiance;
 using gather_internal::checkedResolution;
 using gather_internal::ClusterView;
 using gather_internal::clusterDepthExtent;
-using gather_internal::cullSurfel;
+using gather_internal::facingSide;
+using gather_internal::FacingSide;
 using gather_internal::kLayerExtentFactor;
 using gather_internal::kMaxExtentFactor;
 using gather_internal::NodeBounds;
-using gather_internal::SurfelCull;
+using gather_internal::skipSurfel;
 using gather_internal::viewCluster;
 
 constexpr int kMinResolution = 2;  // one pixel would have no corner inside the hemisphere
@@ -411,30 +412,31 @@ void WarpedGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, c
   for (const Surfel& s : page.surfelsOf(leaf)) {
     Vec3f v;
     float dist2;
-    const SurfelCull cull = cullSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2);
-    if (cull != SurfelCull::kNone) {
-      ++(cull == SurfelCull::kSkipped ? stats->surfelsSkipped : stats->surfelsBackFacing);
+    if (skipSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2)) {
+      ++stats->surfelsSkipped;
       continue;
     }
+    const FacingSide side = facingSide(s, v);
+    if (side.back) ++stats->surfelsBackFacing;
     if (dist2 >= sqr(options_.nearFieldFactor * s.radius)) {
       // The solid angle of the disk seen face-on times the cosine it is seen at.
       const float distance = std::sqrt(dist2);
       const Vec3f dir = v / distance;
-      const float facing = -dot(dir, s.normal);
+      const float facing = -dot(dir, side.normal);
       const float sq = std::sqrt(dist2 + s.radius * s.radius);
       const float omega = 2.0f * kPi * s.radius * s.radius * facing / (sq * (sq + distance));
       const int k = pixelOfLocal(frame_.toLocal(dir));
       if (k >= 0 && omega <= solidAngle_[k]) {
         if (sampled_[k]) {
           const float coverage = omega / solidAngle_[k];
-          compose(k, distance, kLayerExtentFactor * s.radius, coverage, s.radiance * coverage);
+          compose(k, distance, kLayerExtentFactor * s.radius, coverage, side.radiance * coverage);
           ++stats->disksSplatted;
         }
         continue;
       }
     }
     // Near, larger than its pixel, or in none: exact, after the traversal.
-    rayCasts_.push_back({s.position, s.normal, s.radius, s.radiance});
+    rayCasts_.push_back({s.position, side.normal, s.radius, side.radiance});
     ++stats->nearFieldRayCasts;
   }
 }
@@ -453,8 +455,8 @@ absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, Gath
     }
     ClusterView view;
     viewCluster(a, toCentroid / distance, &view);
-    if (view.area > omega * distance2) return false;
-    const float nodeOmega = view.area / distance2;
+    if (view.coverage() > omega * distance2) return false;
+    const float nodeOmega = view.coverage() / distance2;  // both sides cover
     if (!(nodeOmega > 0.0f) || !sampled_[k]) {
       ++stats->clustersInvisible;  // no area towards the receiver, or a black pixel
       return true;

@@ -41,6 +41,25 @@ Rgb sampleIrradiance(const Scene& scene, const Vec3f& p, const Vec3f& n, const V
   return ls->radiance * (cosTheta / (ls->pdf * selectPdf));
 }
 
+TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p, const Vec3f& ng,
+                                             Rng& rng) {
+  TwoSidedIrradiance e;
+  const float uLight = rng.uniform();
+  const Vec2f u = next2(rng);
+  float selectPdf = 0.0f;
+  const Light* light = scene.sampleLight(uLight, &selectPdf);
+  if (light == nullptr || selectPdf <= 0.0f) return e;
+  std::optional<LightSample> ls = light->sample(p, u);
+  if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return e;
+  const float cosTheta = dot(ls->wi, ng);
+  if (cosTheta == 0.0f) return e;
+  // spawnShadowRay leaves on the side the sample arrives from.
+  if (scene.occluded(scene.spawnShadowRay(p, ng, ls->wi, ls->distance))) return e;
+  const Rgb value = ls->radiance * (std::abs(cosTheta) / (ls->pdf * selectPdf));
+  (cosTheta > 0.0f ? e.front : e.back) = value;
+  return e;
+}
+
 Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
                       const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng) {
   float selectPdf = 0.0f;

@@ -37,6 +37,17 @@ std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f
 Rgb sampleIrradiance(const Scene& scene, const Vec3f& p, const Vec3f& n, const Vec3f& ng,
                      Rng& rng);
 
+// Irradiance on both sides of a surface point with unit geometric normal ng from one light
+// sample (light sampling alone): the front (the side ng points to) and the back. The sample
+// arrives on one side; its shadow ray leaves from that side. The same three random numbers as
+// sampleIrradiance, so the front equals its result for the same stream.
+struct TwoSidedIrradiance {
+  Rgb front{0.0f};
+  Rgb back{0.0f};
+};
+TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p, const Vec3f& ng,
+                                             Rng& rng);
+
 // Direct light arriving at a surface point from one light sample, MIS-weighted against
 // BSDF sampling. Shared with the PBGI integrators and the surfel baker, so that they differ
 // from the path tracer only in indirect light.

@@ -15,7 +15,6 @@ constexpr float kReuseViewCos = 0.999f;
 void addGatherStats(const GatherStats& s, RenderCounters* c) {
   (*c)[kNodesVisited] += s.nodesVisited;
   (*c)[kNodesCulledPlane] += s.nodesCulledPlane;
-  (*c)[kNodesCulledCone] += s.nodesCulledCone;
   (*c)[kClustersSplatted] += s.clustersSplatted;
   (*c)[kClustersInvisible] += s.clustersInvisible;
   (*c)[kDisksSplatted] += s.disksSplatted;

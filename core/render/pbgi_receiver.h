@@ -35,7 +35,6 @@ enum PbgiCounter : size_t {
   kGlossyGathers,
   kNodesVisited,
   kNodesCulledPlane,
-  kNodesCulledCone,
   kClustersSplatted,
   kClustersInvisible,
   kDisksSplatted,

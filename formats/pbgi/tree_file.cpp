@@ -163,8 +163,11 @@ absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(const std::string& path
   if (!version.ok()) return version.status();
   if (*version != kTreePayloadVersion) {
     return absl::FailedPreconditionError(fmt::format(
-        "{}: tree payload version {}, this build reads version {}", path, *version,
-        kTreePayloadVersion));
+        "{}: tree payload version {}, this build reads version {}{}", path, *version,
+        kTreePayloadVersion,
+        *version < kTreePayloadVersion
+            ? ": the tree was written by an older pbgi (one-sided surfels); bake it again"
+            : ": the tree was written by a newer pbgi"));
   }
   const std::string encoding = values.count("encoding") ? values["encoding"] : "";
   if (const auto e = parseTreeEncoding(encoding)) {

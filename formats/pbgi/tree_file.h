@@ -28,7 +28,7 @@
 namespace pbgi {
 
 // Bumped when the page payload layout of tree_page.h changes.
-inline constexpr uint32_t kTreePayloadVersion = 1;
+inline constexpr uint32_t kTreePayloadVersion = 2;  // 2: two-sided surfels (back radiance)
 
 struct TreeFileWriteOptions {
   TreeWriteOptions tree;

@@ -43,7 +43,8 @@ static_assert(std::endian::native == std::endian::little,
               "the checksum hashes the host's float bytes as little-endian");
 
 constexpr char kGridName[] = "surfels";
-constexpr int32_t kFormatVersion = 1;
+// 2: radiance_back (surfels are two-sided).
+constexpr int32_t kFormatVersion = 2;
 
 constexpr char kP[] = "P";
 constexpr char kN[] = "N";
@@ -51,6 +52,7 @@ constexpr char kRadius[] = "radius";
 constexpr char kPscale[] = "pscale";
 constexpr char kAlbedo[] = "albedo";
 constexpr char kRadiance[] = "radiance";
+constexpr char kRadianceBack[] = "radiance_back";
 constexpr char kMaterialClass[] = "materialClass";
 constexpr char kTriangle[] = "triangle";
 constexpr char kBarycentric[] = "barycentric";
@@ -127,6 +129,10 @@ absl::Status checkSurfel(const Surfel& s, float unitTolerance) {
   }
   if (!isFinite(s.radiance)) {
     return absl::InvalidArgumentError("radiance " + formatVec(s.radiance) + " is not finite");
+  }
+  if (!isFinite(s.backRadiance)) {
+    return absl::InvalidArgumentError("radiance_back " + formatVec(s.backRadiance) +
+                                      " is not finite");
   }
   if (static_cast<uint8_t>(s.materialClass) > static_cast<uint8_t>(MaterialClass::kEmissive)) {
     return absl::InvalidArgumentError(absl::StrFormat("material class %d; expected 0 to %d",
@@ -235,6 +241,9 @@ vdbp::PointDataGrid::Ptr buildGrid(std::span<const Surfel> surfels, double voxel
   addAttribute<openvdb::Vec3f, NullCodec>(
       tree, indexTree, kRadiance,
       fieldArray<openvdb::Vec3f>(surfels, [](const Surfel& s) { return toVdb(s.radiance); }));
+  addAttribute<openvdb::Vec3f, NullCodec>(
+      tree, indexTree, kRadianceBack,
+      fieldArray<openvdb::Vec3f>(surfels, [](const Surfel& s) { return toVdb(s.backRadiance); }));
   addAttribute<int32_t, NullCodec>(tree, indexTree, kMaterialClass,
                                    fieldArray<int32_t>(surfels, [](const Surfel& s) {
                                      return static_cast<int32_t>(s.materialClass);
@@ -388,13 +397,14 @@ absl::StatusOr<std::vector<Surfel>> decodeSurfels(const vdbp::PointDataGrid& gri
     auto radius = attributeHandle<float>(*leaf, kRadius, path);
     auto albedo = attributeHandle<openvdb::Vec3f>(*leaf, kAlbedo, path);
     auto radiance = attributeHandle<openvdb::Vec3f>(*leaf, kRadiance, path);
+    auto radianceBack = attributeHandle<openvdb::Vec3f>(*leaf, kRadianceBack, path);
     auto material = attributeHandle<int32_t>(*leaf, kMaterialClass, path);
     auto triangle = attributeHandle<int32_t>(*leaf, kTriangle, path);
     auto barycentric = attributeHandle<openvdb::Vec3f>(*leaf, kBarycentric, path);
     auto id = attributeHandle<int64_t>(*leaf, kId, path);
     for (const absl::Status& s :
          {p.status(), n.status(), radius.status(), albedo.status(), radiance.status(),
-          material.status(), triangle.status(), barycentric.status(), id.status()}) {
+          radianceBack.status(), material.status(), triangle.status(), barycentric.status(), id.status()}) {
       if (!s.ok()) return s;
     }
     // Points are stored voxel by voxel: voxel v holds indices [offset(v-1), offset(v)).
@@ -416,6 +426,7 @@ absl::StatusOr<std::vector<Surfel>> decodeSurfels(const vdbp::PointDataGrid& gri
         s.radius = radius->get(i);
         s.albedo = fromVdb(albedo->get(i));
         s.radiance = fromVdb(radiance->get(i));
+        s.backRadiance = fromVdb(radianceBack->get(i));
         const int32_t m = material->get(i);
         if (m < 0 || m > static_cast<int32_t>(MaterialClass::kEmissive)) {
           return badPoint(path, key,
@@ -436,13 +447,13 @@ absl::StatusOr<std::vector<Surfel>> decodeSurfels(const vdbp::PointDataGrid& gri
   return surfels;
 }
 
-// XXH3-64 over the fields of every surfel in order (65 bytes each, little-endian, no padding),
+// XXH3-64 over the fields of every surfel in order (77 bytes each, little-endian, no padding),
 // then the provenance: a damaged shot name or seed is as wrong as a damaged surfel.
 std::string surfelChecksum(const std::vector<Surfel>& surfels, const SurfelVdbMetadata& meta) {
   XXH3_state_t* state = XXH3_createState();
   PBGI_CHECK(state != nullptr);
   XXH3_64bits_reset(state);
-  std::array<unsigned char, 65> bytes;
+  std::array<unsigned char, 77> bytes;
   for (const Surfel& s : surfels) {
     unsigned char* out = bytes.data();
     auto put = [&out](const void* data, size_t size) {
@@ -451,7 +462,8 @@ std::string surfelChecksum(const std::vector<Surfel>& surfels, const SurfelVdbMe
     };
     const float floats[] = {s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y,
                             s.normal.z,   s.radius,     s.albedo.x,   s.albedo.y, s.albedo.z,
-                            s.radiance.x, s.radiance.y, s.radiance.z};
+                            s.radiance.x, s.radiance.y, s.radiance.z, s.backRadiance.x,
+                            s.backRadiance.y, s.backRadiance.z};
     put(floats, sizeof(floats));
     const uint8_t material = static_cast<uint8_t>(s.materialClass);
     put(&material, 1);

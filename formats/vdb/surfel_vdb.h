@@ -14,7 +14,9 @@
 //   radius         float, full precision
 //   pscale         float, a copy of radius: Houdini sizes and instances points by "pscale"
 //   albedo         vec3s, trnc: OpenVDB's "truncate" codec, half floats (rounded)
-//   radiance       vec3s, full float (HDR: half would clip above 65504 and band the darks)
+//   radiance       vec3s, full float (HDR: half would clip above 65504 and band the darks): the
+//                  front side's (along N)
+//   radiance_back  vec3s, full float: the back side's (surfaces are two-sided; format 2)
 //   materialClass  int32, MaterialClass's value
 //   triangle       int32, the uint32 triangle id bit for bit (ids >= 2^31 look negative in
 //                  Houdini, and read back exactly)

@@ -33,8 +33,8 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 static_assert(kChunkSurfels % kBounceChunkSurfels == 0);
 // How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail.
 constexpr int kBounceRevision = 3;
-// A surfel's spilled irradiance: 3 x f32, little-endian.
-constexpr size_t kIrradianceBytes = 12;
+// A surfel's spilled irradiance: front then back, 3 x f32 each, little-endian.
+constexpr size_t kIrradianceBytes = 24;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -103,21 +103,30 @@ absl::Status readSurfels(SpillFile& sorted, size_t n, std::vector<uint8_t>& byte
 
 // n surfels' irradiance from `spill`, or black when there is none (before the first bounce).
 absl::Status readIrradiance(SpillFile* spill, size_t n, std::vector<uint8_t>& bytes,
-                            std::vector<Rgb>& out) {
-  out.assign(n, Rgb(0.0f));
+                            std::vector<SurfelIrradiance>& out) {
+  out.assign(n, SurfelIrradiance{});
   if (spill == nullptr) return absl::OkStatus();
   bytes.resize(n * kIrradianceBytes);
   if (auto s = spill->read(bytes); !s.ok()) return s;
   for (size_t i = 0; i < n; ++i) {
-    for (int c = 0; c < 3; ++c) out[i][c] = loadF32(bytes.data() + i * kIrradianceBytes + 4 * c);
+    const uint8_t* p = bytes.data() + i * kIrradianceBytes;
+    for (int c = 0; c < 3; ++c) {
+      out[i].front[c] = loadF32(p + 4 * c);
+      out[i].back[c] = loadF32(p + 12 + 4 * c);
+    }
   }
   return absl::OkStatus();
 }
 
-absl::Status writeIrradiance(SpillFile& spill, std::span<const Rgb> e, std::vector<uint8_t>& bytes) {
+absl::Status writeIrradiance(SpillFile& spill, std::span<const SurfelIrradiance> e,
+                             std::vector<uint8_t>& bytes) {
   bytes.resize(e.size() * kIrradianceBytes);
   for (size_t i = 0; i < e.size(); ++i) {
-    for (int c = 0; c < 3; ++c) storeF32(bytes.data() + i * kIrradianceBytes + 4 * c, e[i][c]);
+    uint8_t* p = bytes.data() + i * kIrradianceBytes;
+    for (int c = 0; c < 3; ++c) {
+      storeF32(p + 4 * c, e[i].front[c]);
+      storeF32(p + 12 + 4 * c, e[i].back[c]);
+    }
   }
   return spill.write(bytes);
 }
@@ -156,7 +165,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
   tbb::enumerable_thread_specific<CutStats> stats;
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
-  std::vector<Rgb> previous, irradiance;
+  std::vector<SurfelIrradiance> previous, irradiance;
   std::vector<absl::Status> errors;
   std::vector<uint8_t> bytes;
   double sum[3] = {0.0, 0.0, 0.0};
@@ -166,7 +175,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     if (auto s = readIrradiance(spills.previous, n, bytes, previous); !s.ok()) return s;
     chunk.resize(n);
     for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
-    irradiance.assign(n, Rgb(0.0f));
+    irradiance.assign(n, SurfelIrradiance{});
     // The cut's chunks start at multiples of kBounceChunkSurfels in the sorted order and key
     // their random numbers by it, whatever the threads.
     const size_t cuts = (n + kBounceChunkSurfels - 1) / kBounceChunkSurfels;
@@ -177,18 +186,19 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
       errors[g] = bouncers.local().gather(
           cache, scene, std::span<const Surfel>(chunk).subspan(first, count),
           hashKeys(seed, request.frame, bounce, done + first),
-          std::span<Rgb>(irradiance).subspan(first, count), &stats.local());
+          std::span<SurfelIrradiance>(irradiance).subspan(first, count), &stats.local());
     });
     for (const absl::Status& e : errors) {
       if (!e.ok()) return e;
     }
     if (auto s = writeIrradiance(*spills.next, irradiance, bytes); !s.ok()) return s;
     for (size_t i = 0; i < n; ++i) {
-      const Rgb p = reflectedPower(chunk[i], irradiance[i] - previous[i]);
+      const Rgb p = reflectedPower(chunk[i], {irradiance[i].front - previous[i].front,
+                                              irradiance[i].back - previous[i].back});
       for (int c = 0; c < 3; ++c) sum[c] += p[c];
       if (writer == nullptr) continue;
       SortedSurfel lit = batch[i];
-      if (reflectsLight(lit.surfel)) lit.surfel.radiance += lit.surfel.albedo * kInvPi * irradiance[i];
+      addReflected(lit.surfel, irradiance[i]);
       if (auto s = writer->add(lit); !s.ok()) return s;
     }
     done += n;
@@ -214,7 +224,7 @@ absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& toPath, SpillF
     if (auto s = f->rewind(); !s.ok()) return s;
   }
   std::vector<SortedSurfel> batch;
-  std::vector<Rgb> e, ePrevious;
+  std::vector<SurfelIrradiance> e, ePrevious;
   std::vector<uint8_t> bytes;
   for (uint64_t done = 0; done < surfels;) {
     const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
@@ -222,10 +232,11 @@ absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& toPath, SpillF
     if (auto s = readIrradiance(&last, n, bytes, e); !s.ok()) return s;
     if (auto s = readIrradiance(previous, n, bytes, ePrevious); !s.ok()) return s;
     for (size_t i = 0; i < n; ++i) {
-      Surfel& s = batch[i].surfel;
-      if (reflectsLight(s)) {
-        s.radiance += s.albedo * kInvPi * (e[i] + vmax(e[i] - ePrevious[i], Rgb(0.0f)) * tail);
-      }
+      const auto withTail = [&](const Rgb& last, const Rgb& before) {
+        return last + vmax(last - before, Rgb(0.0f)) * tail;
+      };
+      addReflected(batch[i].surfel, {withTail(e[i].front, ePrevious[i].front),
+                                     withTail(e[i].back, ePrevious[i].back)});
       if (auto st = (*writer)->add(batch[i]); !st.ok()) return st;
     }
     done += n;
@@ -338,7 +349,9 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         // The tree carries the light that gathers are for: reflected light. Emitters are
         // lights that renderers and bounces sample directly, so an emissive surfel sends
         // nothing from the tree (it still occludes); the point cloud keeps its emission.
-        if (surfel.materialClass == MaterialClass::kEmissive) surfel.radiance = Rgb(0.0f);
+        if (surfel.materialClass == MaterialClass::kEmissive) {
+          surfel.radiance = surfel.backRadiance = Rgb(0.0f);
+        }
         if (auto st = sorter.add(mortonKey(surfel.position, cube), surfel); !st.ok()) return st;
       }
       shadedSoFar += chunk.size();
@@ -400,7 +413,8 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         encodeSurfelRecord(next, record);
         if (auto s = sorted->write(record); !s.ok()) return result = s, void();
         if (reflectsLight(next.surfel)) {
-          for (int c = 0; c < 3; ++c) directPower[c] += next.surfel.area() * next.surfel.radiance[c];
+          const Rgb both = next.surfel.radiance + next.surfel.backRadiance;
+          for (int c = 0; c < 3; ++c) directPower[c] += next.surfel.area() * both[c];
         }
       }
       if (request.progress && (++built & 0xffff) == 0) {

@@ -35,8 +35,6 @@
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
-#define XXH_INLINE_ALL
-#include <xxhash.h>
 
 #include "formats/image/compare.h"
 #include "formats/image/image_io.h"
@@ -47,6 +45,7 @@
 #include "core/render/integrators.h"
 #include "services/render/frame_render.h"
 #include "tests/support/params.h"
+#include "tests/support/reference_image.h"
 #include "tests/support/tree_files.h"
 
 namespace pbgi {
@@ -92,12 +91,7 @@ struct Run {
   }
 };
 
-double stageSeconds(const std::vector<StageTime>& stages, const std::string& name) {
-  for (const StageTime& s : stages) {
-    if (s.stage == name) return s.seconds;
-  }
-  return 0.0;
-}
+using testing::stageSeconds;
 
 // The three channels `prefix`.R/G/B of an image as a plain RGB image.
 Image layer(const Image& image, const std::string& prefix) {
@@ -157,31 +151,8 @@ double writeBiasMap(const Image& indirect, const Image& refIndirect, const Image
 }
 
 absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& args) {
-  const std::string key = fmt::format("{}|frame={}|spp={}|version={}", shot.source,
-                                      frame, args.referenceSpp, PBGI_VERSION);
   const fs::path dir = args.cache.empty() ? fs::path(args.out) / "reference" : fs::path(args.cache);
-  const std::string path = (dir / fmt::format("{}.{:04d}.path{}.{:016x}.exr", shot.name, frame,
-                                              args.referenceSpp,
-                                              XXH3_64bits(key.data(), key.size())))
-                               .string();
-  if (fs::exists(path)) {
-    std::printf("reference %s (cached)\n", path.c_str());
-    return readImage(path);
-  }
-  std::printf("reference: path tracing %d spp (cached afterwards as %s)\n", args.referenceSpp,
-              path.c_str());
-  std::fflush(stdout);
-  FrameRenderRequest request;
-  request.frame = frame;
-  request.integrator = "path";
-  request.spp = args.referenceSpp;
-  request.threads = args.threads;
-  request.outPath = path;
-  request.preview = false;
-  auto report = renderShotFrame(shot, request);
-  if (!report.ok()) return report.status();
-  std::printf("  %.1f s\n", stageSeconds(report->stages, "render"));
-  return readImage(path);
+  return testing::cachedPathReference(shot, frame, args.referenceSpp, dir, args.threads);
 }
 
 absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, const Image& ref,

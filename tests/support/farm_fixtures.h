@@ -30,6 +30,7 @@ struct SmallShot {
   std::string integrator = "path";
   std::string output = "out/small.####.exr";
   std::string extraRender;  // more lines for [render]
+  std::string extraCamera;  // more lines for [camera] (views, view_spacing, lens)
 };
 
 // The sample Cornell box shot, written to `dir/small.shot.toml` at another size, frame range,
@@ -48,8 +49,13 @@ inline std::filesystem::path writeSmallShot(const std::filesystem::path& dir, co
   replace(R"(output = "[^"]*")", "output = \"" + s.output + "\"");
   replace(R"(file = "cornell_box.obj")",
           "file = \"" + (sample.parent_path() / "cornell_box.obj").string() + "\"");
-  replace(R"(integrator = "path")", "integrator = \"" + s.integrator + "\"");
+  // The sample's own PBGI settings go: a test states what it renders (extraRender).
+  replace(R"(integrator = "[a-z]+"[^\n]*)", "integrator = \"" + s.integrator + "\"");
+  for (const char* key : {"gather", "quality", "bake_points"}) {
+    replace(std::string("\n") + key + " = [^\n]*", "");
+  }
   replace(R"(spp = 16)", "spp = " + std::to_string(s.spp) + "\n" + s.extraRender);
+  replace(R"(fov_y_deg = 37.0)", "fov_y_deg = 37.0\n" + s.extraCamera);
   const auto path = dir / "small.shot.toml";
   std::ofstream(path) << text;
   return path;

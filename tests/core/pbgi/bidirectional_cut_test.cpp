@@ -91,8 +91,10 @@ TEST(BidirectionalCut, ZeroThresholdsEqualBruteForce) {
     // Nothing was evaluated as a cluster: every light surfel met every receiver.
     EXPECT_EQ(stats.clusterPairs, 0u);
     EXPECT_LE(stats.leafPairs, uint64_t{c.surfels.size()} * c.receivers.size());
-    // Each page is asked for once.
-    EXPECT_EQ(stats.pageRequests, (*tree)->pageCount()) << stats.toString();
+    // Each page is asked for at most once (pages whose light is all culled, black or below
+    // every receiver's horizon, not at all).
+    EXPECT_LE(stats.pageRequests, (*tree)->pageCount()) << stats.toString();
+    EXPECT_GT(stats.pageRequests, (*tree)->pageCount() / 2) << stats.toString();
   }
 }
 

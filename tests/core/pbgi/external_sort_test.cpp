@@ -87,7 +87,8 @@ bool sameSurfelBits(const Surfel& a, const Surfel& b) {
   };
   return same3(a.position, b.position) && same3(a.normal, b.normal) &&
          bits(a.radius) == bits(b.radius) && same3(a.albedo, b.albedo) &&
-         same3(a.radiance, b.radiance) && a.materialClass == b.materialClass &&
+         same3(a.radiance, b.radiance) && same3(a.backRadiance, b.backRadiance) &&
+         a.materialClass == b.materialClass &&
          a.triangle == b.triangle && bits(a.barycentric.x) == bits(b.barycentric.x) &&
          bits(a.barycentric.y) == bits(b.barycentric.y);
 }
@@ -163,6 +164,7 @@ TEST(SurfelRecord, LittleEndianFixedWidthLayout) {
   r.surfel.radius = 0.25f;
   r.surfel.albedo = Rgb(0.1f, 0.2f, 0.3f);
   r.surfel.radiance = Rgb(std::numeric_limits<float>::infinity(), 5.0f, 6.0f);
+  r.surfel.backRadiance = Rgb(0.5f, 7.0f, -0.0f);
   r.surfel.materialClass = MaterialClass::kEmissive;
   r.surfel.triangle = 0xa1b2c3d4u;
   r.surfel.barycentric = Vec2f(0.75f, std::bit_cast<float>(0x7fc0beefu));
@@ -180,11 +182,14 @@ TEST(SurfelRecord, LittleEndianFixedWidthLayout) {
   EXPECT_EQ(std::memcmp(bytes + 32, minusZero, 4), 0);  // normal.y
   const uint8_t quarter[] = {0x00, 0x00, 0x80, 0x3e};
   EXPECT_EQ(std::memcmp(bytes + 40, quarter, 4), 0);  // radius
-  EXPECT_EQ(bytes[68], 3);                            // material class
+  const uint8_t half[] = {0x00, 0x00, 0x00, 0x3f};
+  EXPECT_EQ(std::memcmp(bytes + 68, half, 4), 0);     // back radiance.r
+  EXPECT_EQ(std::memcmp(bytes + 76, minusZero, 4), 0);  // back radiance.b
+  EXPECT_EQ(bytes[80], 3);                            // material class
   const uint8_t tri[] = {0xd4, 0xc3, 0xb2, 0xa1};
-  EXPECT_EQ(std::memcmp(bytes + 69, tri, 4), 0);
+  EXPECT_EQ(std::memcmp(bytes + 81, tri, 4), 0);
   const uint8_t nan[] = {0xef, 0xbe, 0xc0, 0x7f};
-  EXPECT_EQ(std::memcmp(bytes + 77, nan, 4), 0);  // barycentric.y
+  EXPECT_EQ(std::memcmp(bytes + 89, nan, 4), 0);  // barycentric.y
 
   SortedSurfel back;
   ASSERT_TRUE(decodeSurfelRecord(bytes, &back).ok());
@@ -197,7 +202,7 @@ TEST(SurfelRecord, DecodeRejectsUnknownMaterialClass) {
   SortedSurfel r;
   uint8_t bytes[kSurfelRecordBytes];
   encodeSurfelRecord(r, bytes);
-  bytes[68] = 4;
+  bytes[80] = 4;
   SortedSurfel back;
   const absl::Status s = decodeSurfelRecord(bytes, &back);
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
@@ -456,7 +461,7 @@ TEST_F(DamagedRunTest, RecordOutOfOrder) {
 TEST_F(DamagedRunTest, BadMaterialByte) {
   const absl::Status s = sortWithDamage([](const fs::path& p) {
     const uint8_t bad = 200;
-    patch(p, 20000 * kSurfelRecordBytes + 68, &bad, 1);
+    patch(p, 20000 * kSurfelRecordBytes + 80, &bad, 1);
   });
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
   EXPECT_NE(s.message().find(damaged_.string()), std::string::npos) << s;

@@ -91,6 +91,45 @@ TEST(TreeWriter, FloatTreeHoldsEverySurfelOnceInKeyOrder) {
   EXPECT_LT(w.pageSwitches, static_cast<int>(w.nodes.size()) / 4) << w.pageSwitches;
 }
 
+// Two-sided surfels: each side's radiance comes back (float exactly, quantized as half floats),
+// a surfel whose back is the brighter side is stored turned to face it, and the nodes keep the
+// back sides' power.
+TEST(TreeWriter, BothSidesOfEverySurfelComeBack) {
+  auto sorted = makeSorted(5000, 13);
+  Rgb backPower(0.0f);
+  for (size_t i = 0; i < sorted.size(); ++i) {
+    Surfel& s = sorted[i].surfel;
+    s.backRadiance = i % 7 == 0 ? s.radiance * 2.0f + Rgb(0.1f) : s.radiance * 0.25f;
+  }
+  for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized}) {
+    TreeWriteResult result;
+    auto tree = buildMemoryTree(sorted, smallPages(e), &result);
+    ASSERT_TRUE(tree.ok()) << tree.status();
+    const Walk w = walk(**tree);
+    ASSERT_EQ(w.surfels.size(), sorted.size());
+    const float tolerance = e == TreeEncoding::kFloat ? 0.0f : 2e-3f;
+    Rgb expectedBack(0.0f);
+    for (size_t i = 0; i < sorted.size(); ++i) {
+      const Surfel& in = sorted[i].surfel;
+      const Surfel& out = w.surfels[i];
+      const bool turned = i % 7 == 0;
+      const Rgb front = turned ? in.backRadiance : in.radiance;
+      const Rgb back = turned ? in.radiance : in.backRadiance;
+      expectedBack += back * in.area();
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_NEAR(out.radiance[c], front[c], tolerance * std::max(1.0f, front[c])) << i;
+        EXPECT_NEAR(out.backRadiance[c], back[c], tolerance * std::max(1.0f, back[c])) << i;
+      }
+      EXPECT_LT(length(out.normal - (turned ? -in.normal : in.normal)), 1e-3f) << i;
+    }
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(w.nodes.front()->attributes.backPower[c], expectedBack[c],
+                  1e-4f * expectedBack[c])
+          << static_cast<int>(e);
+    }
+  }
+}
+
 TEST(TreeWriter, QuantizedTreeIsConservativeAndClose) {
   const auto sorted = makeSorted(20000, 12);
   TreeWriteResult floatResult, quantResult;
@@ -267,15 +306,15 @@ TEST_F(TreePageDamage, BadFieldsAreNamed) {
   }
   {
     auto b = bytes_;
-    // Node 0's area shape index (offset 52 in a quantized record) past the codebook.
-    storeU16(b.data() + kTreePageHeaderBytes + 52, 0xfffe);
+    // Node 0's area shape index (offset 64 in a quantized record) past the codebook.
+    storeU16(b.data() + kTreePageHeaderBytes + 64, 0xfffe);
     expectError(b, "codebook indices");
   }
   {
     auto b = bytes_;
     // Node 0 claims to be exact, but the header counts no more exact nodes.
     storeU32(b.data() + 12, 0);
-    storeU16(b.data() + kTreePageHeaderBytes + 50, 0xffff);
+    storeU16(b.data() + kTreePageHeaderBytes + 62, 0xffff);
     expectError(b, "exact");
   }
   {

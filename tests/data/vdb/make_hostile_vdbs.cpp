@@ -31,7 +31,7 @@
 //   bad_material_class.vdb        a material class of 7
 //   nan_radiance.vdb              a NaN radiance
 //   checksum_mismatch.vdb         one radiance changed, the checksum kept
-//   newer_format_version.vdb      pbgi_format_version 2
+//   newer_format_version.vdb      pbgi_format_version 3 (version 2 added radiance_back)
 //   no_point_count.vdb            pbgi_point_count removed
 //   wrong_point_count.vdb         pbgi_point_count 65
 //   point_count_is_string.vdb     pbgi_point_count as a string
@@ -219,7 +219,7 @@ int main(int argc, char** argv) {
   }
   {
     auto grid = readValid();
-    grid->insertMeta("pbgi_format_version", openvdb::Int32Metadata(2));
+    grid->insertMeta("pbgi_format_version", openvdb::Int32Metadata(3));
     write("newer_format_version.vdb", grid);
   }
   {

@@ -136,7 +136,10 @@ struct Crafted {
 
 const std::vector<Crafted>& craftedTrees() {
   static const std::vector<Crafted> files = {
-      {"future_payload.pbgi", 2, "tree payload version 99, this build reads version 1"},
+      {"future_payload.pbgi", 2, "tree payload version 99, this build reads version 2"},
+      {"old_payload.pbgi", 2,
+       "tree payload version 1, this build reads version 2: the tree was written by an older "
+       "pbgi (one-sided surfels); bake it again"},
       {"no_tree_section.pbgi", 1, "no \"tree\" section"},
       {"unknown_encoding.pbgi", 1, "encoding \"fancy\""},
       {"reference_loop.pbgi", 1, "the file's references loop"},
@@ -168,19 +171,22 @@ void makeCraftedTrees(const fs::path& dir) {
   const std::vector<uint8_t> leafPage = floatPage(0, {{}});
   writeCrafted((dir / "future_payload.pbgi").string(), {leafPage},
                {{"tree", text(treeSection("99", "float"))}});
+  writeCrafted((dir / "old_payload.pbgi").string(), {leafPage},
+               {{"tree", text(treeSection("1", "float"))}});
+  const std::string version = std::to_string(kTreePayloadVersion);
   writeCrafted((dir / "no_tree_section.pbgi").string(), {leafPage}, {{"bake", text("a = b\n")}});
   writeCrafted((dir / "unknown_encoding.pbgi").string(), {leafPage},
-               {{"tree", text(treeSection("1", "fancy"))}});
+               {{"tree", text(treeSection(version, "fancy"))}});
   // Page 0's node 0 has page 1's node 0 as child, which has page 0's node 0 as child.
   writeCrafted((dir / "reference_loop.pbgi").string(),
                {floatPage(0, {{NodeRef{1, 0}, NodeRef{0, 1}}, {}}),
                 floatPage(1, {{NodeRef{0, 0}, NodeRef{1, 1}}, {}})},
-               {{"tree", text(treeSection("1", "float"))}});
+               {{"tree", text(treeSection(version, "float"))}});
   writeCrafted((dir / "reference_to_nowhere.pbgi").string(),
                {floatPage(0, {{NodeRef{0, 1}, NodeRef{1, 9}}, {}}), floatPage(1, {{}})},
-               {{"tree", text(treeSection("1", "float"))}});
+               {{"tree", text(treeSection(version, "float"))}});
   writeCrafted((dir / "quantized_without_codebooks.pbgi").string(), {leafPage},
-               {{"tree", text(treeSection("1", "quantized"))}});
+               {{"tree", text(treeSection(version, "quantized"))}});
 }
 
 TEST(TreeFileCrafted, EachBadFileIsRefusedWithItsReason) {

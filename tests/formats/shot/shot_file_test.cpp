@@ -551,7 +551,10 @@ TEST(ShotFile, ShippedCornellSceneLoads) {
   // The light shines down into the box.
   const Vec3f n = cross(shot->lights[0].edgeU, shot->lights[0].edgeV);
   expectVec(n, 0.0f, -13650.0f, 0.0f);
-  EXPECT_EQ(shot->render.integrator, "path");
+  // The sample is the product: PBGI through the bidirectional cut.
+  EXPECT_EQ(shot->render.integrator, "pbgi");
+  EXPECT_EQ(shot->render.params.choiceOr("gather", ""), "bidirectional");
+  EXPECT_EQ(shot->render.params.intOr("bake_points", 0), 250000);
   EXPECT_EQ(shot->render.spp, 16);
   EXPECT_EQ(shot->render.seed, 0u);
 }

@@ -74,6 +74,7 @@ std::vector<Surfel> randomSurfels(size_t count, uint32_t seed) {
     s.radius = 0.001f + 0.05f * unit(rng);
     s.albedo = Vec3f(unit(rng), unit(rng), unit(rng));
     s.radiance = Vec3f(std::pow(10.0f, 8.0f * unit(rng) - 4.0f), unit(rng), 0.0f);
+    s.backRadiance = Vec3f(unit(rng), 0.0f, std::pow(10.0f, 6.0f * unit(rng) - 3.0f));
     s.materialClass = static_cast<MaterialClass>(rng() % 4);
     s.triangle = rng();
     const float b1 = unit(rng);
@@ -110,7 +111,7 @@ Errors compare(const std::vector<Surfel>& written, const std::vector<Surfel>& re
       if (w.albedo[c] >= 0x1p-14f) e.albedo = std::max(e.albedo, error / w.albedo[c]);
     }
     const bool exact = r.radius == w.radius && r.radiance == w.radiance &&
-                       r.materialClass == w.materialClass && r.triangle == w.triangle &&
+                       r.backRadiance == w.backRadiance && r.materialClass == w.materialClass && r.triangle == w.triangle &&
                        r.barycentric == w.barycentric;
     if (!exact) ++e.inexact;
   }
@@ -139,7 +140,8 @@ TEST(SurfelVdbTest, RoundTripKeepsEveryFieldWithinTheDocumentedPrecisionAndTheOr
   EXPECT_LE(e.normal, 0.035f);
   EXPECT_LE(e.albedo, 0x1p-11f);
   EXPECT_LE(e.albedoAbsolute, 0x1p-12f);
-  EXPECT_EQ(e.inexact, 0u) << "radius, radiance, material class, triangle or barycentric changed";
+  EXPECT_EQ(e.inexact, 0u)
+      << "radius, radiance, back radiance, material class, triangle or barycentric changed";
   // Order: the exact fields of every surfel match at the same index.
   for (size_t i = 0; i < surfels.size(); ++i) {
     ASSERT_EQ((*read)[i].triangle, surfels[i].triangle) << "surfel " << i << " moved";
@@ -268,7 +270,7 @@ TEST(SurfelVdbTest, MetadataRoundTripsThroughInspect) {
     return "(absent)";
   };
   EXPECT_EQ(entry("pbgi_point_count"), "100");
-  EXPECT_EQ(entry("pbgi_format_version"), "1");
+  EXPECT_EQ(entry("pbgi_format_version"), "2");
   EXPECT_EQ(entry("pbgi_shot"), options.metadata.shot);
   EXPECT_EQ(entry("pbgi_checksum").substr(0, 8), "xxh3_64:");
 }
@@ -296,8 +298,9 @@ TEST(SurfelVdbTest, InspectDescribesAttributesCodecsAndSizes) {
   EXPECT_EQ(attributes,
             (std::vector<std::string>{
                 "P:vec3s:fxpt16", "N:vec3s:uvec", "radius:float:null", "pscale:float:null",
-                "albedo:vec3s:trnc", "radiance:vec3s:null", "materialClass:int32:null",
-                "triangle:int32:null", "barycentric:vec3s:null", "id:int64:null"}));
+                "albedo:vec3s:trnc", "radiance:vec3s:null", "radiance_back:vec3s:null",
+                "materialClass:int32:null", "triangle:int32:null", "barycentric:vec3s:null",
+                "id:int64:null"}));
   Bounds3f bounds;
   for (const Surfel& s : surfels) bounds.extend(s.position);
   EXPECT_LE(maxAbsComponent(info->bounds.min - bounds.min), 1e-4f);
@@ -440,7 +443,7 @@ TEST(SurfelVdbTest, HostileFilesGiveClearErrors) {
       {"crashes_openvdb.vdb", absl::StatusCode::kDataLoss, "damaged or truncated"},
       {"foreign_writer.vdb", absl::StatusCode::kInvalidArgument, "is not a hash of its contents"},
       {"truncated_rehashed.vdb", absl::StatusCode::kInvalidArgument,
-       "ends (at 6987 bytes) before the data it declares"},
+       "ends (at 7023 bytes) before the data it declares"},
       {"float_grid_named_surfels.vdb", absl::StatusCode::kInvalidArgument,
        "expected an OpenVDB points grid"},
       {"no_surfels_grid.vdb", absl::StatusCode::kInvalidArgument, "no grid named \"surfels\""},
@@ -453,7 +456,7 @@ TEST(SurfelVdbTest, HostileFilesGiveClearErrors) {
       {"nan_radiance.vdb", absl::StatusCode::kInvalidArgument,
        "radiance (nan, 0, 0) is not finite"},
       {"checksum_mismatch.vdb", absl::StatusCode::kDataLoss, "the file is damaged"},
-      {"newer_format_version.vdb", absl::StatusCode::kInvalidArgument, "surfel format version 2"},
+      {"newer_format_version.vdb", absl::StatusCode::kInvalidArgument, "surfel format version 3"},
       {"no_point_count.vdb", absl::StatusCode::kInvalidArgument,
        "no \"pbgi_point_count\" metadata"},
       {"wrong_point_count.vdb", absl::StatusCode::kInvalidArgument,

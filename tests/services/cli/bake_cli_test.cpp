@@ -199,6 +199,7 @@ TEST(BakeCli, EmittersAreInTheCloudButSendNothingFromTheTree) {
     if (s.materialClass != MaterialClass::kEmissive) continue;
     ++emissive;
     EXPECT_NEAR(s.radiance.x, 5.0f, 1e-5f);
+    EXPECT_NEAR(s.backRadiance.x, 5.0f, 1e-5f);
   }
   EXPECT_GT(emissive, 0u);
   auto tree = TreeFile::open((dir / "lamp.1.pbgi").string());
@@ -211,6 +212,7 @@ TEST(BakeCli, EmittersAreInTheCloudButSendNothingFromTheTree) {
       if (s.materialClass == MaterialClass::kEmissive) {
         ++treeEmissive;
         EXPECT_EQ(s.radiance, Rgb(0.0f));
+        EXPECT_EQ(s.backRadiance, Rgb(0.0f));  // emitters emit on both sides
       } else if (s.radiance.x > 0.0f) {
         ++litFloor;
       }

@@ -87,6 +87,46 @@ TEST(RunCliTest, AnInterruptedRunResumesItsJob) {
   fs::remove_all(dir);
 }
 
+// A camera array renders whole through the farm: farm tiles carry a rectangle of every view,
+// the views of a tile share one bidirectional cut, and the assembled mosaic is the one `pbgi
+// render` makes, bit for bit (before, the farm wrote view 0 alone).
+TEST(RunCliTest, ACameraArrayThroughTheFarmEqualsPbgiRender) {
+  const fs::path dir = testing::makeTempDir("run-cli-views");
+  testing::SmallShot views;
+  views.width = 40;
+  views.height = 32;
+  views.lastFrame = 1;
+  views.spp = 2;
+  views.integrator = "pbgi";
+  views.extraRender = "bake_points = 20000\nbake_bounces = 1\ncut_block = 16\n";
+  views.extraCamera = "views = [2, 2]\nview_spacing = 30.0\n";
+  const fs::path shot = testing::writeSmallShot(dir, views);
+  const testing::RunResult run = runPbgi("run " + shellQuote(shot.string()) +
+                                         " --workers 2 --tile-size 24 --state " +
+                                         shellQuote((dir / "state").string()));
+  ASSERT_EQ(run.exitCode, 0) << run.output();
+  const fs::path alone = dir / "alone.exr";
+  const testing::RunResult render = runPbgi("render " + shellQuote(shot.string()) +
+                                            " --no-preview --out " + shellQuote(alone.string()));
+  ASSERT_EQ(render.exitCode, 0) << render.output();
+  auto a = readImage((dir / "out/small.0001.exr").string());
+  auto b = readImage(alone.string());
+  ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
+  EXPECT_EQ(a->width(), 80);
+  EXPECT_EQ(a->height(), 64);
+  std::string why;
+  EXPECT_TRUE(testing::samePixels(*a, *b, &why)) << why;
+  // Every view was rendered: no quadrant of the mosaic is black.
+  for (int view = 0; view < 4; ++view) {
+    double sum = 0.0;
+    for (int y = 0; y < 32; ++y) {
+      for (int x = 0; x < 40; ++x) sum += a->at((view % 2) * 40 + x, (view / 2) * 32 + y, 0);
+    }
+    EXPECT_GT(sum, 0.0) << "view " << view;
+  }
+  fs::remove_all(dir);
+}
+
 TEST(RunCliTest, BadShotsAndFlagsExitTwoBeforeAnythingStarts) {
   const fs::path dir = testing::makeTempDir("run-cli-bad");
   const fs::path shot = dir / "bad.toml";

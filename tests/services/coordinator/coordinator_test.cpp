@@ -116,6 +116,26 @@ TEST_F(CoordinatorTest, ABadShotIsRefusedWithItsLineAndTheCoordinatorCarriesOn) 
   v1::SubmitJobRequest badOverride = shotRequest({});
   badOverride.add_overrides("spp=many");
   EXPECT_EQ(client_->submitJob(badOverride).status().code(), absl::StatusCode::kInvalidArgument);
+  // The integrator registry decides at submission, not the worker at render time.
+  v1::SubmitJobRequest unknownIntegrator = shotRequest({});
+  unknownIntegrator.add_overrides("integrator=photon");
+  const auto noIntegrator = client_->submitJob(unknownIntegrator);
+  EXPECT_EQ(noIntegrator.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(noIntegrator.status().message().find("photon"), std::string::npos)
+      << noIntegrator.status();
+  EXPECT_NE(noIntegrator.status().message().find("pbgi"), std::string::npos)
+      << noIntegrator.status();  // names what was expected
+  v1::SubmitJobRequest unknownParam = shotRequest({});
+  unknownParam.add_overrides("integrator=pbgi");
+  unknownParam.add_overrides("light_solid_angel=0.1");
+  const auto noParam = client_->submitJob(unknownParam);
+  EXPECT_EQ(noParam.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(noParam.status().message().find("light_solid_angel"), std::string::npos)
+      << noParam.status();
+  v1::SubmitJobRequest outOfRange = shotRequest({});
+  outOfRange.add_overrides("integrator=pbgi");
+  outOfRange.add_overrides("gather=sideways");
+  EXPECT_EQ(client_->submitJob(outOfRange).status().code(), absl::StatusCode::kInvalidArgument);
   v1::SubmitJobRequest badFrame = shotRequest({});
   badFrame.add_frames(7);
   EXPECT_EQ(client_->submitJob(badFrame).status().code(), absl::StatusCode::kOutOfRange);

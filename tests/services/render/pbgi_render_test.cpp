@@ -11,6 +11,7 @@
 #include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
 #include "services/bake/frame_bake.h"
+#include "services/render/frame_assembly.h"
 #include "services/render/frame_render.h"
 #include "core/render/pbgi_receiver.h"
 #include "tests/support/params.h"
@@ -126,6 +127,49 @@ TEST_F(PbgiRender, TileSizeAndThreadsDoNotChangeABit) {
   r.threads = 2;
   const Image b = render(r);
   EXPECT_TRUE(a.pixels() == b.pixels());
+}
+
+// The bidirectional cut shares work across the pixels of a block, so a pixel depends on its
+// block: blocks sit on a fixed grid, whatever the tiles, the threads, the regions asked for
+// (a farm tile) or the page cache. All of them give the same bits.
+TEST_F(PbgiRender, BidirectionalPixelsDoNotDependOnTilesThreadsRegionsOrCache) {
+  shot_.width = 40;
+  shot_.height = 36;
+  const std::string tree = bake(20000, 1);
+  auto total = testing::decodedTreeBytes(tree);
+  ASSERT_TRUE(total.ok()) << total.status();
+  FrameRenderRequest r = request("a", tree, "bidirectional");
+  testing::setParam(r.params, "cut_block", "16");
+  r.tileSize = 8;
+  r.threads = 1;
+  FrameRenderReport first;
+  const Image a = render(r, &first);
+  EXPECT_GT(first.counters[kCuts], 0u);
+  EXPECT_GT(first.counters[kCutClusterPairs], 0u);
+  r.outPath = (dir_ / "b.exr").string();
+  r.tileSize = 32;
+  r.threads = 2;
+  r.cacheBytes = 1;  // below one page: every page is loaded again when next asked for
+  FrameRenderReport second;
+  const Image b = render(r, &second);
+  ASSERT_GT(a.pixels().size(), 0u);
+  EXPECT_TRUE(a.pixels() == b.pixels());
+  EXPECT_GT(second.tree->cache.evictions, 0u);
+  // Regions that cut blocks in two (a farm tile of 24 against blocks of 16), assembled.
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 24);
+  std::vector<std::string> paths;
+  for (size_t t = 0; t < tiles.size(); ++t) {
+    r.outPath = (dir_ / ("tile" + std::to_string(t) + ".exr")).string();
+    r.regions = tiles[t];
+    r.cacheBytes = 0;
+    ASSERT_TRUE(renderShotFrame(shot_, r).ok());
+    paths.push_back(r.outPath);
+  }
+  const std::string assembled = (dir_ / "assembled.exr").string();
+  ASSERT_TRUE(assembleFrame(paths, tiles, shot_.width, shot_.height, assembled).ok());
+  auto c = readImage(assembled);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_TRUE(c->pixels() == a.pixels());
 }
 
 // relMSE against the path tracer at 1024 spp (whose own noise is about 1e-3 here). Without its

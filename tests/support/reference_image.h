@@ -1,0 +1,83 @@
+#pragma once
+// Path-traced references for the benchmarks, rendered once and cached by the shot's bytes, its
+// size, the frame, the spp and the version: what run-time-against-error curves are measured
+// against.
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+#include <absl/status/statusor.h>
+#include <fmt/format.h>
+#ifndef XXH_INLINE_ALL
+#define XXH_INLINE_ALL  // benchmarks do not link libxxhash themselves
+#endif
+#include <xxhash.h>
+
+#include "core/render/image.h"
+#include "core/scene/shot.h"
+#include "formats/image/image_io.h"
+#include "services/render/frame_render.h"
+
+namespace pbgi::testing {
+
+inline double stageSeconds(const std::vector<StageTime>& stages, const std::string& name) {
+  for (const StageTime& s : stages) {
+    if (s.stage == name) return s.seconds;
+  }
+  return 0.0;
+}
+
+// The path tracer's image of `shot` (at its size) at `spp`, from `cacheDir` when rendered
+// before, else rendered (on `threads`, 0: all) and kept there.
+inline absl::StatusOr<Image> cachedPathReference(const ShotDesc& shot, int frame, int spp,
+                                                 const std::filesystem::path& cacheDir,
+                                                 int threads) {
+  const std::string key = fmt::format("{}|frame={}|spp={}|size={}x{}|version={}", shot.source,
+                                      frame, spp, shot.width, shot.height, PBGI_VERSION);
+  const std::string path =
+      (cacheDir / fmt::format("{}.{:04d}.{}x{}.path{}.{:016x}.exr", shot.name, frame, shot.width,
+                              shot.height, spp, XXH3_64bits(key.data(), key.size())))
+          .string();
+  if (std::filesystem::exists(path)) {
+    std::printf("reference %s (cached)\n", path.c_str());
+    return readImage(path);
+  }
+  std::printf("reference: path tracing %dx%d at %d spp (cached afterwards as %s)\n", shot.width,
+              shot.height, spp, path.c_str());
+  std::fflush(stdout);
+  std::error_code ec;
+  std::filesystem::create_directories(cacheDir, ec);
+  FrameRenderRequest request;
+  request.frame = frame;
+  request.integrator = "path";
+  request.spp = spp;
+  request.threads = threads;
+  request.outPath = path;
+  request.preview = false;
+  auto report = renderShotFrame(shot, request);
+  if (!report.ok()) return report.status();
+  std::printf("  %.1f s\n", stageSeconds(report->stages, "render"));
+  return readImage(path);
+}
+
+// The image box-filtered down by an integer factor (each output pixel the mean of a
+// factor x factor block), channels and metadata kept.
+inline Image downsample(const Image& image, int factor) {
+  if (factor <= 1) return image;
+  Image out(image.width() / factor, image.height() / factor, image.channels());
+  const float inv = 1.0f / static_cast<float>(factor * factor);
+  for (int y = 0; y < out.height(); ++y) {
+    for (int x = 0; x < out.width(); ++x) {
+      for (int c = 0; c < image.channelCount(); ++c) {
+        float sum = 0.0f;
+        for (int dy = 0; dy < factor; ++dy) {
+          for (int dx = 0; dx < factor; ++dx) sum += image.at(x * factor + dx, y * factor + dy, c);
+        }
+        out.at(x, y, c) = sum * inv;
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace pbgi::testing
