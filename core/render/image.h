@@ -3,6 +3,7 @@
 // the renderer produces and what formats/image writes to OpenEXR (channel names are EXR
 // names: "R", "G", "B", "A", "albedo.R", "normal.X", "depth.Z", ...).
 
+#include <array>
 #include <string>
 #include <variant>
 #include <vector>
@@ -67,5 +68,19 @@ class Image {
   std::vector<float> pixels_;
   std::vector<MetadataEntry> metadata_;
 };
+
+// The mean over all pixels of the three channels from `first` on ("R", "indirect.R", ...).
+inline std::array<double, 3> meanRgb(const Image& image, const std::string& first) {
+  std::array<double, 3> sum{0.0, 0.0, 0.0};
+  const int c0 = image.channelIndex(first);
+  for (int y = 0; y < image.height(); ++y) {
+    for (int x = 0; x < image.width(); ++x) {
+      for (int c = 0; c < 3; ++c) sum[c] += image.at(x, y, c0 + c);
+    }
+  }
+  const double pixels = static_cast<double>(image.width()) * image.height();
+  for (double& s : sum) s = pixels > 0.0 ? s / pixels : 0.0;
+  return sum;
+}
 
 }  // namespace pbgi

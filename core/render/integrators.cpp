@@ -47,6 +47,9 @@ const std::vector<ParamSpec>& pbgiParams() {
       {.key = "normal_angle_deg", .type = ParamType::kFloat, .lo = 0.0, .hi = 180.0,
        .defaultText = "the preset's",
        .help = "bidirectional: alpha, widest half-angle (degrees) of a receiver cluster's normals"},
+      {.key = "light_samples", .type = ParamType::kInt, .lo = 1, .hi = 1024, .defaultText = "16",
+       .help = "light samples for the direct light at each camera sample's first hit (a camera "
+               "sample costs a gather; a light sample is one shadow ray)"},
       {.key = "cut_block", .type = ParamType::kInt, .lo = 8, .hi = 1024, .defaultText = "64",
        .help = "bidirectional: pixels a side of the blocks whose samples share one cut"},
       {.key = "max_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
@@ -87,7 +90,9 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.cut.normalAngle = radians(
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
-  s.pathTracer = {r.maxDepth, r.rouletteDepth};
+  s.pathTracer = {.maxDepth = r.maxDepth,
+                  .rouletteDepth = r.rouletteDepth,
+                  .firstHitLightSamples = static_cast<int>(p.intOr("light_samples", 16))};
   return s;
 }
 

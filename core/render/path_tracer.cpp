@@ -6,6 +6,9 @@ namespace pbgi {
 
 namespace {
 
+// Seeds the first hit's light samples past the first ("FIRSTLGT").
+constexpr uint64_t kFirstHitLightDomain = 0x46495253544c4754ull;
+
 Vec2f next2(Rng& rng) {
   const float a = rng.uniform();
   return {a, rng.uniform()};
@@ -142,7 +145,17 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
     // Light arriving at this vertex belongs to the next bounce's sink.
     Rgb* nextSink = bounce + 1 >= 2 ? &out.indirect : &out.direct;
     if (!bsdf.isDelta()) {
-      *nextSink += beta * sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng);
+      Rgb light = sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng);
+      if (bounce == 0 && settings.firstHitLightSamples > 1) {
+        // Keyed by the number the path draws next: its own stream, the path's untouched.
+        Rng peek = rng;
+        Rng more = Rng::forKeys(uint64_t{peek.nextU32()}, kFirstHitLightDomain);
+        for (int k = 1; k < settings.firstHitLightSamples; ++k) {
+          light += sampleDirectLight(scene, hit, frame, bsdf, woLocal, more);
+        }
+        light /= static_cast<float>(settings.firstHitLightSamples);
+      }
+      *nextSink += beta * light;
     } else {
       rng.uniform();
       rng.uniform();

@@ -12,6 +12,10 @@ namespace pbgi {
 struct PathTracerSettings {
   int maxDepth = 64;      // scattering vertices after the camera; 1 = direct light only
   int rouletteDepth = 3;  // Russian roulette from this many bounces on
+  // Light samples at the first hit, averaged (the light-sampling half of its MIS estimate):
+  // PBGI's direct light, where one camera sample costs a gather and a light sample is cheap.
+  // Samples past the first draw from a stream of their own, so 1 leaves the path unchanged.
+  int firstHitLightSamples = 1;
 };
 
 // What one camera sample brings back: radiance split into direct (emitters seen directly

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstring>
 
 #include "core/render/renderer.h"
@@ -125,6 +126,54 @@ TEST(PathTracerTest, DirectPlusIndirectIsTotalAndMaxDepthOneHasNoIndirect) {
   const Image d = *renderFrame(directOnly, camera, settings, 1, {}, nullptr);
   for (int y = 0; y < 24; ++y)
     for (int x = 0; x < 24; ++x) EXPECT_EQ(d.at(x, y, indirect), 0.0f);
+}
+
+// More light samples at the first hit (PBGI's direct light) estimate the same light with less
+// noise, and leave the rest of the path to the same random numbers.
+TEST(PathTracerTest, FirstHitLightSamplesKeepTheMeanAndCutTheNoise) {
+  auto scene = makeBoxScene();
+  ASSERT_NE(scene, nullptr);
+  const Camera camera = boxCamera(24, 24);
+  RenderSettings settings;
+  settings.spp = 4;
+  const auto direct = [&](int lightSamples, int spp) {
+    RenderSettings s = settings;
+    s.spp = spp;
+    const PathIntegrator i(*scene, PathTracerSettings{.maxDepth = 1, .rouletteDepth = 3,
+                                                      .firstHitLightSamples = lightSamples});
+    return *renderFrame(i, camera, s, 1, {}, nullptr);
+  };
+  // The camera samples are the same whatever the light samples (the path's own stream is
+  // untouched), so against many light samples the error is the light sampling's alone.
+  const Image reference = direct(256, 4);
+  const Image one = direct(1, 4), many = direct(16, 4);
+  const auto squaredError = [&](const Image& a) {
+    double e = 0.0;
+    for (int y = 0; y < 24; ++y)
+      for (int x = 0; x < 24; ++x)
+        for (int c = 0; c < 3; ++c) e += std::pow(a.at(x, y, c) - reference.at(x, y, c), 2.0);
+    return e;
+  };
+  EXPECT_GT(squaredError(one), 0.0);
+  EXPECT_LT(squaredError(many), 0.2 * squaredError(one));
+  // The same light: means over many samples agree.
+  const auto m1 = meanRgb(direct(1, 256), "R"), m16 = meanRgb(direct(16, 256), "R");
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(m16[c] / m1[c], 1.0, 0.01) << "channel " << c;
+  // The rest of the path draws the same random numbers: its indirect light is unchanged.
+  const PathIntegrator a(*scene, PathTracerSettings{64, 3});
+  const PathIntegrator b(*scene, PathTracerSettings{.maxDepth = 64, .rouletteDepth = 3,
+                                                    .firstHitLightSamples = 8});
+  const Image fa = *renderFrame(a, camera, settings, 1, {}, nullptr);
+  const Image fb = *renderFrame(b, camera, settings, 1, {}, nullptr);
+  const int indirect = fa.channelIndex("indirect.R");
+  bool sameDirect = true;
+  for (int y = 0; y < 24; ++y) {
+    for (int x = 0; x < 24; ++x) {
+      for (int c = 0; c < 3; ++c) EXPECT_EQ(fa.at(x, y, indirect + c), fb.at(x, y, indirect + c));
+      sameDirect = sameDirect && fa.at(x, y, 0) == fb.at(x, y, 0);
+    }
+  }
+  EXPECT_FALSE(sameDirect);  // while the direct light did change
 }
 
 // Geometry with NaN vertices and zero-area triangles loads (cleaned) and renders with no

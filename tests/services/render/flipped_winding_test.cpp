@@ -70,16 +70,6 @@ ShotDesc copyScene(const fs::path& shotPath, const fs::path& dir, bool flip, int
   return *shot;
 }
 
-std::array<double, 3> means(const Image& image, const std::string& layer) {
-  std::array<double, 3> sum{0, 0, 0};
-  const int c0 = image.channelIndex(layer);
-  for (int y = 0; y < image.height(); ++y)
-    for (int x = 0; x < image.width(); ++x)
-      for (int c = 0; c < 3; ++c) sum[c] += image.at(x, y, c0 + c);
-  for (double& s : sum) s /= static_cast<double>(image.width()) * image.height();
-  return sum;
-}
-
 struct Case {
   std::string integrator;
   std::string gather;  // PBGI only
@@ -122,7 +112,7 @@ void expectFlippedMatches(const fs::path& shotPath, int width, int height, int s
     ASSERT_GT(a.width(), 0);
     ASSERT_GT(b.width(), 0);
     for (const char* layer : {"R", "indirect.R"}) {
-      const auto ma = means(a, layer), mb = means(b, layer);
+      const auto ma = meanRgb(a, layer), mb = meanRgb(b, layer);
       for (int ch = 0; ch < 3; ++ch) {
         EXPECT_NEAR(mb[ch] / ma[ch], 1.0, tolerance)
             << shotPath.filename() << " " << c.integrator << " " << c.gather << " " << layer
