@@ -274,23 +274,15 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gath
   request.preview = false;
   std::optional<Image> unlimited;
   for (const double fraction : {0.0, 0.20, 0.05}) {
-    request.cacheBytes = fraction > 0.0 ? std::max<size_t>(1, static_cast<size_t>(*total * fraction))
-                                        : size_t{1} << 40;
     const std::string label = fraction > 0.0 ? fmt::format("{:.0f}%", fraction * 100) : "unlimited";
     request.outPath = (fs::path(outDir) / fmt::format("{}.{}.cache-{}.exr", shot.name, gather,
                                                       fraction > 0.0 ? int(fraction * 100) : 100))
                           .string();
-    auto report = renderShotFrame(shot, request);
-    if (!report.ok()) return std::fprintf(stderr, "%s\n", report.status().ToString().c_str()), 1;
-    auto image = readImage(request.outPath);
-    if (!image.ok()) return std::fprintf(stderr, "%s\n", image.status().ToString().c_str()), 1;
-    bool identical = true;
-    if (!unlimited) {
-      unlimited = std::move(*image);
-    } else {
-      identical = image->pixels() == unlimited->pixels();
-    }
-    const TreeReadReport& t = *report->tree;
+    auto run = testing::renderWithCache(shot, request, *total, fraction, &unlimited);
+    if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
+    const bool identical = run->identical;
+    request.cacheBytes = run->cacheBytes;
+    const TreeReadReport& t = run->tree;
     std::printf("  cache %-9s %7.1f MiB: hit rate %.4f (%llu hits, %llu misses, %llu evictions), "
                 "pages read %llu of %llu (%.1f %%), render %.2f s, %s\n",
                 label.c_str(), request.cacheBytes / 1048576.0, t.cache.hitRate(),
@@ -300,7 +292,7 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gath
                 static_cast<unsigned long long>(t.pagesRead),
                 static_cast<unsigned long long>(t.pagesInFile),
                 100.0 * double(t.pagesRead) / double(std::max<uint64_t>(1, t.pagesInFile)),
-                stageSeconds(report->stages, "render"),
+                run->renderSeconds,
                 identical ? "bit-identical to unlimited" : "DIFFERS from unlimited");
     std::fprintf(csv, "cache,%s,%s,%zu,%.6f,%llu,%llu,%llu,%llu,%d\n", gather.c_str(), label.c_str(),
                  request.cacheBytes, t.cache.hitRate(), static_cast<unsigned long long>(t.cache.hits),

@@ -176,7 +176,8 @@ int tileCacheRuns(const Scene& scene, const Args& args, const fs::path& out, std
   // The cut only: the per-pixel gather's hit rates at small caches are accuracy_bench's (its
   // every gather cuts through the whole tree, so a 5 % cache thrashes, at a page decode a miss:
   // a 256^2 tile would take most of an hour).
-  for (const std::string gather : {"bidirectional"}) {
+  {
+    const std::string gather = "bidirectional";
     std::optional<Image> unlimited;
     for (const double fraction : {0.0, 0.05}) {
       FrameRenderRequest r;
@@ -189,22 +190,14 @@ int tileCacheRuns(const Scene& scene, const Args& args, const fs::path& out, std
       r.regions = tile;
       r.params = shot.render.params;
       testing::setParam(r.params, "gather", gather);
-      r.cacheBytes = fraction > 0.0 ? std::max<size_t>(1, size_t(double(*total) * fraction))
-                                    : size_t{1} << 40;
       r.outPath = (out / fmt::format("{}.{}.tile.cache{}.exr", scene.name, gather,
                                      int(fraction * 100)))
                       .string();
-      auto report = renderShotFrame(shot, r);
-      if (!report.ok()) return std::fprintf(stderr, "%s\n", report.status().ToString().c_str()), 1;
-      auto image = readImage(r.outPath);
-      if (!image.ok()) return std::fprintf(stderr, "%s\n", image.status().ToString().c_str()), 1;
-      bool identical = true;
-      if (!unlimited) {
-        unlimited = std::move(*image);
-      } else {
-        identical = image->pixels() == unlimited->pixels();
-      }
-      const TreeReadReport& t = *report->tree;
+      auto run = testing::renderWithCache(shot, r, *total, fraction, &unlimited);
+      if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
+      const bool identical = run->identical;
+      r.cacheBytes = run->cacheBytes;
+      const TreeReadReport& t = run->tree;
       std::printf("%-12s %-14s tile %s, cache %s (%.1f of %.1f MiB): hit rate %.4f (%llu hits, "
                   "%llu misses), pages read %llu of %llu, render %.2f s, %s\n",
                   scene.name.c_str(), gather.c_str(), regionText(tile[0]).c_str(),
@@ -213,12 +206,11 @@ int tileCacheRuns(const Scene& scene, const Args& args, const fs::path& out, std
                   static_cast<unsigned long long>(t.cache.hits),
                   static_cast<unsigned long long>(t.cache.misses),
                   static_cast<unsigned long long>(t.pagesRead),
-                  static_cast<unsigned long long>(t.pagesInFile),
-                  stageSeconds(report->stages, "render"),
+                  static_cast<unsigned long long>(t.pagesInFile), run->renderSeconds,
                   identical ? "bit-identical to unlimited" : "DIFFERS from unlimited");
       std::fprintf(csv, "%s,%s,tile cache %s,,,,,%.4f,,,,%.6f,\n", scene.name.c_str(),
-                   gather.c_str(), fraction > 0.0 ? "5%" : "unlimited",
-                   stageSeconds(report->stages, "render"), t.cache.hitRate());
+                   gather.c_str(), fraction > 0.0 ? "5%" : "unlimited", run->renderSeconds,
+                   t.cache.hitRate());
       if (!identical) return 1;
     }
   }
@@ -314,7 +306,8 @@ int runBench(const Args& args) {
     // A 4 x 4 light field against one view of the same size, both at 1 spp. The cut only: the
     // per-pixel gather shares nothing across views by construction (16 views cost 16 times
     // one), and a light field of it takes as long as the rest of the benchmark.
-    for (const std::string gather : {"bidirectional"}) {
+    {
+      const std::string gather = "bidirectional";
       for (const int views : {1, 4}) {
         if (views == 1 && find(runs, name, gather, args.lightFieldSize, 1)) continue;
         auto run = renderRun(scene, args, gather, args.lightFieldSize, 1, views, out);

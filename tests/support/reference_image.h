@@ -3,7 +3,9 @@
 // size, the frame, the spp and the version: what run-time-against-error curves are measured
 // against.
 #include <cstdio>
+#include <algorithm>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include <absl/status/statusor.h>
@@ -78,6 +80,35 @@ inline Image downsample(const Image& image, int factor) {
     }
   }
   return out;
+}
+
+// One PBGI render with a page cache of `fraction` of the tree's decoded bytes (0: unlimited), its
+// image read back and compared bit for bit with the first (unlimited) run's, kept in `unlimited`.
+struct CacheRun {
+  TreeReadReport tree;
+  size_t cacheBytes = 0;
+  double renderSeconds = 0.0;
+  bool identical = true;  // to the unlimited run's pixels
+};
+inline absl::StatusOr<CacheRun> renderWithCache(const ShotDesc& shot, FrameRenderRequest request,
+                                                uint64_t treeBytes, double fraction,
+                                                std::optional<Image>* unlimited) {
+  request.cacheBytes =
+      fraction > 0.0 ? std::max<size_t>(1, static_cast<size_t>(double(treeBytes) * fraction))
+                     : size_t{1} << 40;
+  auto report = renderShotFrame(shot, request);
+  if (!report.ok()) return report.status();
+  auto image = readImage(request.outPath);
+  if (!image.ok()) return image.status();
+  CacheRun run{.tree = *report->tree,
+               .cacheBytes = request.cacheBytes,
+               .renderSeconds = stageSeconds(report->stages, "render")};
+  if (!*unlimited) {
+    *unlimited = std::move(*image);
+  } else {
+    run.identical = image->pixels() == (*unlimited)->pixels();
+  }
+  return run;
 }
 
 }  // namespace pbgi::testing
