@@ -8,6 +8,9 @@
 #include <queue>
 #include <unordered_map>
 
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include <fmt/format.h>
 
 #include "core/pbgi/gather_internal.h"
@@ -424,6 +427,27 @@ struct BidirectionalCut::State {
   std::vector<Rgb> leafLight;  // and what each sends a single receiver
   uint64_t pending = 0;
 
+  // The cut under way (begin() to finish()).
+  CutOptions opts;
+  TreePageSource* source = nullptr;
+  const Scene* scn = nullptr;
+  std::span<const CutReceiver> receivers;
+  uint64_t key = 0;
+  CutStats stats;
+
+  absl::Status begin(TreePageSource& tree, const Scene& scene,
+                     std::span<const CutReceiver> cutReceivers, uint64_t cutKey,
+                     const CutOptions& options);
+  // The highest page with pairs waiting; nullopt when the cut is done.
+  std::optional<uint32_t> nextPage() const {
+    if (pages.empty()) return std::nullopt;
+    return pages.top();
+  }
+  // Evaluates the pairs waiting on pages `lowest` and up, highest first, with those that
+  // their refinement sends to those pages.
+  absl::Status sweep(uint32_t lowest);
+  absl::Status finish(std::span<Rgb> out, CutStats* statsOut);
+
   void build(std::span<const CutReceiver> receivers, int leafSize);
   ReceiverNode makeNode(std::span<const CutReceiver> receivers, uint32_t first, uint32_t count,
                         uint32_t parent) const;
@@ -440,6 +464,283 @@ struct BidirectionalCut::State {
     }
     ++pending;
     stats->peakPendingPairs = std::max(stats->peakPendingPairs, pending);
+  }
+
+  ReceiverView receiverView(uint32_t item) const {
+    ReceiverView v;
+    if (item & kReceiverBit) {
+      const CutReceiver& r = receivers[item & ~kReceiverBit];
+      v.center = r.p;
+      v.axis = r.n;
+      v.single = true;
+    } else {
+      const ReceiverNode& n = nodes[item];
+      v.center = n.center;
+      v.halfExtent = n.bounds.diagonal() * 0.5f;
+      v.radius = n.radius;
+      v.axis = n.axis;
+      v.angle = n.angle;
+      v.cosAngle = n.cosAngle;
+      v.sinAngle = n.sinAngle;
+      v.chord = n.angle >= kPi ? 2.0f : 2.0f * std::sin(0.5f * n.angle);
+    }
+    return v;
+  }
+
+  // Adds a point source's light, seen with `visibility`, to a receiver item: exactly at a
+  // single receiver, as a linear field around a node's centre (first order in the offset from
+  // it: the source's distance and direction, and its intensity's change with direction).
+  void deposit(uint32_t item, const PointSource& src, float visibility) {
+    if (item & kReceiverBit) {
+      const uint32_t r = item & ~kReceiverBit;
+      const Vec3f v = src.position - receivers[r].p;
+      const float d2 = v.length2();
+      const float cosR = dot(receivers[r].n, v);
+      if (cosR > 0.0f && d2 > 0.0f) {
+        single[r] += src.intensity * (visibility * cosR / (std::sqrt(d2) * (d2 + src.softening2)));
+      }
+      return;
+    }
+    ReceiverNode& n = nodes[item];
+    const Vec3f u = src.position - n.center;
+    const float d2 = u.length2();
+    if (!(d2 > 0.0f)) return;
+    const float d = std::sqrt(d2);
+    const Vec3f w = u / d;  // towards the source
+    const float inv2 = visibility / (d2 + src.softening2);
+    const float inv3 = inv2 / d;
+    for (int c = 0; c < 3; ++c) {
+      const float i = src.intensity[c];
+      // The gradient is with respect to the emission direction, -w: only its part across w.
+      const Vec3f g = src.gradient[c] - w * dot(w, src.gradient[c]);
+      n.field.v[c] += w * (i * inv2);
+      for (int row = 0; row < 3; ++row) {
+        Vec3f e(0.0f);
+        e[row] = 1.0f;
+        n.field.j[c][row] += (w * (3.0f * w[row]) - e) * (i * inv3) + g * (w[row] * inv3);
+      }
+    }
+  }
+
+  // A random receiver of an item: where its shadow rays leave from.
+  const CutReceiver& originOf(uint32_t item, Rng& rng) const {
+    if (item & kReceiverBit) return receivers[item & ~kReceiverBit];
+    const ReceiverNode& n = nodes[item];
+    const uint32_t k = std::min(n.count - 1, static_cast<uint32_t>(rng.uniform() * n.count));
+    return receivers[order[n.first + k]];
+  }
+
+  uint64_t served(uint32_t item) const {
+    return (item & kReceiverBit) ? 1 : nodes[item].count;
+  }
+
+  void refineReceiver(const Pair& pair, uint32_t page) {
+    ++stats.refinedReceiver;
+    const ReceiverNode& n = nodes[pair.receiver];
+    if (n.childCount > 0) {
+      for (uint32_t c = 0; c < n.childCount; ++c) {
+        push({pair.light, n.firstChild + c, pair.depth}, page, &stats);
+      }
+    } else {
+      for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+        push({pair.light, kReceiverBit | order[k], pair.depth}, page, &stats);
+      }
+    }
+  }
+
+  // A leaf of the light tree against a receiver item: every surfel's light exactly (as a
+  // virtual spherical light at a single receiver, to first order at a node), visibility from
+  // rays to surfels, one per stratum of the leaf: as many strata as the leaf's solid angle
+  // holds eps_L, so that no ray decides more light than a cluster's (every surfel its own ray
+  // when eps_L is 0).
+  void evaluateLeaf(const Pair& pair, const TreePage& page, const TreeNode& leaf,
+                    const ReceiverView& rv) {
+    ++stats.leafPairs;
+    const std::span<const Surfel> surfels = page.surfelsOf(leaf);
+    const size_t n = surfels.size();
+    lit.assign(n, 0);
+    leafLight.resize(n);
+    float solidAngle = 0.0f;
+    size_t litCount = 0;
+    for (size_t k = 0; k < n; ++k) {
+      const Surfel& s = surfels[k];
+      bool sends = false;
+      if (rv.single) {
+        sends = surfelLight(s, receivers[pair.receiver & ~kReceiverBit], opts.selfSkipRadius,
+                            &leafLight[k]);
+      } else {
+        sends = !isBlack(facingSide(s, s.position - rv.center).radiance);
+      }
+      if (!sends) continue;
+      lit[k] = 1;
+      ++litCount;
+      const Vec3f v = s.position - rv.center;
+      const float d2 = v.length2() + s.radius * s.radius;
+      solidAngle += s.area() * std::abs(dot(s.normal, v)) / (std::sqrt(v.length2()) * d2);
+    }
+    stats.surfelTerms += n;
+    stats.receiversServed += served(pair.receiver) * n;
+    if (litCount == 0) return;
+    const size_t strata =
+        opts.lightSolidAngle > 0.0f
+            ? std::clamp<size_t>(static_cast<size_t>(std::ceil(solidAngle / opts.lightSolidAngle)), 1, n)
+            : n;
+    Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
+    for (size_t g = 0; g < strata; ++g) {
+      const size_t begin = g * n / strata, end = (g + 1) * n / strata;
+      size_t candidates = 0;
+      for (size_t k = begin; k < end; ++k) candidates += lit[k];
+      if (candidates == 0) continue;
+      // A random lit surfel of the stratum, as the target of the stratum's ray.
+      size_t pick = std::min(candidates - 1, static_cast<size_t>(rng.uniform() * candidates));
+      size_t target = begin;
+      for (size_t k = begin; k < end; ++k) {
+        if (!lit[k]) continue;
+        if (pick-- == 0) {
+          target = k;
+          break;
+        }
+      }
+      const CutReceiver& from = originOf(pair.receiver, rng);
+      if (!visibleSurfel(*scn, from, surfels[target], &stats)) continue;
+      for (size_t k = begin; k < end; ++k) {
+        if (!lit[k]) continue;
+        if (rv.single) {
+          single[pair.receiver & ~kReceiverBit] += leafLight[k];
+          continue;
+        }
+        PointSource src;
+        if (surfelSource(surfels[k], normalize(rv.center - surfels[k].position), &src)) {
+          deposit(pair.receiver, src, 1.0f);
+        }
+      }
+    }
+  }
+
+  absl::Status process(const Pair& pair, const TreePage& page) {
+    ++stats.pairs;
+    const ReceiverView rv = receiverView(pair.receiver);
+    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, pair.light);
+    if (!nodeOr.ok()) return nodeOr.status();
+    const TreeNode& node = **nodeOr;
+    const NodeAttributes& a = node.attributes;
+    const Bounds3f& lightBounds = a.bounds;
+    const Vec3f lightCenter = lightBounds.center();
+    const float lightRadius = lightBounds.radius();
+    const Vec3f halfL = lightBounds.diagonal() * 0.5f;
+
+    // Where the light lies against the receivers' tangent planes (every position in E's bounds,
+    // every normal n in its cone around axis a): with v from a receiver to a light point,
+    // a . v - |n - a| |v| <= n . v <= a . v + |n - a| |v|, and |n - a| <= 2 sin(angle / 2).
+    const Vec3f toCenter = lightCenter - rv.center;
+    const float centerDist2 = toCenter.length2();
+    const float along = dot(toCenter, rv.axis);
+    const float extent = absDotExtent(rv.axis, halfL) + absDotExtent(rv.axis, rv.halfExtent);
+    const float reach = lightRadius + rv.radius;
+    const float spread = rv.single ? 0.0f : rv.chord * (std::sqrt(centerDist2) + reach);
+    const float slack = 1e-6f * maxAbsComponent(rv.center);
+    if (lightBounds.empty() || along + extent + spread <= slack) {
+      ++stats.culled;  // below every receiver's horizon
+      return absl::OkStatus();
+    }
+    // Nothing to send (the insides of closed objects, unlit rooms): the power's constant term
+    // is the integral of a non-negative intensity.
+    if (!(luminance(a.powerSh.c[0]) > 0.0f) && !(luminance(a.backPower) > 0.0f)) {
+      ++stats.culled;
+      return absl::OkStatus();
+    }
+    const bool aboveAll = along - extent - spread > slack;
+    const bool separated = centerDist2 > reach * reach;
+
+    // The paper's criteria, the bounding spheres' first (no square root, no SH).
+    const Vec3f toCentroid = a.centroid - rv.center;
+    const float d2 = std::max(toCentroid.length2(), 1e-30f);
+    const float boundL = kPi * lightRadius * lightRadius / d2;
+    const float boundE = kPi * rv.radius * rv.radius / d2;
+    const bool receiverSmall =
+        rv.single || (within(boundE, opts.receiverBound) && rv.angle < opts.normalAngle);
+    const bool boundsSmall = separated && within(boundL, opts.lightBound) && receiverSmall;
+    const float hE = rv.single                   ? 0.0f
+                     : rv.angle >= opts.normalAngle ? kInfinity
+                     : opts.receiverBound > 0.0f    ? boundE / opts.receiverBound
+                                                 : kInfinity;
+    const float hBound = opts.lightBound > 0.0f ? boundL / opts.lightBound : kInfinity;
+    // The SH projected solid angle, when it can still decide anything: the pair may be small,
+    // or the light's refinement heuristic h_L may need it to beat the receiver's.
+    float solidAngle = kInfinity;
+    ClusterView view;
+    const float d = std::sqrt(d2);
+    const Vec3f dir = toCentroid / d;
+    if (boundsSmall || (!node.leaf() && !rv.single && hBound <= hE)) {
+      viewCluster(a, dir, &view);
+      solidAngle = view.coverage() / d2;
+    }
+    const bool small = boundsSmall && within(solidAngle, opts.lightSolidAngle);
+    if (small) {
+      // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
+      const float cosGamma = dot(rv.axis, dir);
+      const float sinGamma = safeSqrt(1.0f - cosGamma * cosGamma);
+      if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
+        ++stats.clusterPairs;
+        stats.receiversServed += served(pair.receiver);
+        const PointSource src = clusterSource(a, view, -dir);
+        if (isBlack(src.intensity)) return absl::OkStatus();
+        Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
+        const CutReceiver& from = originOf(pair.receiver, rng);
+        // Towards one of the cluster's surfels, picked in proportion to the light it sends:
+        // the fraction of rays that arrive is then the fraction of the cluster's light that
+        // does, wherever the light sits in the cluster (a floor cluster reaching under a block
+        // has its centroid, or points of its bounds, where no light is).
+        absl::StatusOr<std::optional<Surfel>> target =
+            pickSurfel(*source, page, pair.light, pair.depth, from, rng);
+        if (!target.ok()) return target.status();
+        const bool lit = !target->has_value() || visibleSurfel(*scn, from, **target, &stats);
+        if (lit) deposit(pair.receiver, src, 1.0f);
+        return absl::OkStatus();
+      }
+      // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
+      if (rv.single || cosGamma * rv.cosAngle + sinGamma * rv.sinAngle < 0.0f) {
+        ++stats.culled;  // dropped
+        return absl::OkStatus();
+      }
+      refineReceiver(pair, page.id);  // some receivers see it above, some below
+      return absl::OkStatus();
+    }
+
+    if (node.leaf()) {
+      // Too big to be a cluster: its surfels one by one, for a single receiver, and for a node
+      // when the node is small from the leaf and the whole leaf lies above its horizon.
+      if (absl::Status s = checkLeaf(page, node, pair.light); !s.ok()) return s;
+      const float nearest = std::max(std::sqrt(centerDist2) - lightRadius, 1e-30f);
+      if (rv.single ||
+          (aboveAll && within(kPi * rv.radius * rv.radius / (nearest * nearest), opts.receiverBound))) {
+        evaluateLeaf(pair, page, node, rv);
+      } else {
+        refineReceiver(pair, page.id);
+      }
+      return absl::OkStatus();
+    }
+
+    // Refine one side: the light side when h_L > h_E (a single receiver: always).
+    bool refineLight = rv.single;
+    if (!refineLight) {
+      // Without the SH solid angle (not computed), h_L >= hBound > h_E already.
+      float hL = hBound;
+      if (solidAngle < kInfinity) {
+        hL = std::max(hL, opts.lightSolidAngle > 0.0f ? solidAngle / opts.lightSolidAngle : kInfinity);
+      }
+      refineLight = hL > hE || (hL == hE && lightRadius >= rv.radius);
+    }
+    if (!refineLight) {
+      refineReceiver(pair, page.id);
+      return absl::OkStatus();
+    }
+    ++stats.refinedLight;
+    if (absl::Status s = checkInterior(page, node, pair.light, pair.depth); !s.ok()) return s;
+    for (const NodeRef& child : page.childrenOf(node)) {
+      push({child, pair.receiver, pair.depth + 1}, page.id, &stats);
+    }
+    return absl::OkStatus();
   }
 };
 
@@ -525,348 +826,76 @@ BidirectionalCut::BidirectionalCut(const CutOptions& options)
 BidirectionalCut::~BidirectionalCut() = default;
 BidirectionalCut::BidirectionalCut(BidirectionalCut&&) noexcept = default;
 
-absl::Status BidirectionalCut::irradiance(TreePageSource& tree, const Scene& scene,
-                                          std::span<const CutReceiver> receivers, uint64_t key,
-                                          std::span<Rgb> out, CutStats* statsOut) {
-  PBGI_CHECK_EQ(out.size(), receivers.size());
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    if (absl::Status s = checkReceiver(receivers[i], i); !s.ok()) return s;
+absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& scene,
+                                           std::span<const CutReceiver> cutReceivers,
+                                           uint64_t cutKey, const CutOptions& options) {
+  for (size_t i = 0; i < cutReceivers.size(); ++i) {
+    if (absl::Status s = checkReceiver(cutReceivers[i], i); !s.ok()) return s;
   }
-  CutStats stats;
+  opts = options;
+  source = &tree;
+  scn = &scene;
+  receivers = cutReceivers;
+  key = cutKey;
+  stats = CutStats{};
   stats.cuts = 1;
   stats.receivers = receivers.size();
-  State& st = *state_;
-  st.build(receivers, options_.receiverLeafSize);
-  stats.receiverNodes = st.nodes.size();
-  st.single.assign(receivers.size(), Rgb(0.0f));
-  std::fill(out.begin(), out.end(), Rgb(0.0f));
-  if (receivers.empty()) {
-    if (statsOut) *statsOut += stats;
-    return absl::OkStatus();
-  }
-  for (auto& [id, bucket] : st.buckets) {
+  build(receivers, opts.receiverLeafSize);
+  stats.receiverNodes = nodes.size();
+  single.assign(receivers.size(), Rgb(0.0f));
+  for (auto& [id, bucket] : buckets) {
     bucket.pairs.clear();
     bucket.queued = false;
   }
-  st.pages = {};
-  st.stack.clear();
-  st.pending = 0;
-
-  const CutOptions& o = options_;
+  pages = {};
+  stack.clear();
+  pending = 0;
+  if (receivers.empty()) return absl::OkStatus();
   const NodeRef root = tree.root();
-  st.push({root, 0, 0}, ~root.page, &stats);
+  push({root, 0, 0}, ~root.page, &stats);
+  return absl::OkStatus();
+}
 
-  auto receiverView = [&](uint32_t item) {
-    ReceiverView v;
-    if (item & kReceiverBit) {
-      const CutReceiver& r = receivers[item & ~kReceiverBit];
-      v.center = r.p;
-      v.axis = r.n;
-      v.single = true;
-    } else {
-      const ReceiverNode& n = st.nodes[item];
-      v.center = n.center;
-      v.halfExtent = n.bounds.diagonal() * 0.5f;
-      v.radius = n.radius;
-      v.axis = n.axis;
-      v.angle = n.angle;
-      v.cosAngle = n.cosAngle;
-      v.sinAngle = n.sinAngle;
-      v.chord = n.angle >= kPi ? 2.0f : 2.0f * std::sin(0.5f * n.angle);
-    }
-    return v;
-  };
-
-  // Adds a point source's light, seen with `visibility`, to a receiver item: exactly at a
-  // single receiver, as a linear field around a node's centre (first order in the offset from
-  // it: the source's distance and direction, and its intensity's change with direction).
-  auto deposit = [&](uint32_t item, const PointSource& src, float visibility) {
-    if (item & kReceiverBit) {
-      const uint32_t r = item & ~kReceiverBit;
-      const Vec3f v = src.position - receivers[r].p;
-      const float d2 = v.length2();
-      const float cosR = dot(receivers[r].n, v);
-      if (cosR > 0.0f && d2 > 0.0f) {
-        st.single[r] += src.intensity * (visibility * cosR / (std::sqrt(d2) * (d2 + src.softening2)));
-      }
-      return;
-    }
-    ReceiverNode& n = st.nodes[item];
-    const Vec3f u = src.position - n.center;
-    const float d2 = u.length2();
-    if (!(d2 > 0.0f)) return;
-    const float d = std::sqrt(d2);
-    const Vec3f w = u / d;  // towards the source
-    const float inv2 = visibility / (d2 + src.softening2);
-    const float inv3 = inv2 / d;
-    for (int c = 0; c < 3; ++c) {
-      const float i = src.intensity[c];
-      // The gradient is with respect to the emission direction, -w: only its part across w.
-      const Vec3f g = src.gradient[c] - w * dot(w, src.gradient[c]);
-      n.field.v[c] += w * (i * inv2);
-      for (int row = 0; row < 3; ++row) {
-        Vec3f e(0.0f);
-        e[row] = 1.0f;
-        n.field.j[c][row] += (w * (3.0f * w[row]) - e) * (i * inv3) + g * (w[row] * inv3);
-      }
-    }
-  };
-
-  // A random receiver of an item: where its shadow rays leave from.
-  auto originOf = [&](uint32_t item, Rng& rng) -> const CutReceiver& {
-    if (item & kReceiverBit) return receivers[item & ~kReceiverBit];
-    const ReceiverNode& n = st.nodes[item];
-    const uint32_t k = std::min(n.count - 1, static_cast<uint32_t>(rng.uniform() * n.count));
-    return receivers[st.order[n.first + k]];
-  };
-
-  auto served = [&](uint32_t item) -> uint64_t {
-    return (item & kReceiverBit) ? 1 : st.nodes[item].count;
-  };
-
-  auto refineReceiver = [&](const Pair& pair, uint32_t page) {
-    ++stats.refinedReceiver;
-    const ReceiverNode& n = st.nodes[pair.receiver];
-    if (n.childCount > 0) {
-      for (uint32_t c = 0; c < n.childCount; ++c) {
-        st.push({pair.light, n.firstChild + c, pair.depth}, page, &stats);
-      }
-    } else {
-      for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-        st.push({pair.light, kReceiverBit | st.order[k], pair.depth}, page, &stats);
-      }
-    }
-  };
-
-  // A leaf of the light tree against a receiver item: every surfel's light exactly (as a
-  // virtual spherical light at a single receiver, to first order at a node), visibility from
-  // rays to surfels, one per stratum of the leaf: as many strata as the leaf's solid angle
-  // holds eps_L, so that no ray decides more light than a cluster's (every surfel its own ray
-  // when eps_L is 0).
-  auto evaluateLeaf = [&](const Pair& pair, const TreePage& page, const TreeNode& leaf,
-                          const ReceiverView& rv) {
-    ++stats.leafPairs;
-    const std::span<const Surfel> surfels = page.surfelsOf(leaf);
-    const size_t n = surfels.size();
-    st.lit.assign(n, 0);
-    st.leafLight.resize(n);
-    float solidAngle = 0.0f;
-    size_t litCount = 0;
-    for (size_t k = 0; k < n; ++k) {
-      const Surfel& s = surfels[k];
-      bool sends = false;
-      if (rv.single) {
-        sends = surfelLight(s, receivers[pair.receiver & ~kReceiverBit], o.selfSkipRadius,
-                            &st.leafLight[k]);
-      } else {
-        sends = !isBlack(facingSide(s, s.position - rv.center).radiance);
-      }
-      if (!sends) continue;
-      st.lit[k] = 1;
-      ++litCount;
-      const Vec3f v = s.position - rv.center;
-      const float d2 = v.length2() + s.radius * s.radius;
-      solidAngle += s.area() * std::abs(dot(s.normal, v)) / (std::sqrt(v.length2()) * d2);
-    }
-    stats.surfelTerms += n;
-    stats.receiversServed += served(pair.receiver) * n;
-    if (litCount == 0) return;
-    const size_t strata =
-        o.lightSolidAngle > 0.0f
-            ? std::clamp<size_t>(static_cast<size_t>(std::ceil(solidAngle / o.lightSolidAngle)), 1, n)
-            : n;
-    Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-    for (size_t g = 0; g < strata; ++g) {
-      const size_t begin = g * n / strata, end = (g + 1) * n / strata;
-      size_t candidates = 0;
-      for (size_t k = begin; k < end; ++k) candidates += st.lit[k];
-      if (candidates == 0) continue;
-      // A random lit surfel of the stratum, as the target of the stratum's ray.
-      size_t pick = std::min(candidates - 1, static_cast<size_t>(rng.uniform() * candidates));
-      size_t target = begin;
-      for (size_t k = begin; k < end; ++k) {
-        if (!st.lit[k]) continue;
-        if (pick-- == 0) {
-          target = k;
-          break;
-        }
-      }
-      const CutReceiver& from = originOf(pair.receiver, rng);
-      if (!visibleSurfel(scene, from, surfels[target], &stats)) continue;
-      for (size_t k = begin; k < end; ++k) {
-        if (!st.lit[k]) continue;
-        if (rv.single) {
-          st.single[pair.receiver & ~kReceiverBit] += st.leafLight[k];
-          continue;
-        }
-        PointSource src;
-        if (surfelSource(surfels[k], normalize(rv.center - surfels[k].position), &src)) {
-          deposit(pair.receiver, src, 1.0f);
-        }
-      }
-    }
-  };
-
-  auto process = [&](const Pair& pair, const TreePage& page) -> absl::Status {
-    ++stats.pairs;
-    const ReceiverView rv = receiverView(pair.receiver);
-    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, pair.light);
-    if (!nodeOr.ok()) return nodeOr.status();
-    const TreeNode& node = **nodeOr;
-    const NodeAttributes& a = node.attributes;
-    const Bounds3f& lightBounds = a.bounds;
-    const Vec3f lightCenter = lightBounds.center();
-    const float lightRadius = lightBounds.radius();
-    const Vec3f halfL = lightBounds.diagonal() * 0.5f;
-
-    // Where the light lies against the receivers' tangent planes (every position in E's bounds,
-    // every normal n in its cone around axis a): with v from a receiver to a light point,
-    // a . v - |n - a| |v| <= n . v <= a . v + |n - a| |v|, and |n - a| <= 2 sin(angle / 2).
-    const Vec3f toCenter = lightCenter - rv.center;
-    const float centerDist2 = toCenter.length2();
-    const float along = dot(toCenter, rv.axis);
-    const float extent = absDotExtent(rv.axis, halfL) + absDotExtent(rv.axis, rv.halfExtent);
-    const float reach = lightRadius + rv.radius;
-    const float spread = rv.single ? 0.0f : rv.chord * (std::sqrt(centerDist2) + reach);
-    const float slack = 1e-6f * maxAbsComponent(rv.center);
-    if (lightBounds.empty() || along + extent + spread <= slack) {
-      ++stats.culled;  // below every receiver's horizon
-      return absl::OkStatus();
-    }
-    // Nothing to send (the insides of closed objects, unlit rooms): the power's constant term
-    // is the integral of a non-negative intensity.
-    if (!(luminance(a.powerSh.c[0]) > 0.0f) && !(luminance(a.backPower) > 0.0f)) {
-      ++stats.culled;
-      return absl::OkStatus();
-    }
-    const bool aboveAll = along - extent - spread > slack;
-    const bool separated = centerDist2 > reach * reach;
-
-    // The paper's criteria, the bounding spheres' first (no square root, no SH).
-    const Vec3f toCentroid = a.centroid - rv.center;
-    const float d2 = std::max(toCentroid.length2(), 1e-30f);
-    const float boundL = kPi * lightRadius * lightRadius / d2;
-    const float boundE = kPi * rv.radius * rv.radius / d2;
-    const bool receiverSmall =
-        rv.single || (within(boundE, o.receiverBound) && rv.angle < o.normalAngle);
-    const bool boundsSmall = separated && within(boundL, o.lightBound) && receiverSmall;
-    const float hE = rv.single                   ? 0.0f
-                     : rv.angle >= o.normalAngle ? kInfinity
-                     : o.receiverBound > 0.0f    ? boundE / o.receiverBound
-                                                 : kInfinity;
-    const float hBound = o.lightBound > 0.0f ? boundL / o.lightBound : kInfinity;
-    // The SH projected solid angle, when it can still decide anything: the pair may be small,
-    // or the light's refinement heuristic h_L may need it to beat the receiver's.
-    float solidAngle = kInfinity;
-    ClusterView view;
-    const float d = std::sqrt(d2);
-    const Vec3f dir = toCentroid / d;
-    if (boundsSmall || (!node.leaf() && !rv.single && hBound <= hE)) {
-      viewCluster(a, dir, &view);
-      solidAngle = view.coverage() / d2;
-    }
-    const bool small = boundsSmall && within(solidAngle, o.lightSolidAngle);
-    if (small) {
-      // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
-      const float cosGamma = dot(rv.axis, dir);
-      const float sinGamma = safeSqrt(1.0f - cosGamma * cosGamma);
-      if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
-        ++stats.clusterPairs;
-        stats.receiversServed += served(pair.receiver);
-        const PointSource src = clusterSource(a, view, -dir);
-        if (isBlack(src.intensity)) return absl::OkStatus();
-        Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-        const CutReceiver& from = originOf(pair.receiver, rng);
-        // Towards one of the cluster's surfels, picked in proportion to the light it sends:
-        // the fraction of rays that arrive is then the fraction of the cluster's light that
-        // does, wherever the light sits in the cluster (a floor cluster reaching under a block
-        // has its centroid, or points of its bounds, where no light is).
-        absl::StatusOr<std::optional<Surfel>> target =
-            pickSurfel(tree, page, pair.light, pair.depth, from, rng);
-        if (!target.ok()) return target.status();
-        const bool lit = !target->has_value() || visibleSurfel(scene, from, **target, &stats);
-        if (lit) deposit(pair.receiver, src, 1.0f);
-        return absl::OkStatus();
-      }
-      // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
-      if (rv.single || cosGamma * rv.cosAngle + sinGamma * rv.sinAngle < 0.0f) {
-        ++stats.culled;  // dropped
-        return absl::OkStatus();
-      }
-      refineReceiver(pair, page.id);  // some receivers see it above, some below
-      return absl::OkStatus();
-    }
-
-    if (node.leaf()) {
-      // Too big to be a cluster: its surfels one by one, for a single receiver, and for a node
-      // when the node is small from the leaf and the whole leaf lies above its horizon.
-      if (absl::Status s = checkLeaf(page, node, pair.light); !s.ok()) return s;
-      const float nearest = std::max(std::sqrt(centerDist2) - lightRadius, 1e-30f);
-      if (rv.single ||
-          (aboveAll && within(kPi * rv.radius * rv.radius / (nearest * nearest), o.receiverBound))) {
-        evaluateLeaf(pair, page, node, rv);
-      } else {
-        refineReceiver(pair, page.id);
-      }
-      return absl::OkStatus();
-    }
-
-    // Refine one side: the light side when h_L > h_E (a single receiver: always).
-    bool refineLight = rv.single;
-    if (!refineLight) {
-      // Without the SH solid angle (not computed), h_L >= hBound > h_E already.
-      float hL = hBound;
-      if (solidAngle < kInfinity) {
-        hL = std::max(hL, o.lightSolidAngle > 0.0f ? solidAngle / o.lightSolidAngle : kInfinity);
-      }
-      refineLight = hL > hE || (hL == hE && lightRadius >= rv.radius);
-    }
-    if (!refineLight) {
-      refineReceiver(pair, page.id);
-      return absl::OkStatus();
-    }
-    ++stats.refinedLight;
-    if (absl::Status s = checkInterior(page, node, pair.light, pair.depth); !s.ok()) return s;
-    for (const NodeRef& child : page.childrenOf(node)) {
-      st.push({child, pair.receiver, pair.depth + 1}, page.id, &stats);
-    }
-    return absl::OkStatus();
-  };
-
-  while (!st.pages.empty()) {
-    const uint32_t id = st.pages.top();
-    st.pages.pop();
-    Bucket& bucket = st.buckets[id];
+absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
+  while (!pages.empty() && pages.top() >= lowest) {
+    const uint32_t id = pages.top();
+    pages.pop();
+    Bucket& bucket = buckets[id];
     bucket.queued = false;
-    st.pending -= bucket.pairs.size();
-    std::swap(st.stack, bucket.pairs);
-    if (st.stack.empty()) continue;
+    pending -= bucket.pairs.size();
+    std::swap(stack, bucket.pairs);
+    if (stack.empty()) continue;
     ++stats.pageRequests;
-    absl::StatusOr<std::shared_ptr<const TreePage>> page = tree.page(id);
+    absl::StatusOr<std::shared_ptr<const TreePage>> page = source->page(id);
     if (!page.ok()) return page.status();
     PBGI_CHECK(*page != nullptr);
-    while (!st.stack.empty()) {
-      const Pair pair = st.stack.back();
-      st.stack.pop_back();
+    while (!stack.empty()) {
+      const Pair pair = stack.back();
+      stack.pop_back();
       if (absl::Status s = process(pair, **page); !s.ok()) return s;
     }
   }
+  return absl::OkStatus();
+}
 
+absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* statsOut) {
+  PBGI_CHECK_EQ(out.size(), receivers.size());
+  std::fill(out.begin(), out.end(), Rgb(0.0f));
   // Push each node's field down to its children (re-centred), then read it at each receiver.
-  for (size_t i = 1; i < st.nodes.size(); ++i) {
-    ReceiverNode& n = st.nodes[i];
-    const ReceiverNode& parent = st.nodes[n.parent];
+  for (size_t i = 1; i < nodes.size(); ++i) {
+    ReceiverNode& n = nodes[i];
+    const ReceiverNode& parent = nodes[n.parent];
     n.field.add(parent.field, n.center - parent.center);
   }
-  for (const ReceiverNode& n : st.nodes) {
+  for (const ReceiverNode& n : nodes) {
     if (n.childCount > 0) continue;
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-      const uint32_t r = st.order[k];
+      const uint32_t r = order[k];
       const CutReceiver& rec = receivers[r];
       const Vec3f delta = rec.p - n.center;
       Rgb e;
       for (int c = 0; c < 3; ++c) e[c] = std::max(0.0f, dot(rec.n, n.field.at(c, delta)));
-      out[r] = e + st.single[r];
+      out[r] = e + single[r];
       if (!isFinite(out[r])) {
         return absl::DataLossError(fmt::format(
             "cut: irradiance {} at {} is not finite: the tree holds non-finite radiance", out[r],
@@ -875,6 +904,63 @@ absl::Status BidirectionalCut::irradiance(TreePageSource& tree, const Scene& sce
     }
   }
   if (statsOut) *statsOut += stats;
+  return absl::OkStatus();
+}
+
+absl::Status BidirectionalCut::irradiance(TreePageSource& tree, const Scene& scene,
+                                          std::span<const CutReceiver> receivers, uint64_t key,
+                                          std::span<Rgb> out, CutStats* statsOut) {
+  PBGI_CHECK_EQ(out.size(), receivers.size());
+  State& st = *state_;
+  if (absl::Status s = st.begin(tree, scene, receivers, key, options_); !s.ok()) return s;
+  if (absl::Status s = st.sweep(0); !s.ok()) return s;
+  return st.finish(out, statsOut);
+}
+
+absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
+                         std::span<BidirectionalCut* const> cuts, std::span<const CutJob> jobs,
+                         CutStats* statsOut) {
+  PBGI_CHECK_EQ(cuts.size(), jobs.size());
+  std::vector<absl::Status> errors(jobs.size());
+  auto forEachCut = [&](auto&& step) {
+    tbb::this_task_arena::isolate([&] {
+      tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t i) {
+        if (errors[i].ok()) errors[i] = step(*cuts[i]->state_, jobs[i], *cuts[i]);
+      });
+    });
+    for (const absl::Status& e : errors) {
+      if (!e.ok()) return e;
+    }
+    return absl::OkStatus();
+  };
+  if (absl::Status s = forEachCut([&](BidirectionalCut::State& st, const CutJob& job,
+                                      const BidirectionalCut& cut) {
+        PBGI_CHECK_EQ(job.out.size(), job.receivers.size());
+        return st.begin(tree, scene, job.receivers, job.key, cut.options());
+      });
+      !s.ok()) {
+    return s;
+  }
+  // A window of pages at a time, from the highest down: every cut sweeps its own pages in
+  // its own order, so the window changes no cut's result, only how close in time the cuts
+  // ask for the same page.
+  for (;;) {
+    std::optional<uint32_t> high;
+    for (BidirectionalCut* cut : cuts) {
+      const std::optional<uint32_t> next = cut->state_->nextPage();
+      if (next && (!high || *next > *high)) high = next;
+    }
+    if (!high) break;
+    const uint32_t lowest = *high >= kCutWindowPages - 1 ? *high - (kCutWindowPages - 1) : 0;
+    if (absl::Status s = forEachCut([&](BidirectionalCut::State& st, const CutJob&,
+                                        const BidirectionalCut&) { return st.sweep(lowest); });
+        !s.ok()) {
+      return s;
+    }
+  }
+  for (size_t i = 0; i < jobs.size(); ++i) {
+    if (absl::Status s = cuts[i]->state_->finish(jobs[i].out, statsOut); !s.ok()) return s;
+  }
   return absl::OkStatus();
 }
 

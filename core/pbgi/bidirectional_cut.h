@@ -109,6 +109,30 @@ struct CutStats {
   std::string toString() const;
 };
 
+// One cut of several run together (cutTogether): its receivers, its key, where its irradiance
+// goes (the receivers' size).
+struct CutJob {
+  std::span<const CutReceiver> receivers;
+  uint64_t key = 0;
+  std::span<Rgb> out;
+};
+
+// How many pages cutTogether's cuts sweep at a time.
+inline constexpr uint32_t kCutWindowPages = 4;
+
+class BidirectionalCut;
+
+// Several cuts through one tree at once (the blocks of a render unit), each exactly as
+// BidirectionalCut::irradiance would run it alone, but swept in step: the cuts evaluate their
+// pairs on the highest kCutWindowPages pages any of them waits on, then the next pages down,
+// so a page is asked for by every cut that needs it within a few pages of one another and a
+// small page cache serves all but the first. Cuts run in parallel (TBB, isolated: the calling
+// thread takes no other work while it waits). cuts[i] runs jobs[i]; stats add up in job order.
+// Errors: the first job's (in order) that failed.
+absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
+                         std::span<BidirectionalCut* const> cuts, std::span<const CutJob> jobs,
+                         CutStats* stats);
+
 // Reusable buffers for cuts, so that cuts after the first allocate little. One per thread.
 class BidirectionalCut {
  public:
@@ -129,6 +153,8 @@ class BidirectionalCut {
                           std::span<Rgb> out, CutStats* stats);
 
  private:
+  friend absl::Status cutTogether(TreePageSource&, const Scene&, std::span<BidirectionalCut* const>,
+                                  std::span<const CutJob>, CutStats*);
   struct State;
   CutOptions options_;
   std::unique_ptr<State> state_;

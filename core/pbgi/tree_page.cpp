@@ -290,7 +290,8 @@ absl::StatusOr<Codebook> decodeCodebook(std::span<const uint8_t> bytes, int expe
 
 size_t TreePage::memoryBytes() const {
   return sizeof(TreePage) + nodes.capacity() * sizeof(TreeNode) +
-         children.capacity() * sizeof(NodeRef) + surfels.capacity() * sizeof(Surfel);
+         children.capacity() * sizeof(NodeRef) + surfels.capacity() * sizeof(Surfel) +
+         ghostOf.capacity() * sizeof(uint32_t);
 }
 
 size_t treePageBytes(TreeEncoding encoding, size_t nodes, size_t refs, size_t surfels,
@@ -303,16 +304,31 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
                                     std::span<const PageNode> nodes,
                                     const TreeCodebooks* codebooks) {
   PBGI_CHECK(!quantized(encoding) || codebooks != nullptr);
+  // The ghosts written: those of children whose reference leads out of the page, after the
+  // other nodes, each with the index of the reference it copies.
+  struct Ghost {
+    const GhostNode* node;
+    uint32_t ref;
+  };
+  std::vector<Ghost> ghosts;
   PageCounts counts;
-  counts.nodes = static_cast<uint32_t>(nodes.size());
   Bounds3f pageBounds;
   for (const PageNode& n : nodes) {
+    for (const GhostNode& g : n.ghosts) {
+      PBGI_CHECK_LT(g.child, n.children.size());
+      if (n.children[g.child].page == id) continue;
+      ghosts.push_back({&g, counts.refs + g.child});
+      counts.exact += quantized(encoding) && g.exact ? 1 : 0;
+      pageBounds.extend(g.attributes.bounds.min);
+      pageBounds.extend(g.attributes.bounds.max);
+    }
     counts.refs += static_cast<uint32_t>(n.children.size());
     counts.surfels += static_cast<uint32_t>(n.surfels.size());
     counts.exact += quantized(encoding) && n.exact ? 1 : 0;
     pageBounds.extend(n.attributes.bounds.min);
     pageBounds.extend(n.attributes.bounds.max);
   }
+  counts.nodes = static_cast<uint32_t>(nodes.size() + ghosts.size());
   std::vector<uint8_t> out;
   out.reserve(treePageBytes(encoding, counts.nodes, counts.refs, counts.surfels, counts.exact));
   ByteWriter w(&out);
@@ -324,36 +340,21 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
   writeVec3(w, pageBounds.min);
   writeVec3(w, pageBounds.max);
 
-  // Each node's bounds are relative to those its decoder will know: its in-page parent's
-  // dequantized bounds, else the page's.
-  std::vector<Bounds3f> reference(nodes.size(), pageBounds);
-  std::vector<Bounds3f> leafBounds(nodes.size());
-  uint32_t firstRef = 0, firstSurfel = 0;
-  for (size_t i = 0; i < nodes.size(); ++i) {
-    const PageNode& n = nodes[i];
-    const NodeAttributes& a = n.attributes;
-    PBGI_CHECK_LE(n.children.size(), 8u);
-    PBGI_CHECK_LE(n.surfels.size(), 255u);
-    PBGI_CHECK(n.children.empty() != n.surfels.empty());
-    w.u8(static_cast<uint8_t>(n.children.size()));
-    w.u8(static_cast<uint8_t>(n.surfels.size()));
-    w.u32(n.children.empty() ? firstSurfel : firstRef);
+  // One node record; returns the bounds its decoder will see.
+  auto writeRecord = [&](const NodeAttributes& a, size_t childCount, size_t surfelCount,
+                         uint32_t first, bool exact, uint32_t powerIndex, uint32_t areaIndex,
+                         const Bounds3f& reference) {
+    w.u8(static_cast<uint8_t>(childCount));
+    w.u8(static_cast<uint8_t>(surfelCount));
+    w.u32(first);
     PBGI_CHECK_LE(a.pointCount, uint64_t{UINT32_MAX});
     w.u32(static_cast<uint32_t>(a.pointCount));
-    firstRef += static_cast<uint32_t>(n.children.size());
-    firstSurfel += static_cast<uint32_t>(n.surfels.size());
     if (!quantized(encoding)) {
       writeFloatAttributes(w, a);
-      leafBounds[i] = a.bounds;
-      continue;
+      return a.bounds;
     }
     Bounds3f decoded;
-    encodeBounds(w, a.bounds, reference[i], &decoded);
-    leafBounds[i] = decoded;
-    for (const NodeRef& c : n.children) {
-      PBGI_CHECK(c.page != id || c.index != i);
-      if (c.page == id && c.index > i) reference[c.index] = decoded;
-    }
+    encodeBounds(w, a.bounds, reference, &decoded);
     w.u16(quantizeNearest(a.centroid.x, decoded.min.x, decoded.max.x));
     w.u16(quantizeNearest(a.centroid.y, decoded.min.y, decoded.max.y));
     w.u16(quantizeNearest(a.centroid.z, decoded.min.z, decoded.max.z));
@@ -370,19 +371,47 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
     w.f32(a.area);
     writeVec3(w, a.powerSh.c[0]);
     writeVec3(w, a.backPower);
-    const uint32_t powerIndex = n.exact ? exactMarker(encoding) : n.powerIndex;
-    const uint32_t areaIndex = n.exact ? 0 : n.areaIndex;
-    if (!n.exact) {
-      PBGI_CHECK_LT(n.powerIndex, static_cast<uint32_t>(codebooks->power.size()));
-      PBGI_CHECK_LT(n.areaIndex, static_cast<uint32_t>(codebooks->area.size()));
+    if (!exact) {
+      PBGI_CHECK_LT(powerIndex, static_cast<uint32_t>(codebooks->power.size()));
+      PBGI_CHECK_LT(areaIndex, static_cast<uint32_t>(codebooks->area.size()));
     }
+    const uint32_t power = exact ? exactMarker(encoding) : powerIndex;
+    const uint32_t area = exact ? 0 : areaIndex;
     if (encoding == TreeEncoding::kQuantized8) {
-      w.u8(static_cast<uint8_t>(powerIndex));
-      w.u8(static_cast<uint8_t>(areaIndex));
+      w.u8(static_cast<uint8_t>(power));
+      w.u8(static_cast<uint8_t>(area));
     } else {
-      w.u16(static_cast<uint16_t>(powerIndex));
-      w.u16(static_cast<uint16_t>(areaIndex));
+      w.u16(static_cast<uint16_t>(power));
+      w.u16(static_cast<uint16_t>(area));
     }
+    return decoded;
+  };
+
+  // Each node's bounds are relative to those its decoder will know: its in-page parent's
+  // dequantized bounds, else the page's.
+  std::vector<Bounds3f> reference(nodes.size(), pageBounds);
+  std::vector<Bounds3f> leafBounds(nodes.size());
+  uint32_t firstRef = 0, firstSurfel = 0;
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const PageNode& n = nodes[i];
+    PBGI_CHECK_LE(n.children.size(), 8u);
+    PBGI_CHECK_LE(n.surfels.size(), 255u);
+    PBGI_CHECK(n.children.empty() != n.surfels.empty());
+    const Bounds3f decoded =
+        writeRecord(n.attributes, n.children.size(), n.surfels.size(),
+                    n.children.empty() ? firstSurfel : firstRef, n.exact, n.powerIndex,
+                    n.areaIndex, reference[i]);
+    leafBounds[i] = decoded;
+    firstRef += static_cast<uint32_t>(n.children.size());
+    firstSurfel += static_cast<uint32_t>(n.surfels.size());
+    for (const NodeRef& c : n.children) {
+      PBGI_CHECK(c.page != id || c.index != i);
+      if (c.page == id && c.index > i) reference[c.index] = decoded;
+    }
+  }
+  for (const Ghost& g : ghosts) {
+    writeRecord(g.node->attributes, 0, 0, g.ref, g.node->exact, g.node->powerIndex,
+                g.node->areaIndex, pageBounds);
   }
   for (const PageNode& n : nodes) {
     for (const NodeRef& c : n.children) {
@@ -414,12 +443,17 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
     }
   }
   if (quantized(encoding)) {
-    for (const PageNode& n : nodes) {
-      if (!n.exact) continue;
-      for (float c : n.attributes.areaSh.c) w.f32(c);
+    auto writeExact = [&](const NodeAttributes& a) {
+      for (float c : a.areaSh.c) w.f32(c);
       float power[Sh9Rgb::kFloats];
-      n.attributes.powerSh.toFloats(power);
+      a.powerSh.toFloats(power);
       for (float c : power) w.f32(c);
+    };
+    for (const PageNode& n : nodes) {
+      if (n.exact) writeExact(n.attributes);
+    }
+    for (const Ghost& g : ghosts) {
+      if (g.node->exact) writeExact(g.node->attributes);
     }
   }
   PBGI_CHECK_EQ(out.size(),
@@ -494,9 +528,18 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
     n.first = r.u32();
     n.attributes.pointCount = r.u32();
     if (n.childCount > 8) return fail(fmt::format("node {}: {} children, at most 8", i, n.childCount));
-    if ((n.childCount == 0) == (n.surfelCount == 0)) {
-      return fail(fmt::format("node {}: {} children and {} surfels, expected exactly one of them",
-                              i, n.childCount, n.surfelCount));
+    if (n.childCount > 0 && n.surfelCount > 0) {
+      return fail(fmt::format("node {}: {} children and {} surfels, expected one of them", i,
+                              n.childCount, n.surfelCount));
+    }
+    if (n.ghost()) {
+      // A copy of the child that reference `first` leads to, in another page.
+      if (n.first >= counts.refs || page->children[n.first].page == id) {
+        return fail(fmt::format("node {}: a ghost of reference {}, which is not a reference "
+                                "out of the page ({} references)",
+                                i, n.first, counts.refs));
+      }
+      continue;
     }
     const uint64_t end = uint64_t{n.first} + (n.leaf() ? n.surfelCount : n.childCount);
     if (end > (n.leaf() ? counts.surfels : counts.refs)) {
@@ -511,6 +554,24 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
                                 c.index));
       }
       hasParent[c.index] = 1;
+    }
+  }
+
+  page->ghostOf.assign(counts.refs, kNoGhost);
+  for (uint32_t i = 0; i < counts.nodes; ++i) {
+    const TreeNode& n = page->nodes[i];
+    if (n.ghost()) {
+      if (page->ghostOf[n.first] != kNoGhost) {
+        return fail(fmt::format("nodes {} and {}: two ghosts of reference {}",
+                                page->ghostOf[n.first], i, n.first));
+      }
+      page->ghostOf[n.first] = i;
+      continue;
+    }
+    for (const NodeRef& c : page->childrenOf(n)) {
+      if (c.page == id && page->nodes[c.index].ghost()) {
+        return fail(fmt::format("node {}: child {} is a ghost", i, c.index));
+      }
     }
   }
 

@@ -15,8 +15,16 @@
 // leaf's bounds and radiance in half floats. Quantized bounds and cones are conservative:
 // dequantized bounds contain the float ones and a dequantized cone contains its normals.
 //
-// Payload layout, version 2 (little-endian, fixed width, no padding; version 1 had no back
-// radiance or back power):
+// Ghosts (version 3). A node whose children were placed in other pages keeps a copy of each
+// such child's record in its own page: a ghost, a node record with neither children nor
+// surfels whose `first` is the index of the child reference it copies. A traversal that must
+// weigh a node's children against one another (the cut picking where a shadow ray goes) reads
+// them there instead of asking for the children's pages, so it visits pages in the order a
+// sweep does. Ghosts follow the page's other nodes; their bounds are relative to the page's.
+// No reference points at a ghost.
+//
+// Payload layout, version 3 (little-endian, fixed width, no padding; version 1 had no back
+// radiance or back power, version 2 no ghosts):
 //   u32 node count, u32 child-reference count, u32 surfel count, u32 exact count, u8 encoding (0 float,
 //   1 quantized, 2 quantized with 8-bit indices), 6 x f32 page bounds (min xyz, max xyz),
 //   then the node records, the child references (u32 page, u32 index each), the surfel
@@ -89,7 +97,11 @@ struct TreeNode {
   uint32_t first = 0;       // first child in TreePage::children, or first surfel
   uint32_t surfelCount = 0;
   bool leaf() const { return childCount == 0; }
+  // A copy of a child in another page (see Ghosts above): `first` is its child reference.
+  bool ghost() const { return childCount == 0 && surfelCount == 0; }
 };
+
+inline constexpr uint32_t kNoGhost = UINT32_MAX;
 
 // One decoded page. Immutable once built, shared by the traversals that use it.
 struct TreePage {
@@ -99,6 +111,8 @@ struct TreePage {
   std::vector<TreeNode> nodes;
   std::vector<NodeRef> children;
   std::vector<Surfel> surfels;  // triangle and barycentric are not stored: left 0
+  // Per child reference: the node index of its ghost, kNoGhost for a child in this page.
+  std::vector<uint32_t> ghostOf;
 
   // `first` indexes children for interior nodes and surfels for leaves; each accessor is
   // empty for the other kind (the index would be out of its range).
@@ -107,8 +121,17 @@ struct TreePage {
     return std::span(children).subspan(n.first, n.childCount);
   }
   std::span<const Surfel> surfelsOf(const TreeNode& n) const {
-    if (!n.leaf()) return {};
+    if (!n.leaf() || n.ghost()) return {};
     return std::span(surfels).subspan(n.first, n.surfelCount);
+  }
+  // The attributes of child `c` of interior node `n`: the child itself when it is in this
+  // page, its ghost when it is in another; null for a child in another page without a ghost
+  // (trees of payload version 3 have one for every such child).
+  const NodeAttributes* childAttributes(const TreeNode& n, uint32_t c) const {
+    const NodeRef ref = children[n.first + c];
+    if (ref.page == id) return ref.index < nodes.size() ? &nodes[ref.index].attributes : nullptr;
+    const uint32_t g = ghostOf[n.first + c];
+    return g == kNoGhost ? nullptr : &nodes[g].attributes;
   }
   // Memory the decoded page holds, what a page cache budgets.
   size_t memoryBytes() const;
@@ -147,6 +170,15 @@ float areaShDc(float area);
 std::vector<uint8_t> encodeCodebook(const Codebook& codebook);
 absl::StatusOr<Codebook> decodeCodebook(std::span<const uint8_t> bytes, int expectedDimension);
 
+// A copy of a child placed in another page, for its parent's page (see Ghosts above).
+struct GhostNode {
+  uint32_t child = 0;  // which of the parent's children
+  NodeAttributes attributes;
+  uint32_t powerIndex = 0;
+  uint32_t areaIndex = 0;
+  bool exact = false;
+};
+
 // A node on its way into a page: its float attributes, its surfels for a leaf, and its
 // children as references, some of which point into the same page (set by the pager).
 struct PageNode {
@@ -157,6 +189,9 @@ struct PageNode {
   uint32_t powerIndex = 0;
   uint32_t areaIndex = 0;
   bool exact = false;  // quantized pages: keep this node's SH in float
+  // Copies of children in other pages. The encoder writes those whose reference leads out
+  // of the page and drops the others.
+  std::vector<GhostNode> ghosts;
 };
 
 // The float fields of a node record after its point count (bounds, centroid, cone, area,

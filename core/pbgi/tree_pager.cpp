@@ -9,7 +9,9 @@ namespace pbgi {
 
 uint32_t TreePager::minPageSize(TreeEncoding encoding, int leafSize) {
   const size_t leaf = nodeRecordBytes(encoding) + size_t(leafSize) * surfelRecordBytes(encoding);
-  const size_t interior = nodeRecordBytes(encoding) + 8 * kChildRefBytes + kExactShBytes;
+  // An interior node with 8 children in other pages: 8 ghosts, exact ones at worst.
+  const size_t interior = nodeRecordBytes(encoding) + 8 * kChildRefBytes + kExactShBytes +
+                          8 * (nodeRecordBytes(encoding) + kExactShBytes);
   return static_cast<uint32_t>(kTreePageHeaderBytes + std::max(leaf, interior));
 }
 
@@ -20,10 +22,28 @@ TreePager::TreePager(const TreePagerOptions& options, const TreeCodebooks* codeb
 }
 
 size_t TreePager::nodeBytes(const PageNode& node, size_t childCount) const {
-  return nodeRecordBytes(options_.encoding) + childCount * kChildRefBytes +
-         node.surfels.size() * surfelRecordBytes(options_.encoding) +
-         (quantized(options_.encoding) && node.exact ? kExactShBytes : 0);
+  size_t bytes = nodeRecordBytes(options_.encoding) + childCount * kChildRefBytes +
+                 node.surfels.size() * surfelRecordBytes(options_.encoding) +
+                 (quantized(options_.encoding) && node.exact ? kExactShBytes : 0);
+  for (const GhostNode& g : node.ghosts) {
+    bytes += nodeRecordBytes(options_.encoding) +
+             (quantized(options_.encoding) && g.exact ? kExactShBytes : 0);
+  }
+  return bytes;
 }
+
+namespace {
+
+// The record of a subtree's root, as a ghost in its parent's page.
+GhostNode ghostOf(const PageNode& root, uint32_t child) {
+  return {.child = child,
+          .attributes = root.attributes,
+          .powerIndex = root.powerIndex,
+          .areaIndex = root.areaIndex,
+          .exact = root.exact};
+}
+
+}  // namespace
 
 absl::Status TreePager::add(PageNode node, uint32_t childCount) {
   PBGI_CHECK_LE(childCount, stack_.size());
@@ -35,12 +55,16 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
 
   Subtree tree;
   node.children.clear();
+  node.ghosts.clear();
   if (kTreePageHeaderBytes + own + pending <= options_.pageSize) {
     // The node and its unplaced children fit one page: they stay together.
     tree.nodes.push_back(std::move(node));
     for (Subtree& c : children) {
       if (c.placed) {
-        tree.nodes.front().children.push_back(c.ref);
+        PageNode& self = tree.nodes.front();
+        self.ghosts.push_back(c.root);
+        self.ghosts.back().child = static_cast<uint32_t>(self.children.size());
+        self.children.push_back(c.ref);
         continue;
       }
       const auto offset = static_cast<uint32_t>(tree.nodes.size());
@@ -52,17 +76,21 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
         tree.nodes.push_back(std::move(n));
       }
     }
-    tree.bytes = own + pending;
+    tree.bytes = nodeBytes(tree.nodes.front(), childCount) + pending;
   } else {
+    // The children go to pages of their own; the node keeps their records as ghosts.
     for (Subtree& c : children) {
       if (!c.placed) {
         auto ref = place(c);
         if (!ref.ok()) return ref.status();
       }
+      node.ghosts.push_back(c.root);
+      node.ghosts.back().child = static_cast<uint32_t>(node.children.size());
       node.children.push_back(c.ref);
     }
+    tree.bytes = nodeBytes(node, childCount);
+    PBGI_CHECK_LE(kTreePageHeaderBytes + tree.bytes, options_.pageSize);
     tree.nodes.push_back(std::move(node));
-    tree.bytes = own;
   }
   stack_.resize(stack_.size() - childCount);
   stack_.push_back(std::move(tree));
@@ -76,6 +104,7 @@ absl::StatusOr<NodeRef> TreePager::place(Subtree& subtree) {
   }
   const auto pageId = static_cast<uint32_t>(stats_.pages);
   const auto base = static_cast<uint32_t>(open_.size());
+  subtree.root = ghostOf(subtree.nodes.front(), 0);
   for (PageNode& n : subtree.nodes) {
     for (NodeRef& r : n.children) {
       if (r.page == kUnplaced) r = NodeRef{pageId, base + r.index};

@@ -6,7 +6,9 @@
 // one page together with its own record; a node whose children's subtrees would overflow the
 // page with it places them, in Morton order, into the page being filled (starting a new one
 // when the next does not fit) and goes on alone. Every page is therefore whole subtrees,
-// depth-first, parents before children, and small neighbouring subtrees share a page. Memory
+// depth-first, parents before children, and small neighbouring subtrees share a page. A node
+// whose children went to pages of their own keeps copies of their records (ghosts, see
+// tree_page.h). Memory
 // holds at most a few pages' worth of nodes per open level of the tree.
 #include <cstdint>
 #include <functional>
@@ -57,7 +59,8 @@ class TreePager {
     std::vector<PageNode> nodes;
     size_t bytes = 0;
     bool placed = false;
-    NodeRef ref;  // once placed
+    NodeRef ref;     // once placed
+    GhostNode root;  // once placed: its root's record, for the parent's page
   };
   static constexpr uint32_t kUnplaced = UINT32_MAX;
 

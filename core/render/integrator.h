@@ -43,6 +43,15 @@ struct RenderCounters {
   void add(const RenderCounters& o);
 };
 
+// A block of a render unit: its pixels [firstPixel, firstPixel + pixelCount) of the unit's
+// list, and the key of its own random numbers, (seed, frame, block): the block being one of the
+// fixed grid, neither depends on the tiling.
+struct UnitBlock {
+  size_t firstPixel = 0;
+  size_t pixelCount = 0;
+  uint64_t key = 0;
+};
+
 // The camera samples of one render unit. Pixels are listed in the order the renderer chose
 // (Morton order within a tile, views one after another within a block); pixel i owns samples
 // [i * spp, (i + 1) * spp). Rays and random streams are keyed (seed, frame, pixel, sample),
@@ -52,9 +61,9 @@ struct TileSamples {
   std::span<const Vec2i> pixels;  // image (mosaic) coordinates
   std::span<const Ray> rays;
   std::span<Rng> rngs;
-  // Keys an integrator's own random numbers for work that spans pixels: (seed, frame, unit),
-  // the unit being the block of the fixed grid, so it does not depend on the tiling either.
-  uint64_t unitKey = 0;
+  // For an integrator with blocks (blockSize() > 0): the unit's blocks, whose pixels follow
+  // one another in `pixels`. Work that spans pixels stays within a block. Empty for a tile.
+  std::span<const UnitBlock> blocks;
 
   size_t pixelCount() const { return pixels.size(); }
 };
@@ -77,6 +86,9 @@ class Integrator {
   // blockSize() view pixels of a fixed grid, in every view: the renderer then renders whole
   // blocks (all views), so that a pixel is the same whatever the tiling or region asked for.
   virtual int blockSize() const { return 0; }
+  // How many blocks (consecutive in Morton order over the grid) a unit holds at most: blocks
+  // of one unit may share traversals of the tree (its pages), never their results.
+  virtual int blocksPerUnit() const { return 1; }
   // Fills out[s] for every sample of the unit. Must be deterministic in its inputs (whatever
   // the scratch held before) and safe to call from many threads, each with its own scratch.
   virtual absl::Status render(const TileSamples& samples, std::span<PathSample> out,

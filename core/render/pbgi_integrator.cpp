@@ -4,8 +4,12 @@
 #include <numbers>
 #include <vector>
 
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include "core/render/integrators.h"
 #include "core/render/pbgi_receiver.h"
+#include "core/util/check.h"
 
 namespace pbgi {
 
@@ -78,9 +82,9 @@ class PerPixelPbgi final : public PixelIntegrator {
   PbgiSettings settings_;
 };
 
-class BidirectionalScratch final : public IntegratorScratch {
- public:
-  explicit BidirectionalScratch(const PbgiSettings& settings)
+// One block's state: its receivers, its cut's buffers, what it counted.
+struct BidirectionalBlock {
+  explicit BidirectionalBlock(const PbgiSettings& settings)
       : pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)),
         cut(settings.cut) {}
   PixelGathers pixel;
@@ -88,6 +92,12 @@ class BidirectionalScratch final : public IntegratorScratch {
   std::vector<CutReceiver> receivers;
   std::vector<size_t> sampleOf;  // receiver -> sample
   std::vector<Rgb> irradiance;
+  RenderCounters counters;
+};
+
+class BidirectionalScratch final : public IntegratorScratch {
+ public:
+  std::vector<std::unique_ptr<BidirectionalBlock>> blocks;
 };
 
 class BidirectionalPbgi final : public Integrator {
@@ -98,50 +108,84 @@ class BidirectionalPbgi final : public Integrator {
   std::string name() const override { return "pbgi"; }
   std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
   std::unique_ptr<IntegratorScratch> newScratch() const override {
-    return std::make_unique<BidirectionalScratch>(settings_);
+    return std::make_unique<BidirectionalScratch>();
   }
   int blockSize() const override { return settings_.blockSize; }
+  int blocksPerUnit() const override { return settings_.blocksPerUnit; }
 
+  // Each block: its camera samples traced to their first hits (glossy ones gather there), its
+  // diffuse ones the receivers of its cut; the unit's cuts then run together (cutTogether),
+  // sharing the page cache's pages, each keyed by its own block.
   absl::Status render(const TileSamples& samples, std::span<PathSample> out,
                       IntegratorScratch* scratch, RenderCounters* counters) const override {
     auto& state = static_cast<BidirectionalScratch&>(*scratch);
-    state.receivers.clear();
-    state.sampleOf.clear();
-    GatherStats stats;
-    const size_t spp = static_cast<size_t>(samples.spp);
-    for (size_t i = 0; i < samples.pixelCount(); ++i) {
-      state.pixel.newPixel();
-      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
-        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
-                                         settings_.pathTracer, &out[k], counters);
-        if (r.kind == ReceiverKind::kGlossy) {
-          absl::StatusOr<Rgb> lo = state.pixel.reflect(tree_, scene_, r, out[k].albedo,
-                                                       samples.rngs[k], &stats, counters);
-          if (!lo.ok()) return lo.status();
-          out[k].indirect = *lo;
-        } else if (r.kind == ReceiverKind::kDiffuse) {
-          state.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
-          state.sampleOf.push_back(k);
-        }
-      }
+    const size_t count = samples.blocks.size();
+    PBGI_CHECK_GT(count, size_t{0});
+    while (state.blocks.size() < count) {
+      state.blocks.push_back(std::make_unique<BidirectionalBlock>(settings_));
     }
-    addGatherStats(stats, counters);
-    state.irradiance.resize(state.receivers.size());
+    std::vector<absl::Status> errors(count);
+    tbb::this_task_arena::isolate([&] {
+      tbb::parallel_for(size_t{0}, count, [&](size_t b) {
+        errors[b] = traceBlock(samples, samples.blocks[b], out, *state.blocks[b],
+                               counters->values.size());
+      });
+    });
+    for (size_t b = 0; b < count; ++b) {
+      counters->add(state.blocks[b]->counters);
+      if (!errors[b].ok()) return errors[b];
+    }
+    std::vector<BidirectionalCut*> cuts(count);
+    std::vector<CutJob> jobs(count);
+    for (size_t b = 0; b < count; ++b) {
+      BidirectionalBlock& block = *state.blocks[b];
+      cuts[b] = &block.cut;
+      jobs[b] = {.receivers = block.receivers, .key = samples.blocks[b].key, .out = block.irradiance};
+    }
     CutStats cutStats;
-    if (absl::Status s = state.cut.irradiance(tree_, scene_, state.receivers, samples.unitKey,
-                                              state.irradiance, &cutStats);
-        !s.ok()) {
-      return s;
-    }
+    if (absl::Status s = cutTogether(tree_, scene_, cuts, jobs, &cutStats); !s.ok()) return s;
     addCutStats(cutStats, counters);
-    for (size_t j = 0; j < state.receivers.size(); ++j) {
-      PathSample& ps = out[state.sampleOf[j]];
-      ps.indirect = ps.albedo * state.irradiance[j] * std::numbers::inv_pi_v<float>;
+    for (size_t b = 0; b < count; ++b) {
+      const BidirectionalBlock& block = *state.blocks[b];
+      for (size_t j = 0; j < block.receivers.size(); ++j) {
+        PathSample& ps = out[block.sampleOf[j]];
+        ps.indirect = ps.albedo * block.irradiance[j] * std::numbers::inv_pi_v<float>;
+      }
     }
     return absl::OkStatus();
   }
 
  private:
+  absl::Status traceBlock(const TileSamples& samples, const UnitBlock& unitBlock,
+                          std::span<PathSample> out, BidirectionalBlock& block,
+                          size_t counterCount) const {
+    block.receivers.clear();
+    block.sampleOf.clear();
+    block.counters = RenderCounters{};
+    block.counters.values.assign(counterCount, 0);
+    GatherStats stats;
+    const size_t spp = static_cast<size_t>(samples.spp);
+    for (size_t i = unitBlock.firstPixel; i < unitBlock.firstPixel + unitBlock.pixelCount; ++i) {
+      block.pixel.newPixel();
+      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
+        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
+                                         settings_.pathTracer, &out[k], &block.counters);
+        if (r.kind == ReceiverKind::kGlossy) {
+          absl::StatusOr<Rgb> lo = block.pixel.reflect(tree_, scene_, r, out[k].albedo,
+                                                       samples.rngs[k], &stats, &block.counters);
+          if (!lo.ok()) return lo.status();
+          out[k].indirect = *lo;
+        } else if (r.kind == ReceiverKind::kDiffuse) {
+          block.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
+          block.sampleOf.push_back(k);
+        }
+      }
+    }
+    addGatherStats(stats, &block.counters);
+    block.irradiance.resize(block.receivers.size());
+    return absl::OkStatus();
+  }
+
   const Scene& scene_;
   TreePageSource& tree_;
   PbgiSettings settings_;

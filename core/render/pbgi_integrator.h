@@ -33,6 +33,9 @@ struct PbgiSettings {
   int maxGathersPerPixel = 4;  // per-pixel gathers a pixel's samples make
   CutOptions cut;              // the bidirectional cut
   int blockSize = 64;          // the bidirectional cut's blocks, in view pixels
+  // Blocks rendered together, their cuts sweeping the tree's pages in step (a 4 x 4 square of
+  // 64^2 blocks: a 256^2 farm tile).
+  int blocksPerUnit = 16;
   // The path tracer's settings: its maxDepth serves the receivers that are path traced;
   // direct light always uses one scattering vertex.
   PathTracerSettings pathTracer;

@@ -53,11 +53,17 @@ TileRect intersect(const TileRect& a, const TileRect& b) {
 }
 bool emptyRect(const TileRect& r) { return r.x0 >= r.x1 || r.y0 >= r.y1; }
 
-// One unit of work: a tile (rect in image space) or a block (rect in view space, every view).
+// A block of the fixed grid: its rect in view space (every view) and its index.
+struct GridBlock {
+  TileRect rect;
+  Vec2i index{0, 0};
+};
+
+// One unit of work: a tile (rect in image space), or blocks (consecutive in Morton order).
 struct RenderUnit {
   TileRect rect;
   bool block = false;
-  Vec2i blockIndex{0, 0};
+  std::vector<GridBlock> blocks;
 };
 
 // The units that cover `regions` (or the whole image).
@@ -74,7 +80,7 @@ std::vector<RenderUnit> makeUnits(const Integrator& integrator, const Camera& ca
   const int block = integrator.blockSize();
   if (block <= 0) {
     for (const TileRect& r : wanted) {
-      for (const TileRect& t : makeTiles(r, tileSize)) units.push_back({t, false, {0, 0}});
+      for (const TileRect& t : makeTiles(r, tileSize)) units.push_back({t, false, {}});
     }
     return units;
   }
@@ -97,20 +103,27 @@ std::vector<RenderUnit> makeUnits(const Integrator& integrator, const Camera& ca
       }
     }
   }
+  const size_t perUnit = static_cast<size_t>(std::max(1, integrator.blocksPerUnit()));
   for (const Vec2i& b : mortonOrder(nx, ny)) {
     if (!needed[static_cast<size_t>(b.y) * nx + b.x]) continue;
-    units.push_back({{b.x * block, b.y * block, std::min(vw, (b.x + 1) * block),
-                      std::min(vh, (b.y + 1) * block)},
-                     true,
-                     b});
+    if (units.empty() || units.back().blocks.size() == perUnit) {
+      units.push_back({{}, true, {}});
+    }
+    units.back().blocks.push_back({{b.x * block, b.y * block, std::min(vw, (b.x + 1) * block),
+                                    std::min(vh, (b.y + 1) * block)},
+                                   b});
   }
   return units;
 }
 
 std::string describe(const RenderUnit& u) {
   if (u.block) {
-    return fmt::format("block ({}, {}) [{}, {}) x [{}, {}) of every view", u.blockIndex.x,
-                       u.blockIndex.y, u.rect.x0, u.rect.x1, u.rect.y0, u.rect.y1);
+    std::string text;
+    for (const GridBlock& b : u.blocks) {
+      text += fmt::format("{}({}, {}) [{}, {}) x [{}, {})", text.empty() ? "" : ", ", b.index.x,
+                          b.index.y, b.rect.x0, b.rect.x1, b.rect.y0, b.rect.y1);
+    }
+    return fmt::format("block{} {} of every view", u.blocks.size() > 1 ? "s" : "", text);
   }
   return fmt::format("tile [{}, {}) x [{}, {})", u.rect.x0, u.rect.x1, u.rect.y0, u.rect.y1);
 }
@@ -118,6 +131,7 @@ std::string describe(const RenderUnit& u) {
 // The buffers one thread reuses from unit to unit.
 struct UnitBuffers {
   std::vector<Vec2i> pixels;
+  std::vector<UnitBlock> blocks;
   std::vector<Ray> rays;
   std::vector<Rng> rngs;
   std::vector<PathSample> samples;
@@ -130,18 +144,26 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                         RenderCounters* counters) {
   PBGI_CHECK_EQ(image.channelCount(), static_cast<int>(kChannelCount));
   buf.pixels.clear();
-  const std::vector<Vec2i> order = mortonOrder(unit.rect.width(), unit.rect.height());
+  buf.blocks.clear();
   if (unit.block) {
     const Vec2i views = camera.views();
-    for (int row = 0; row < views.y; ++row) {
-      for (int col = 0; col < views.x; ++col) {
-        for (const Vec2i& d : order) {
-          buf.pixels.push_back({col * camera.viewWidth() + unit.rect.x0 + d.x,
-                                row * camera.viewHeight() + unit.rect.y0 + d.y});
+    for (const GridBlock& b : unit.blocks) {
+      const std::vector<Vec2i> order = mortonOrder(b.rect.width(), b.rect.height());
+      const size_t first = buf.pixels.size();
+      for (int row = 0; row < views.y; ++row) {
+        for (int col = 0; col < views.x; ++col) {
+          for (const Vec2i& d : order) {
+            buf.pixels.push_back({col * camera.viewWidth() + b.rect.x0 + d.x,
+                                  row * camera.viewHeight() + b.rect.y0 + d.y});
+          }
         }
       }
+      buf.blocks.push_back({.firstPixel = first,
+                            .pixelCount = buf.pixels.size() - first,
+                            .key = blockKey(settings.seed, frame, b.index.x, b.index.y)});
     }
   } else {
+    const std::vector<Vec2i> order = mortonOrder(unit.rect.width(), unit.rect.height());
     for (const Vec2i& d : order) buf.pixels.push_back({unit.rect.x0 + d.x, unit.rect.y0 + d.y});
   }
   const FilterSampler filter(settings.filter, settings.filterWidth);
@@ -167,9 +189,7 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                             .pixels = buf.pixels,
                             .rays = buf.rays,
                             .rngs = buf.rngs,
-                            .unitKey = unit.block ? blockKey(settings.seed, frame,
-                                                             unit.blockIndex.x, unit.blockIndex.y)
-                                                  : 0};
+                            .blocks = buf.blocks};
   if (absl::Status s = integrator.render(samples, buf.samples, buf.scratch.get(), counters);
       !s.ok()) {
     return absl::Status(s.code(), fmt::format("{}: {}", describe(unit), s.message()));

@@ -166,7 +166,8 @@ absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(const std::string& path
         "{}: tree payload version {}, this build reads version {}{}", path, *version,
         kTreePayloadVersion,
         *version < kTreePayloadVersion
-            ? ": the tree was written by an older pbgi (one-sided surfels); bake it again"
+            ? fmt::format(": the tree was written by an older pbgi ({}); bake it again",
+                          *version < 2 ? "one-sided surfels" : "pages without ghosts")
             : ": the tree was written by a newer pbgi"));
   }
   const std::string encoding = values.count("encoding") ? values["encoding"] : "";

@@ -28,7 +28,8 @@
 namespace pbgi {
 
 // Bumped when the page payload layout of tree_page.h changes.
-inline constexpr uint32_t kTreePayloadVersion = 2;  // 2: two-sided surfels (back radiance)
+// 2: two-sided surfels (back radiance); 3: ghosts of children in other pages.
+inline constexpr uint32_t kTreePayloadVersion = 3;
 
 struct TreeFileWriteOptions {
   TreeWriteOptions tree;

@@ -74,7 +74,7 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
   const uint64_t points = request.points > 0 ? request.points : kDefaultBakePoints;
   text += fmt::format(
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_cut={}|encoding={}|leaf={}"
-      "|page={}|power={}|area={}|exact={}|version={}",
+      "|page={}|power={}|area={}|exact={}|payload={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
       request.bounces > 0
           ? fmt::format("{} chunk {} tail {} revision {}", request.bounceCut.toString(),
@@ -82,7 +82,7 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
           : "",
       treeEncodingName(request.tree.encoding), request.tree.build.leafSize, request.tree.pageSize,
       request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
-      request.pbgiVersion);
+      kTreePayloadVersion, request.pbgiVersion);
   return XXH3_64bits(text.data(), text.size());
 }
 

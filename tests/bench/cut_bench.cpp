@@ -277,22 +277,12 @@ int runBench(const Args& args) {
     scene.reference = *std::move(ref);
     // The bake, once (a tiny render that bakes).
     {
-      ShotDesc small = scene.shot;
-      small.width = 8;
-      small.height = 8;
-      FrameRenderRequest r;
-      r.frame = small.firstFrame;
-      r.spp = 1;
-      r.threads = args.threads;
-      r.preview = false;
-      r.bakeDir = (out / "bake").string();
-      r.outPath = (out / (name + ".bake.exr")).string();
-      auto report = renderShotFrame(small, r);
-      if (!report.ok()) return std::fprintf(stderr, "%s\n", report.status().ToString().c_str()), 1;
-      scene.tree = report->tree->treePath;
-      scene.bakeSeconds = stageSeconds(report->stages, report->tree->baked ? "bake" : "tree");
+      auto baked = testing::bakeTree(scene.shot, out / "bake", out, args.threads);
+      if (!baked.ok()) return std::fprintf(stderr, "%s\n", baked.status().ToString().c_str()), 1;
+      scene.tree = baked->path;
+      scene.bakeSeconds = baked->seconds;
       std::printf("%s: tree %s (%s %.1f s)\n", name.c_str(), scene.tree.c_str(),
-                  report->tree->baked ? "baked in" : "reused, baked before", scene.bakeSeconds);
+                  baked->baked ? "baked in" : "reused, baked before", scene.bakeSeconds);
     }
     for (const int size : args.sizes) {
       for (const int spp : args.spp) {

@@ -111,4 +111,30 @@ inline absl::StatusOr<CacheRun> renderWithCache(const ShotDesc& shot, FrameRende
   return run;
 }
 
+// The shot's tree for its first frame, baked (or found, when baked before) under `bakeDir` by
+// a tiny render: the benchmarks' bake, timed apart from their renders.
+struct BakedTree {
+  std::string path;
+  double seconds = 0.0;  // the bake's, or the tree stage's when the tree was found
+  bool baked = false;
+};
+inline absl::StatusOr<BakedTree> bakeTree(ShotDesc shot, const std::filesystem::path& bakeDir,
+                                          const std::filesystem::path& outDir, int threads) {
+  shot.width = 8;
+  shot.height = 8;
+  FrameRenderRequest r;
+  r.frame = shot.firstFrame;
+  r.spp = 1;
+  r.threads = threads;
+  r.preview = false;
+  r.bakeDir = bakeDir.string();
+  r.outPath = (outDir / (std::filesystem::path(shot.path).stem().string() + ".bake.exr")).string();
+  auto report = renderShotFrame(shot, r);
+  if (!report.ok()) return report.status();
+  const bool baked = report->tree->baked;
+  return BakedTree{.path = report->tree->treePath,
+                   .seconds = stageSeconds(report->stages, baked ? "bake" : "tree"),
+                   .baked = baked};
+}
+
 }  // namespace pbgi::testing

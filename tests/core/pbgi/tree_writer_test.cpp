@@ -189,6 +189,49 @@ TEST(TreeWriter, QuantizedTreeIsConservativeAndClose) {
             << " mean " << meanNode << "\n";
 }
 
+// A parent's page holds a ghost of each child in another page: the child's record, so that a
+// traversal can weigh children without their pages (the cut's shadow-ray targets).
+TEST(TreeWriter, EveryChildInAnotherPageHasAGhostInItsParentsPage) {
+  for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized}) {
+    SCOPED_TRACE(static_cast<int>(e));
+    auto tree = buildMemoryTree(makeSorted(20000, 31), smallPages(e));
+    ASSERT_TRUE(tree.ok());
+    std::map<uint32_t, std::shared_ptr<const TreePage>> pages;
+    for (uint32_t id = 0; id < (*tree)->payloads().size(); ++id) {
+      auto p = (*tree)->page(id);
+      ASSERT_TRUE(p.ok()) << p.status();
+      pages[id] = *p;
+    }
+    size_t crossing = 0;
+    for (const auto& [id, page] : pages) {
+      for (const TreeNode& n : page->nodes) {
+        if (n.leaf()) continue;
+        for (uint32_t c = 0; c < n.childCount; ++c) {
+          const NodeRef ref = page->children[n.first + c];
+          const NodeAttributes* seen = page->childAttributes(n, c);
+          ASSERT_NE(seen, nullptr);
+          const NodeAttributes& real = pages.at(ref.page)->nodes.at(ref.index).attributes;
+          if (ref.page == id) {
+            EXPECT_EQ(seen, &real);
+            continue;
+          }
+          ++crossing;
+          EXPECT_TRUE(page->nodes[page->ghostOf[n.first + c]].ghost());
+          EXPECT_EQ(seen->pointCount, real.pointCount);
+          EXPECT_EQ(seen->area, real.area);
+          EXPECT_EQ(seen->powerSh.c[0], real.powerSh.c[0]);
+          EXPECT_EQ(seen->backPower, real.backPower);
+          // Quantized against another page's bounds, so close rather than equal.
+          const float tolerance = 2e-3f * length(page->bounds.diagonal());
+          EXPECT_LE(length(seen->centroid - real.centroid), tolerance);
+          EXPECT_GT(dot(seen->cone.axis, real.cone.axis), 0.999f);
+        }
+      }
+    }
+    EXPECT_GT(crossing, 10u);  // small pages: many children live in other pages
+  }
+}
+
 TEST(TreeWriter, SameInputSameBytes) {
   const auto sorted = makeSorted(8000, 13);
   for (TreeEncoding e : {TreeEncoding::kFloat, TreeEncoding::kQuantized, TreeEncoding::kQuantized8}) {
@@ -323,6 +366,20 @@ TEST_F(TreePageDamage, BadFieldsAreNamed) {
     const uint32_t exact = loadU32(b.data() + 12);
     b[b.size() - 1 - exact * kExactShBytes] = 200;
     expectError(b, "material class 200");
+  }
+  {
+    // A node with neither children nor surfels is a ghost; one of a reference into its own
+    // page (or of no reference) is refused.
+    auto b = bytes_;
+    uint8_t* leaf = nullptr;
+    for (uint32_t i = 0; i < nodes && leaf == nullptr; ++i) {
+      uint8_t* record = b.data() + kTreePageHeaderBytes + i * nodeBytes;
+      if (record[0] == 0 && record[1] > 0) leaf = record;
+    }
+    ASSERT_NE(leaf, nullptr);
+    leaf[1] = 0;                        // no surfels: a ghost
+    storeU32(leaf + 2, refs + 5);       // of a reference past the page's
+    expectError(b, "which is not a reference out of the page");
   }
   // Quantized pages need their codebooks.
   EXPECT_EQ(decodeTreePage(0, bytes_, nullptr).status().code(), absl::StatusCode::kDataLoss);

@@ -136,10 +136,13 @@ struct Crafted {
 
 const std::vector<Crafted>& craftedTrees() {
   static const std::vector<Crafted> files = {
-      {"future_payload.pbgi", 2, "tree payload version 99, this build reads version 2"},
+      {"future_payload.pbgi", 2, "tree payload version 99, this build reads version 3"},
       {"old_payload.pbgi", 2,
-       "tree payload version 1, this build reads version 2: the tree was written by an older "
+       "tree payload version 1, this build reads version 3: the tree was written by an older "
        "pbgi (one-sided surfels); bake it again"},
+      {"ghostless_payload.pbgi", 2,
+       "tree payload version 2, this build reads version 3: the tree was written by an older "
+       "pbgi (pages without ghosts); bake it again"},
       {"no_tree_section.pbgi", 1, "no \"tree\" section"},
       {"unknown_encoding.pbgi", 1, "encoding \"fancy\""},
       {"reference_loop.pbgi", 1, "the file's references loop"},
@@ -173,6 +176,8 @@ void makeCraftedTrees(const fs::path& dir) {
                {{"tree", text(treeSection("99", "float"))}});
   writeCrafted((dir / "old_payload.pbgi").string(), {leafPage},
                {{"tree", text(treeSection("1", "float"))}});
+  writeCrafted((dir / "ghostless_payload.pbgi").string(), {leafPage},
+               {{"tree", text(treeSection("2", "float"))}});
   const std::string version = std::to_string(kTreePayloadVersion);
   writeCrafted((dir / "no_tree_section.pbgi").string(), {leafPage}, {{"bake", text("a = b\n")}});
   writeCrafted((dir / "unknown_encoding.pbgi").string(), {leafPage},
