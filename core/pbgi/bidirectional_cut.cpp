@@ -90,11 +90,6 @@ struct Pair {
   uint32_t depth = 0;     // of the light node, against reference cycles
 };
 
-struct Bucket {
-  std::vector<Pair> pairs;
-  bool queued = false;
-};
-
 // The receiver side of a pair as the criteria see it.
 struct ReceiverView {
   Vec3f center{0.0f};
@@ -116,6 +111,23 @@ struct PointSource {
   Rgb intensity{0.0f};
   std::array<Vec3f, 3> gradient{Vec3f(0.0f), Vec3f(0.0f), Vec3f(0.0f)};
   float softening2 = 0.0f;
+};
+
+// Light from a cluster waiting for its shadow ray's target, picked below the cluster in a
+// lower page (see descend()).
+struct Probe {
+  NodeRef at;            // the node the descent goes on from
+  uint32_t depth = 0;    // of `at`
+  uint32_t receiver = 0; // the receiver item the light goes to
+  uint32_t origin = 0;   // the receiver the ray leaves from
+  Rng rng{0};
+  PointSource src;
+};
+
+struct Bucket {
+  std::vector<Pair> pairs;
+  std::vector<Probe> probes;
+  bool queued = false;
 };
 
 uint64_t lightId(NodeRef ref) { return (uint64_t{ref.page} << 32) | ref.index; }
@@ -157,30 +169,31 @@ float nodeContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) 
   return std::max(0.0f, luminance(clusterRadiance(a, view))) * view.coverage() * cosR / d2;
 }
 
-// Descends from `ref` (a node of `page`) to one of its surfels, choosing each child in
-// proportion to what it sends the receiver `to` and the surfel in proportion to its own share:
-// the fraction of rays to such surfels that arrive estimates the fraction of the cluster's
-// light that reaches that receiver. nullopt when the node sends it nothing. Pages other than
-// `page` come from the source.
-absl::StatusOr<std::optional<Surfel>> pickSurfel(TreePageSource& tree, const TreePage& page,
-                                                 NodeRef ref, uint32_t depth,
-                                                 const CutReceiver& to, Rng& rng) {
-  std::shared_ptr<const TreePage> held;  // keeps `at` alive when it is not `page`
-  const TreePage* at = &page;
+// Where a shadow ray towards a cluster goes: one of its surfels, picked by descending from the
+// cluster and choosing each child in proportion to what it sends the receiver `to` and the
+// surfel in proportion to its own share, so that the fraction of rays to such surfels that
+// arrive estimates the fraction of the cluster's light that reaches the receiver. The descent
+// stays in one page: children in other pages are weighed by their ghosts (tree_page.h), and
+// when the one picked is in another page the descent stops there and goes on when the sweep
+// reaches that page (a Probe), so a cut asks for no page outside its sweep.
+struct Descent {
+  enum class Kind { kSurfel, kNothing, kElsewhere };
+  Kind kind = Kind::kNothing;  // kNothing: the node sends the receiver nothing
+  Surfel surfel;               // kSurfel
+  NodeRef next;                // kElsewhere: the child to go on from, in another page
+  uint32_t depth = 0;          // of `next`
+};
+
+absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t depth,
+                                const CutReceiver& to, Rng& rng) {
   for (;;) {
-    if (ref.page != at->id) {
-      absl::StatusOr<std::shared_ptr<const TreePage>> next = tree.page(ref.page);
-      if (!next.ok()) return next.status();
-      held = *std::move(next);
-      at = held.get();
-    }
-    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(*at, ref);
+    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, ref);
     if (!nodeOr.ok()) return nodeOr.status();
     const TreeNode& node = **nodeOr;
     const float u = rng.uniform();
     if (node.leaf()) {
-      if (absl::Status s = checkLeaf(*at, node, ref); !s.ok()) return s;
-      const std::span<const Surfel> surfels = at->surfelsOf(node);
+      if (absl::Status s = checkLeaf(page, node, ref); !s.ok()) return s;
+      const std::span<const Surfel> surfels = page.surfelsOf(node);
       float weights[kMaxLeafSize + 1];
       float total = 0.0f;
       for (size_t k = 0; k < surfels.size(); ++k) {
@@ -195,44 +208,47 @@ absl::StatusOr<std::optional<Surfel>> pickSurfel(TreePageSource& tree, const Tre
         weights[k] = w;
         total += w;
       }
-      if (!(total > 0.0f)) return std::optional<Surfel>();
+      if (!(total > 0.0f)) return Descent{};
       float x = u * total;
+      size_t pick = surfels.size() - 1;
       for (size_t k = 0; k < surfels.size(); ++k) {
         x -= weights[k];
-        if (x < 0.0f) return std::optional<Surfel>(surfels[k]);
+        if (x < 0.0f) {
+          pick = k;
+          break;
+        }
       }
-      return std::optional<Surfel>(surfels.back());
+      return Descent{.kind = Descent::Kind::kSurfel, .surfel = surfels[pick]};
     }
-    if (absl::Status s = checkInterior(*at, node, ref, depth); !s.ok()) return s;
-    const std::span<const NodeRef> children = at->childrenOf(node);
+    if (absl::Status s = checkInterior(page, node, ref, depth); !s.ok()) return s;
     float weights[8] = {};
     float total = 0.0f;
-    for (size_t c = 0; c < children.size() && c < 8; ++c) {
-      std::shared_ptr<const TreePage> childHeld;
-      const TreePage* childPage = at;
-      if (children[c].page != at->id) {
-        absl::StatusOr<std::shared_ptr<const TreePage>> next = tree.page(children[c].page);
-        if (!next.ok()) return next.status();
-        childHeld = *std::move(next);
-        childPage = childHeld.get();
+    for (uint32_t c = 0; c < node.childCount && c < 8; ++c) {
+      const NodeAttributes* child = page.childAttributes(node, c);
+      if (child == nullptr) {
+        return absl::DataLossError(fmt::format(
+            "cut: page {} node {}: child {} is in page {} and has no ghost here (a tree of an "
+            "older payload, or damaged)",
+            ref.page, ref.index, c, page.children[node.first + c].page));
       }
-      absl::StatusOr<const TreeNode*> child = nodeAt(*childPage, children[c]);
-      if (!child.ok()) return child.status();
-      weights[c] = nodeContribution((*child)->attributes, to.p, to.n);
+      weights[c] = nodeContribution(*child, to.p, to.n);
       total += weights[c];
     }
-    if (!(total > 0.0f)) return std::optional<Surfel>();
+    if (!(total > 0.0f)) return Descent{};
     float x = u * total;
-    size_t pick = children.size() - 1;
-    for (size_t c = 0; c < children.size() && c < 8; ++c) {
+    uint32_t pick = node.childCount - 1;
+    for (uint32_t c = 0; c < node.childCount && c < 8; ++c) {
       x -= weights[c];
       if (x < 0.0f) {
         pick = c;
         break;
       }
     }
-    ref = children[pick];
+    ref = page.children[node.first + pick];
     ++depth;
+    if (ref.page != page.id) {
+      return Descent{.kind = Descent::Kind::kElsewhere, .next = ref, .depth = depth};
+    }
   }
 }
 
@@ -423,6 +439,7 @@ struct BidirectionalCut::State {
   std::unordered_map<uint32_t, Bucket> buckets;
   std::priority_queue<uint32_t> pages;
   std::vector<Pair> stack;
+  std::vector<Probe> probes;  // the page's being resolved
   std::vector<uint8_t> lit;  // a leaf's surfels that send light
   std::vector<Rgb> leafLight;  // and what each sends a single receiver
   uint64_t pending = 0;
@@ -523,11 +540,41 @@ struct BidirectionalCut::State {
   }
 
   // A random receiver of an item: where its shadow rays leave from.
-  const CutReceiver& originOf(uint32_t item, Rng& rng) const {
-    if (item & kReceiverBit) return receivers[item & ~kReceiverBit];
+  uint32_t originOf(uint32_t item, Rng& rng) const {
+    if (item & kReceiverBit) return item & ~kReceiverBit;
     const ReceiverNode& n = nodes[item];
     const uint32_t k = std::min(n.count - 1, static_cast<uint32_t>(rng.uniform() * n.count));
-    return receivers[order[n.first + k]];
+    return order[n.first + k];
+  }
+
+  void pushProbe(Probe&& probe) {
+    Bucket& b = buckets[probe.at.page];
+    b.probes.push_back(std::move(probe));
+    if (!b.queued) {
+      b.queued = true;
+      pages.push(b.probes.back().at.page);
+    }
+    ++pending;
+    stats.peakPendingPairs = std::max(stats.peakPendingPairs, pending);
+  }
+
+  // A cluster's light at a receiver item, once its shadow ray's target is known: deposited
+  // when the ray arrives (or when no surfel sends it anything: nothing to hide), else dropped;
+  // or, when the target lies in another page, waiting there.
+  void resolve(const Descent& d, uint32_t receiver, uint32_t origin, const Rng& rng,
+               const PointSource& src) {
+    switch (d.kind) {
+      case Descent::Kind::kNothing:
+        deposit(receiver, src, 1.0f);
+        return;
+      case Descent::Kind::kSurfel:
+        if (visibleSurfel(*scn, receivers[origin], d.surfel, &stats)) deposit(receiver, src, 1.0f);
+        return;
+      case Descent::Kind::kElsewhere:
+        pushProbe({.at = d.next, .depth = d.depth, .receiver = receiver, .origin = origin,
+                   .rng = rng, .src = src});
+        return;
+    }
   }
 
   uint64_t served(uint32_t item) const {
@@ -601,7 +648,7 @@ struct BidirectionalCut::State {
           break;
         }
       }
-      const CutReceiver& from = originOf(pair.receiver, rng);
+      const CutReceiver& from = receivers[originOf(pair.receiver, rng)];
       if (!visibleSurfel(*scn, from, surfels[target], &stats)) continue;
       for (size_t k = begin; k < end; ++k) {
         if (!lit[k]) continue;
@@ -686,16 +733,15 @@ struct BidirectionalCut::State {
         const PointSource src = clusterSource(a, view, -dir);
         if (isBlack(src.intensity)) return absl::OkStatus();
         Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-        const CutReceiver& from = originOf(pair.receiver, rng);
+        const uint32_t origin = originOf(pair.receiver, rng);
         // Towards one of the cluster's surfels, picked in proportion to the light it sends:
         // the fraction of rays that arrive is then the fraction of the cluster's light that
         // does, wherever the light sits in the cluster (a floor cluster reaching under a block
         // has its centroid, or points of its bounds, where no light is).
-        absl::StatusOr<std::optional<Surfel>> target =
-            pickSurfel(*source, page, pair.light, pair.depth, from, rng);
+        absl::StatusOr<Descent> target =
+            descend(page, pair.light, pair.depth, receivers[origin], rng);
         if (!target.ok()) return target.status();
-        const bool lit = !target->has_value() || visibleSurfel(*scn, from, **target, &stats);
-        if (lit) deposit(pair.receiver, src, 1.0f);
+        resolve(*target, pair.receiver, origin, rng, src);
         return absl::OkStatus();
       }
       // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
@@ -845,8 +891,10 @@ absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& s
   single.assign(receivers.size(), Rgb(0.0f));
   for (auto& [id, bucket] : buckets) {
     bucket.pairs.clear();
+    bucket.probes.clear();
     bucket.queued = false;
   }
+  probes.clear();
   pages = {};
   stack.clear();
   pending = 0;
@@ -863,8 +911,10 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
     Bucket& bucket = buckets[id];
     bucket.queued = false;
     pending -= bucket.pairs.size();
+    pending -= bucket.probes.size();
     std::swap(stack, bucket.pairs);
-    if (stack.empty()) continue;
+    std::swap(probes, bucket.probes);
+    if (stack.empty() && probes.empty()) continue;
     ++stats.pageRequests;
     absl::StatusOr<std::shared_ptr<const TreePage>> page = source->page(id);
     if (!page.ok()) return page.status();
@@ -874,6 +924,15 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
       stack.pop_back();
       if (absl::Status s = process(pair, **page); !s.ok()) return s;
     }
+    // Descents that reached this page, in the order they arrived (pairs refined here go to
+    // other pages: none arrive while these run).
+    for (Probe& probe : probes) {
+      absl::StatusOr<Descent> target =
+          descend(**page, probe.at, probe.depth, receivers[probe.origin], probe.rng);
+      if (!target.ok()) return target.status();
+      resolve(*target, probe.receiver, probe.origin, probe.rng, probe.src);
+    }
+    probes.clear();
   }
   return absl::OkStatus();
 }

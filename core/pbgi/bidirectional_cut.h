@@ -33,17 +33,21 @@
 // disk's own radius softening the 1/d^2 spike (exact for a coaxial disk).
 //
 // Visibility is a shadow ray in the scene (Embree), not the cluster's approximation: from a
-// random receiver of E (off its surface) towards a random point of L's bounds, up to where
-// the ray enters those bounds (occlusion inside a cluster is the cluster's own business, as
-// in PBGI); to a surfel, up to the surfel. The sample is random rather than fixed so that
-// neighbouring clusters do not band (the paper's figure 5). Random numbers come from (key,
-// light node, receiver node), so the result does not depend on threads or on the order pages
-// arrive in.
+// random receiver of E (off its surface) towards one of L's surfels, picked by descending
+// from L and choosing each child in proportion to the light it sends that receiver, up to
+// just short of the surfel. The sample is random rather than fixed so that neighbouring
+// clusters do not band (the paper's figure 5). Random numbers come from (key, light node,
+// receiver node), so the result does not depend on threads or on the order pages arrive in.
 //
 // Pages. Pairs wait in one bucket per light page, and the pages are visited from the highest
 // id down: the tree writer places children before their parents, so every reference points to
-// the same page or a lower one, and each page is asked for once per cut. (A tree that breaks
-// that order is still rendered right, at the cost of asking for a page again.)
+// the same page or a lower one, and each page is asked for once per cut. A shadow ray's
+// descent weighs children in other pages by their ghosts (copies kept in the parent's page,
+// tree_page.h) and, when it goes on into another page, waits in that page's bucket too, so
+// nothing leaves the sweep. (A tree that breaks the order is still rendered right, at the
+// cost of asking for a page again.) cutTogether runs the cuts of several blocks in step, so
+// that each page is loaded once for all of them: a page cache of a few pages serves a whole
+// render unit.
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -117,8 +121,9 @@ struct CutJob {
   std::span<Rgb> out;
 };
 
-// How many pages cutTogether's cuts sweep at a time.
-inline constexpr uint32_t kCutWindowPages = 4;
+// How many pages cutTogether's cuts sweep at a time: one, so that a cache of two pages loads
+// each page once per unit.
+inline constexpr uint32_t kCutWindowPages = 1;
 
 class BidirectionalCut;
 

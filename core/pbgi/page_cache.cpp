@@ -10,14 +10,14 @@ namespace pbgi {
 
 std::string PageCacheCounters::toString() const {
   return fmt::format(
-      "hits={} misses={} hit_rate={:.4f} failures={} evictions={} over_budget={} "
+      "hits={} misses={} hit_rate={:.4f} waits={} failures={} evictions={} over_budget={} "
       "bytes_loaded={} pages_resident={} bytes_resident={}",
-      hits, misses, hitRate(), failures, evictions, overBudget, bytesLoaded, pagesResident,
-      bytesResident);
+      hits, misses, hitRate(), waits, failures, evictions, overBudget, bytesLoaded,
+      pagesResident, bytesResident);
 }
 
 PageCache::PageCache(TreePageSource& source, const PageCacheOptions& options)
-    : source_(source) {
+    : source_(source), policy_(options.policy) {
   PBGI_CHECK_GE(options.shards, 1);
   // Each shard gets an equal share of the budget, so a small budget split many ways would
   // hold less than a page per shard and evict everything: fewer shards, never under
@@ -43,6 +43,7 @@ void PageCache::evict(Shard& shard) {
         victim = entry;
         victimLru = it;
       }
+      if (policy_ == PageCachePolicy::kLeastRecent) break;  // the oldest unpinned page
     }
     if (victim == shard.entries.end()) break;
     shard.bytes -= victim->second.bytes;
@@ -56,8 +57,9 @@ void PageCache::evict(Shard& shard) {
 
 absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
   Shard& shard = *shards_[id % shards_.size()];
+  std::promise<absl::StatusOr<std::shared_ptr<const TreePage>>> promise;
   {
-    std::lock_guard lock(shard.mutex);
+    std::unique_lock lock(shard.mutex);
     auto it = shard.entries.find(id);
     if (it != shard.entries.end()) {
       shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
@@ -65,11 +67,27 @@ absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
       hits_.fetch_add(1, std::memory_order_relaxed);
       return it->second.page;
     }
+    if (auto pending = shard.loading.find(id); pending != shard.loading.end()) {
+      auto future = pending->second;
+      lock.unlock();
+      waits_.fetch_add(1, std::memory_order_relaxed);
+      absl::StatusOr<std::shared_ptr<const TreePage>> result = future.get();
+      (result.ok() ? hits_ : failures_).fetch_add(1, std::memory_order_relaxed);
+      return result;
+    }
+    shard.loading.emplace(id, promise.get_future().share());
   }
   misses_.fetch_add(1, std::memory_order_relaxed);
   auto loaded = source_.page(id);
+  // Whatever came of the load, those waiting for it get it, and the next miss loads again.
+  auto finishLoad = [&] {
+    promise.set_value(loaded);
+    shard.loading.erase(id);
+  };
   if (!loaded.ok()) {
     failures_.fetch_add(1, std::memory_order_relaxed);
+    std::lock_guard lock(shard.mutex);
+    finishLoad();
     return loaded.status();
   }
   const size_t bytes = (*loaded)->memoryBytes();
@@ -83,13 +101,9 @@ absl::StatusOr<std::shared_ptr<const TreePage>> PageCache::page(uint32_t id) {
     }
   }
   std::lock_guard lock(shard.mutex);
+  finishLoad();
   auto [it, inserted] = shard.entries.try_emplace(id);
-  if (!inserted) {
-    // Another thread loaded it meanwhile: keep one copy.
-    shard.lru.splice(shard.lru.begin(), shard.lru, it->second.lru);
-    ++it->second.uses;
-    return it->second.page;
-  }
+  PBGI_CHECK(inserted);  // only this thread loads it
   shard.lru.push_front(id);
   uint64_t uses = 1;
   if (auto old = shard.evictedUses.find(id); old != shard.evictedUses.end()) {
@@ -108,6 +122,7 @@ PageCacheCounters PageCache::counters() const {
   PageCacheCounters c;
   c.hits = hits_.load(std::memory_order_relaxed);
   c.misses = misses_.load(std::memory_order_relaxed);
+  c.waits = waits_.load(std::memory_order_relaxed);
   c.failures = failures_.load(std::memory_order_relaxed);
   c.bytesLoaded = bytesLoaded_.load(std::memory_order_relaxed);
   for (const auto& shard : shards_) {

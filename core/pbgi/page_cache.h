@@ -16,12 +16,14 @@
 // 0.193 -> 0.269 at a 20 % budget, 0.135 -> 0.151 at 5 %. The cache is split
 // into shards by page id, each with its own lock and a share of the budget, so that threads
 // gathering in parallel rarely wait on one another. Loading (pread, checksum, decompression,
-// decoding) happens outside the lock; two threads missing the same page at once may both
-// load it, and the second copy is dropped. A page the source fails to load is never cached:
+// decoding) happens outside the lock; a thread that misses a page another thread is loading
+// waits for that load instead of loading it again (counted as a hit: it loaded nothing). A page the source fails to load is never cached:
 // the error (which names the file and page) goes to the caller, every time it is asked for.
+// PageCachePolicy::kLeastRecent serves sweeps instead (below).
 #include <atomic>
 #include <cstddef>
 #include <cstdint>
+#include <future>
 #include <list>
 #include <memory>
 #include <mutex>
@@ -33,8 +35,22 @@
 
 namespace pbgi {
 
+// Which page goes first when the cache is full.
+enum class PageCachePolicy {
+  // The least used over the cache's life (evicted pages remember their uses), the least
+  // recently used among equals: for traversals that each start at the root and cut through
+  // the whole tree (the per-pixel gather), where the pages near the root are read by all.
+  kLeastUsed,
+  // The least recently used: for sweeps that read the pages in order, each page by many
+  // traversals within a short time and then no more (the cut's lockstep sweeps, the bake's
+  // bounces). Counting uses would keep the pages of sweeps past and evict those of the
+  // sweep under way.
+  kLeastRecent,
+};
+
 struct PageCacheOptions {
   size_t budgetBytes = size_t{256} << 20;
+  PageCachePolicy policy = PageCachePolicy::kLeastUsed;
   int shards = 16;  // at most; fewer when the budget is small (kMinShardBudget each)
 };
 
@@ -42,9 +58,10 @@ struct PageCacheOptions {
 inline constexpr size_t kMinShardBudget = size_t{4} << 20;
 
 struct PageCacheCounters {
-  uint64_t hits = 0;
+  uint64_t hits = 0;          // served without a load (waits for others' loads included)
   uint64_t misses = 0;        // loads from the source
-  uint64_t failures = 0;      // loads that failed
+  uint64_t waits = 0;         // requests that waited for another thread's load of the page
+  uint64_t failures = 0;      // requests that got an error (a failed load, and its waiters)
   uint64_t evictions = 0;
   uint64_t overBudget = 0;    // inserts that left a shard over its share (all pinned)
   uint64_t bytesLoaded = 0;   // decoded bytes of every page loaded
@@ -82,6 +99,10 @@ class PageCache : public TreePageSource {
     std::unordered_map<uint32_t, Entry> entries;
     std::list<uint32_t> lru;  // front: most recent
     std::unordered_map<uint32_t, uint64_t> evictedUses;
+    // Loads under way, for threads that miss the same page meanwhile.
+    std::unordered_map<uint32_t,
+                       std::shared_future<absl::StatusOr<std::shared_ptr<const TreePage>>>>
+        loading;
     size_t bytes = 0;
     uint64_t evictions = 0, overBudget = 0;
   };
@@ -89,9 +110,10 @@ class PageCache : public TreePageSource {
   void evict(Shard& shard);
 
   TreePageSource& source_;
+  PageCachePolicy policy_;
   size_t shardBudget_;
   std::vector<std::unique_ptr<Shard>> shards_;
-  std::atomic<uint64_t> hits_{0}, misses_{0}, failures_{0}, bytesLoaded_{0};
+  std::atomic<uint64_t> hits_{0}, misses_{0}, waits_{0}, failures_{0}, bytesLoaded_{0};
   mutable std::mutex seenMutex_;
   std::vector<uint8_t> seen_;
   uint64_t distinct_ = 0;

@@ -130,7 +130,7 @@ struct TreePage {
   const NodeAttributes* childAttributes(const TreeNode& n, uint32_t c) const {
     const NodeRef ref = children[n.first + c];
     if (ref.page == id) return ref.index < nodes.size() ? &nodes[ref.index].attributes : nullptr;
-    const uint32_t g = ghostOf[n.first + c];
+    const uint32_t g = n.first + c < ghostOf.size() ? ghostOf[n.first + c] : kNoGhost;
     return g == kNoGhost ? nullptr : &nodes[g].attributes;
   }
   // Memory the decoded page holds, what a page cache budgets.

@@ -2,8 +2,8 @@
 // Integrators, at the level the renderer drives them (pbrt-v4's split between an integrator
 // that renders an image tile and one that shades rays one pixel at a time). The renderer hands
 // an integrator every camera sample of a render unit at once: the pixels of a tile, or, for an
-// integrator that shares work across pixels (the bidirectional cut), every pixel of a block of
-// a fixed grid in all views of a camera array. Integrators that shade pixel by pixel (the path
+// integrator that shares work across pixels (the bidirectional cut), every pixel of a few
+// blocks of a fixed grid in all views of a camera array. Integrators that shade pixel by pixel (the path
 // tracer, the per-pixel PBGI gather) derive from PixelIntegrator, which walks the unit's
 // pixels for them. A failure an integrator cannot recover from (a damaged tree page) fails the
 // unit instead of being rendered.

@@ -16,6 +16,7 @@
 
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
+#include "core/pbgi/page_cache.h"
 #include "core/pbgi/tree_page.h"
 #include "core/render/integrator.h"
 #include "core/scene/integrator_params.h"
@@ -27,6 +28,7 @@ namespace pbgi {
 // What an integrator that renders from a frame's baked PBGI tree needs of it.
 struct TreeNeeds {
   size_t cacheBytes = size_t{256} << 20;  // the page cache's budget
+  PageCachePolicy cachePolicy = PageCachePolicy::kLeastUsed;  // what suits the traversal
   uint64_t bakePoints = 0;                 // surfels; 0: the baker's default
   int bakeBounces = 3;
   CutOptions bakeCut;                      // how the bake's bounces gather

@@ -4,10 +4,12 @@
 //
 // Units. For an integrator whose pixels are independent (blockSize() 0), a unit is a square
 // tile (Morton order over the frame, pixels in Morton order within). For one that shares work
-// across pixels, a unit is a block of a fixed grid in view space, blockSize() pixels a side,
-// holding that square of every view of a camera array (views share one unit, so a light
-// field's nearly identical samples share the work). Blocks do not move with the tiling: a
-// region asked for renders the whole blocks it touches and keeps its own pixels.
+// across pixels, a unit is up to blocksPerUnit() blocks of a fixed grid in view space
+// (consecutive in Morton order), blockSize() pixels a side, each holding that square of every
+// view of a camera array (views share one block, so a light field's nearly identical samples
+// share the work). Blocks do not move with the tiling: a region asked for renders the whole
+// blocks it touches and keeps its own pixels. A block's pixels depend on the block alone, not
+// on the unit it came in (the unit's blocks share page loads, not results).
 //
 // Determinism: a sample's random stream is keyed (seed, frame, pixel, sample) and a unit's
 // own (seed, frame, block), so a pixel is bit-identical whatever the tiling, the regions, the

@@ -149,7 +149,9 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
                                            CutStats* cutStats, Rgb* power) {
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
-  PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4});
+  // The bounce's cuts sweep the tree's pages (see bidirectional_cut.h).
+  PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4,
+                           .policy = PageCachePolicy::kLeastRecent});
   std::unique_ptr<TreeFileWriter> writer;
   if (toPath != nullptr) {
     auto created = TreeFileWriter::create(*toPath, options);

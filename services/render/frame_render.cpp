@@ -129,7 +129,8 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
                           frameTree(shot, settings, request, *frameScene->scene, &tree));
     clock.lap(tree.baked ? "bake" : "tree");
     tree.cacheBudget = request.cacheBytes > 0 ? request.cacheBytes : needs.cacheBytes;
-    cache.emplace(*treeFile, PageCacheOptions{.budgetBytes = tree.cacheBudget});
+    cache.emplace(*treeFile, PageCacheOptions{.budgetBytes = tree.cacheBudget,
+                                              .policy = needs.cachePolicy});
   }
   const std::unique_ptr<Integrator> integrator = info->create(
       {.scene = *frameScene->scene, .settings = settings, .tree = cache ? &*cache : nullptr});

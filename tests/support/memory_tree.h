@@ -2,7 +2,8 @@
 // PBGI trees held in memory as decoded pages, for tests of what traverses them (the gather)
 // without the page encoding or a file: buildTreeInMemory's post-order nodes laid out
 // depth-first (a parent before its children, children in Morton order), in one page, or cut
-// into a page per subtree at a chosen depth to exercise page crossings.
+// into a page per subtree at a chosen depth to exercise page crossings (with the ghosts of
+// children in other pages that the pager writes).
 //
 // Only TreePage's fields are used, never its encoder or decoder.
 #include <algorithm>
@@ -44,6 +45,19 @@ class MemoryTreeSource : public TreePageSource {
     PBGI_CHECK_EQ(open.size(), size_t{1});  // one root
     auto& root = newPage();
     emit(postOrder, children, root.id, open.front(), 0);
+    // Ghosts, as the pager writes them: each child in another page copied into its parent's.
+    for (auto& p : building_) {
+      p->ghostOf.assign(p->children.size(), kNoGhost);
+      for (uint32_t slot = 0; slot < p->children.size(); ++slot) {
+        const NodeRef ref = p->children[slot];
+        if (ref.page == p->id) continue;
+        TreeNode ghost;
+        ghost.attributes = building_[ref.page]->nodes[ref.index].attributes;
+        ghost.first = slot;
+        p->ghostOf[slot] = static_cast<uint32_t>(p->nodes.size());
+        p->nodes.push_back(ghost);
+      }
+    }
     for (auto& p : building_) pages_.push_back(std::move(p));
     building_.clear();
   }

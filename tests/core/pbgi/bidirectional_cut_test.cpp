@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "core/bake/surfel_sampler.h"
+#include "core/pbgi/page_cache.h"
 #include "core/bake/surfel_shading.h"
 #include "core/sampling/rng.h"
 #include "tests/core/render/test_scenes.h"
@@ -208,6 +209,66 @@ TEST(BidirectionalCut, DeterministicInItsKey) {
   ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 6, d, nullptr).ok());
   EXPECT_EQ(a, b);
   EXPECT_NE(a, d);
+}
+
+// With default thresholds clusters are evaluated and their shadow rays descend to surfels in
+// lower pages; those descents wait for the sweep, so the cut still asks for each page at most
+// once, and every page it asks for is one it sweeps.
+TEST(BidirectionalCut, ShadowRayDescentsStayInTheSweep) {
+  BoxCase c = boxCase(20000, 2000);
+  auto tree = memoryTree(c.surfels, kDefaultLeafSize, 3);
+  ASSERT_TRUE(tree.ok());
+  ASSERT_GT((*tree)->pageCount(), 50u);
+  std::vector<Rgb> out(c.receivers.size());
+  BidirectionalCut cut(CutOptions{});
+  CutStats stats;
+  ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 3, out, &stats).ok());
+  EXPECT_GT(stats.clusterPairs, 1000u) << stats.toString();
+  EXPECT_EQ((*tree)->fetches(), stats.pageRequests) << stats.toString();
+  EXPECT_LE(stats.pageRequests, (*tree)->pageCount()) << stats.toString();
+}
+
+// Cuts run together give each cut's result alone, bit for bit, with the same counts, and ask
+// for each page about once for all of them (a source that counts: per cut, a page at most
+// once, so together at most the cuts' sum, and here far fewer loads than that through a cache
+// of two pages).
+TEST(BidirectionalCut, CutsTogetherEqualCutsAloneAndShareTheirPages) {
+  BoxCase c = boxCase(20000, 1600);
+  auto tree = memoryTree(c.surfels, kDefaultLeafSize, 3);
+  ASSERT_TRUE(tree.ok());
+  constexpr size_t kCuts = 4;
+  const size_t per = c.receivers.size() / kCuts;
+  std::vector<std::vector<Rgb>> alone(kCuts, std::vector<Rgb>(per));
+  CutStats aloneStats;
+  for (size_t k = 0; k < kCuts; ++k) {
+    BidirectionalCut cut(CutOptions{});
+    ASSERT_TRUE(cut.irradiance(**tree, *c.scene,
+                               std::span(c.receivers).subspan(k * per, per), 100 + k, alone[k],
+                               &aloneStats)
+                    .ok());
+  }
+  const uint64_t fetchesAlone = (*tree)->fetches();
+  PageCache cache(**tree, {.budgetBytes = 1, .policy = PageCachePolicy::kLeastRecent});
+  std::vector<std::vector<Rgb>> together(kCuts, std::vector<Rgb>(per));
+  std::vector<BidirectionalCut> cuts;
+  for (size_t k = 0; k < kCuts; ++k) cuts.emplace_back(CutOptions{});
+  std::vector<BidirectionalCut*> pointers;
+  std::vector<CutJob> jobs;
+  for (size_t k = 0; k < kCuts; ++k) {
+    pointers.push_back(&cuts[k]);
+    jobs.push_back({.receivers = std::span(c.receivers).subspan(k * per, per),
+                    .key = 100 + k,
+                    .out = together[k]});
+  }
+  CutStats togetherStats;
+  ASSERT_TRUE(cutTogether(cache, *c.scene, pointers, jobs, &togetherStats).ok());
+  EXPECT_EQ(alone, together);
+  EXPECT_EQ(aloneStats.toString(), togetherStats.toString());
+  // A cache that holds one page at a time (a budget of one byte) loads each page once for
+  // the four cuts: they sweep in step.
+  const uint64_t loads = cache.counters().misses;
+  EXPECT_LE(loads, (*tree)->pageCount());
+  EXPECT_LT(loads * 2, fetchesAlone) << cache.counters().toString();
 }
 
 TEST(BidirectionalCut, BadInputAndDamagedPagesAreErrors) {

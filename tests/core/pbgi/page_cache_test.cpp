@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <thread>
+#include <vector>
+
 #include <tbb/parallel_for.h>
 
 #include "core/pbgi/tree_writer.h"
@@ -17,12 +21,14 @@ class CountingSource : public TreePageSource {
   NodeRef root() const override { return tree_->root(); }
   absl::StatusOr<std::shared_ptr<const TreePage>> page(uint32_t id) override {
     loads_.fetch_add(1);
+    if (delay_.count() > 0) std::this_thread::sleep_for(delay_);
     if (id == failing_) return absl::DataLossError(fmt::format("tree.pbgi: page {}: damaged", id));
     return tree_->page(id);
   }
   size_t pageCount() const { return tree_->payloads().size(); }
   std::atomic<int> loads_{0};
   uint32_t failing_ = UINT32_MAX;
+  std::chrono::milliseconds delay_{0};  // each load takes this long (a slow disk, a network)
 
  private:
   std::unique_ptr<MemoryTree> tree_;
@@ -120,6 +126,60 @@ TEST(PageCache, ParallelReadersSeeConsistentPages) {
   EXPECT_EQ(wrong.load(), 0);
   const PageCacheCounters c = cache.counters();
   EXPECT_EQ(c.hits + c.misses, 20000u);
+}
+
+// Threads that miss a page another thread is loading wait for that load: one load, whatever
+// the number of threads asking, and a failed load fails every waiter without being cached.
+TEST(PageCache, ThreadsMissingOnePageAtOnceLoadItOnce) {
+  auto source = makeSource();
+  source->delay_ = std::chrono::milliseconds(200);
+  PageCache cache(*source, {.budgetBytes = size_t{1} << 30});
+  for (const uint32_t id : {uint32_t{3}, uint32_t{4}}) {
+    source->failing_ = 4;
+    const int before = source->loads_.load();
+    std::vector<std::thread> threads;
+    std::atomic<int> ok{0}, failed{0};
+    for (int t = 0; t < 4; ++t) {
+      threads.emplace_back([&] { (cache.page(id).ok() ? ok : failed).fetch_add(1); });
+    }
+    for (std::thread& t : threads) t.join();
+    // The first thread's load takes 200 ms; the others ask well within it.
+    EXPECT_EQ(source->loads_.load() - before, 1) << id;
+    EXPECT_EQ(id == 4 ? failed.load() : ok.load(), 4) << id;
+  }
+  EXPECT_EQ(cache.counters().waits, 6u);
+  EXPECT_EQ(cache.counters().hits, 3u);  // the waits that got a page
+  source->delay_ = std::chrono::milliseconds(0);
+  const int before = source->loads_.load();
+  EXPECT_FALSE(cache.page(4).ok());  // not cached: asked again, loaded again
+  EXPECT_EQ(source->loads_.load() - before, 1);
+  EXPECT_EQ(cache.counters().failures, 5u);  // every request that got the error
+}
+
+// Least recent: a sweep's pages stay while it needs them, whatever earlier sweeps used most.
+TEST(PageCache, LeastRecentKeepsTheSweepUnderWay) {
+  auto source = makeSource();
+  size_t bytes = 0;  // room for the sweep's three pages
+  for (uint32_t id : {10u, 11u, 12u}) bytes += (*source->page(id))->memoryBytes();
+  for (const PageCachePolicy policy :
+       {PageCachePolicy::kLeastUsed, PageCachePolicy::kLeastRecent}) {
+    PageCache cache(*source, {.budgetBytes = bytes, .policy = policy});
+    // Pages 0 and 1 read often, long ago; then a sweep reads 10, 11, 10, 11, ...
+    for (int k = 0; k < 50; ++k) {
+      ASSERT_TRUE(cache.page(0).ok());
+      ASSERT_TRUE(cache.page(1).ok());
+    }
+    const uint64_t before = cache.counters().misses;
+    for (int k = 0; k < 10; ++k) {
+      for (uint32_t id : {10u, 11u, 12u}) ASSERT_TRUE(cache.page(id).ok());
+    }
+    const uint64_t loads = cache.counters().misses - before;
+    if (policy == PageCachePolicy::kLeastRecent) {
+      EXPECT_EQ(loads, 3u);  // each page of the sweep once
+    } else {
+      EXPECT_GT(loads, 3u);  // the old favourites hold two of the three places
+    }
+  }
 }
 
 }  // namespace
