@@ -136,35 +136,94 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
   }
 }
 
+bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds, const Vec3f& p,
+                         GatherStats* stats) {
+  const float maxSolidAngle = options_.maxSolidAngle;
+  const Vec3f toCentroid = a.centroid - p;
+  const float distance2 = toCentroid.length2();
+  // The cheap extent test first: it saves the SH evaluation for large nodes.
+  if (!(distance2 > 0.0f) ||
+      kPi * bounds.boundRadius2 > kMaxExtentFactor * maxSolidAngle * bounds.centerDistance2) {
+    return false;
+  }
+  const float distance = std::sqrt(distance2);
+  const Vec3f dir = toCentroid / distance;
+  ClusterView view;
+  viewCluster(a, dir, &view);
+  const float area = view.coverage();  // both sides: a node seen from behind covers too
+  if (area > maxSolidAngle * distance2) return false;
+  if (!(area > 0.0f)) {
+    ++stats->clustersInvisible;
+    return true;
+  }
+  buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view),
+                         clusterDepthExtent(a, dir));
+  ++stats->clustersSplatted;
+  return true;
+}
+
 absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
                                 GatherStats* stats) {
-  const float maxSolidAngle = options_.maxSolidAngle;
-  auto splat = [&](const NodeAttributes& a, const NodeBounds& bounds) {
-    const Vec3f toCentroid = a.centroid - p;
-    const float distance2 = toCentroid.length2();
-    // The cheap extent test first: it saves the SH evaluation for large nodes.
-    if (!(distance2 > 0.0f) ||
-        kPi * bounds.boundRadius2 > kMaxExtentFactor * maxSolidAngle * bounds.centerDistance2) {
-      return false;
+  return walk_.run(
+      tree, p, n, stats,
+      [&](const NodeAttributes& a, const NodeBounds& bounds) { return splatNode(a, bounds, p, stats); },
+      [&](const TreePage& page, const TreeNode& leaf) { gatherSurfels(page, leaf, p, n, stats); });
+}
+
+absl::Status gatherTogether(TreePageSource& tree, std::span<Gatherer> gatherers,
+                            std::span<const Vec3f> positions, std::span<const Vec3f> normals,
+                            std::span<Rgb> out, GatherStats* stats) {
+  const size_t count = positions.size();
+  PBGI_CHECK_EQ(normals.size(), count);
+  PBGI_CHECK_EQ(out.size(), count);
+  PBGI_CHECK_GE(gatherers.size(), count);
+  thread_local std::vector<Vec3f> units;
+  thread_local std::vector<GatherStats> local;
+  units.resize(count);
+  local.assign(count, GatherStats{});
+  for (size_t i = 0; i < count; ++i) {
+    absl::StatusOr<Vec3f> n = receiverNormal(positions[i], normals[i]);
+    if (!n.ok()) return n.status();
+    units[i] = *n;
+    local[i].gathers = 1;
+    gatherers[i].buffer_.clear(positions[i], *n);
+    gatherers[i].swept_.begin(tree.root(), positions[i], *n);
+  }
+  // One page at a time, from the highest any walk waits on.
+  for (;;) {
+    std::optional<uint32_t> high;
+    for (size_t i = 0; i < count; ++i) {
+      const std::optional<uint32_t> next = gatherers[i].swept_.nextPage();
+      if (next && (!high || *next > *high)) high = next;
     }
-    const float distance = std::sqrt(distance2);
-    const Vec3f dir = toCentroid / distance;
-    ClusterView view;
-    viewCluster(a, dir, &view);
-    const float area = view.coverage();  // both sides: a node seen from behind covers too
-    if (area > maxSolidAngle * distance2) return false;
-    if (!(area > 0.0f)) {
-      ++stats->clustersInvisible;
-      return true;
+    if (!high) break;
+    for (size_t i = 0; i < count; ++i) {
+      Gatherer& g = gatherers[i];
+      const Vec3f& p = positions[i];
+      const Vec3f& n = units[i];
+      GatherStats* s = &local[i];
+      if (absl::Status status = g.swept_.sweep(
+              tree, *high, s,
+              [&](const NodeAttributes& a, const NodeBounds& b) { return g.splatNode(a, b, p, s); },
+              [&](const TreePage& page, const TreeNode& leaf) { g.gatherSurfels(page, leaf, p, n, s); });
+          !status.ok()) {
+        return status;
+      }
     }
-    buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view),
-                           clusterDepthExtent(a, dir));
-    ++stats->clustersSplatted;
-    return true;
-  };
-  return walk_.run(tree, p, n, stats, splat, [&](const TreePage& page, const TreeNode& leaf) {
-    gatherSurfels(page, leaf, p, n, stats);
-  });
+  }
+  for (size_t i = 0; i < count; ++i) {
+    Gatherer& g = gatherers[i];
+    local[i].facesSkipped = static_cast<uint64_t>(g.buffer_.skippedFaces());
+    local[i].pixelsSkipped = static_cast<uint64_t>(g.buffer_.skippedPixels());
+    if (stats != nullptr) *stats += local[i];
+    out[i] = g.buffer_.irradiance(units[i]);
+    if (!isFinite(out[i])) {
+      return absl::DataLossError(fmt::format(
+          "gather: irradiance {} at {} is not finite: the tree holds non-finite radiance", out[i],
+          positions[i]));
+    }
+  }
+  return absl::OkStatus();
 }
 
 absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,

@@ -35,6 +35,10 @@
 
 namespace pbgi {
 
+namespace gather_internal {
+struct NodeBounds;
+}  // namespace gather_internal
+
 // Changes whenever a gather's result for the same tree and options changes (a bake whose
 // bounces gathered with another revision is stale): 2 gave clusters their bounding box's depth.
 inline constexpr int kGatherRevision = 2;
@@ -103,14 +107,33 @@ class Gatherer {
   const Microbuffer& microbuffer() const { return buffer_; }
 
  private:
+  friend absl::Status gatherTogether(TreePageSource&, std::span<Gatherer>,
+                                     std::span<const Vec3f>, std::span<const Vec3f>,
+                                     std::span<Rgb>, GatherStats*);
   absl::Status traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n, GatherStats* stats);
+  // A node seen from p: splatted whole (true) or to be refined (false).
+  bool splatNode(const NodeAttributes& a, const gather_internal::NodeBounds& bounds,
+                 const Vec3f& p, GatherStats* stats);
   void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
                      GatherStats* stats);
 
   GatherOptions options_;
   Microbuffer buffer_;
   TreeWalk walk_;
+  SweptWalk swept_;
 };
+
+// The irradiance of many receivers (a tile's), each as Gatherer::irradiance gathers it but
+// walking the tree page by page (SweptWalk, so its splats come in another order and its value
+// differs from irradiance()'s by the microbuffer's layering, within its own accuracy), the
+// walks in step: each page is asked for by every receiver that needs it at about the same
+// time, so that a page cache of a few pages loads it about once for all of them. A receiver's
+// value depends on its own position and normal alone, never on the receivers beside it.
+// gatherers[i] (at least as many as receivers) gathers receiver i; out[i] is its irradiance.
+// Errors as irradiance()'s, the first receiver's in order.
+absl::Status gatherTogether(TreePageSource& tree, std::span<Gatherer> gatherers,
+                            std::span<const Vec3f> positions, std::span<const Vec3f> normals,
+                            std::span<Rgb> out, GatherStats* stats);
 
 // One gather with a Gatherer kept per thread (rebuilt when the options change). Invalid
 // options are InvalidArgument; otherwise as Gatherer::irradiance. `stats` may be null.

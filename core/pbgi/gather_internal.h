@@ -318,4 +318,69 @@ absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
   return status;
 }
 
+inline void SweptWalk::begin(NodeRef root, const Vec3f& p, const Vec3f& n) {
+  p_ = p;
+  n_ = n;
+  for (auto& [id, bucket] : buckets_) bucket.clear();
+  pages_ = {};
+  stack_.clear();
+  push({root, 0});
+}
+
+inline void SweptWalk::push(const Entry& e) {
+  std::vector<Entry>& bucket = buckets_[e.ref.page];
+  if (bucket.empty()) pages_.push(e.ref.page);
+  bucket.push_back(e);
+}
+
+template <typename Splat, typename Leaf>
+absl::Status SweptWalk::sweep(TreePageSource& tree, uint32_t lowest, GatherStats* stats,
+                              Splat&& splat, Leaf&& leaf) {
+  using namespace gather_internal;
+  const float planeSlack = 1e-6f * maxAbsComponent(p_);  // float rounding of coplanar positions
+  while (!pages_.empty() && pages_.top() >= lowest) {
+    const uint32_t id = pages_.top();
+    pages_.pop();
+    // Reversed, so that the bucket's nodes come off the stack in the order they arrived.
+    std::vector<Entry>& bucket = buckets_[id];
+    stack_.assign(bucket.rbegin(), bucket.rend());
+    bucket.clear();
+    ++stats->pagesTouched;
+    absl::StatusOr<std::shared_ptr<const TreePage>> held = tree.page(id);
+    if (!held.ok()) return held.status();
+    PBGI_CHECK(*held != nullptr);  // a source returns a page or an error
+    const TreePage& page = **held;
+    while (!stack_.empty()) {
+      const Entry entry = stack_.back();
+      stack_.pop_back();
+      absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
+      if (!nodeOr.ok()) return nodeOr.status();
+      const TreeNode& node = **nodeOr;
+      ++stats->nodesVisited;
+      NodeBounds bounds;
+      if (cullNode(node.attributes, p_, n_, planeSlack, &bounds) != NodeCull::kNone) {
+        ++stats->nodesCulledPlane;
+        continue;
+      }
+      if (bounds.outside() && splat(node.attributes, bounds)) continue;
+      if (node.leaf()) {
+        if (absl::Status s = checkLeaf(page, node, entry.ref); !s.ok()) return s;
+        leaf(page, node);
+        continue;
+      }
+      if (absl::Status s = checkInterior(page, node, entry.ref, entry.depth); !s.ok()) return s;
+      const std::span<const NodeRef> children = page.childrenOf(node);
+      for (size_t i = children.size(); i-- > 0;) {
+        const Entry child{children[i], entry.depth + 1};
+        if (child.ref.page == id) {
+          stack_.push_back(child);
+        } else {
+          push(child);
+        }
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace pbgi

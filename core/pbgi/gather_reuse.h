@@ -21,6 +21,7 @@ struct SharedGather {
   uint32_t key = 0;    // receivers share only within one key
   Vec3f wo{0.0f};      // zero: any view direction
   Rgb value{0.0f};
+  uint32_t slot = 0;   // the caller's: where the value will be when it is gathered later
 };
 
 class GatherReuse {

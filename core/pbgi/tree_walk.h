@@ -6,6 +6,9 @@
 // node is its own: run() is defined in gather_internal.h, which only the gathers include.
 #include <cstdint>
 #include <memory>
+#include <optional>
+#include <queue>
+#include <unordered_map>
 #include <vector>
 
 #include <absl/status/status.h>
@@ -42,6 +45,40 @@ class TreeWalk {
   std::vector<StackEntry> stack_;
   std::vector<HeldPage> held_;
   uint64_t useClock_ = 0;
+};
+
+// TreeWalk's walk (the same tests, the same nodes taken or refined), page by page: the nodes
+// still to visit wait in one bucket per page, and pages are visited from the highest id down,
+// depth first within a page (children live in their parent's page or a lower one: the tree
+// writer places children first), so that a walk asks for each page once. Walks of many
+// receivers then run in step (gatherTogether in gather.h), each asking for the page of the
+// step, so that a small page cache loads it once for all of them. A walk's order of nodes
+// depends on its receiver and the tree alone, never on the walks beside it. (A tree whose
+// references point up is still walked right, asking for a page again.)
+class SweptWalk {
+ public:
+  void begin(NodeRef root, const Vec3f& p, const Vec3f& n);
+  // The highest page with nodes waiting; nullopt when the walk is done.
+  std::optional<uint32_t> nextPage() const {
+    if (pages_.empty()) return std::nullopt;
+    return pages_.top();
+  }
+  // Visits the nodes waiting on pages `lowest` and up, as TreeWalk::run does.
+  template <typename Splat, typename Leaf>
+  absl::Status sweep(TreePageSource& tree, uint32_t lowest, GatherStats* stats, Splat&& splat,
+                     Leaf&& leaf);
+
+ private:
+  struct Entry {
+    NodeRef ref;
+    uint32_t depth;
+  };
+  void push(const Entry& e);
+
+  Vec3f p_{0.0f}, n_{0.0f, 0.0f, 1.0f};
+  std::unordered_map<uint32_t, std::vector<Entry>> buckets_;
+  std::priority_queue<uint32_t> pages_;
+  std::vector<Entry> stack_;
 };
 
 }  // namespace pbgi

@@ -116,11 +116,9 @@ absl::Status validatePbgi(const RenderSettings& r) {
 TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
   TreeNeeds t;
   t.cacheBytes = static_cast<size_t>(r.params.intOr("cache_mb", 256)) << 20;
-  // The cut sweeps pages in step across a unit's blocks; per-pixel gathers each start at the
-  // root.
-  t.cachePolicy = pbgiSettings(r).gather == PbgiGatherKind::kBidirectional
-                      ? PageCachePolicy::kLeastRecent
-                      : PageCachePolicy::kLeastUsed;
+  // Both gathers sweep the tree's pages in step: the cut across a unit's blocks, per-pixel
+  // gathers across a batch of a tile's.
+  t.cachePolicy = PageCachePolicy::kLeastRecent;
   t.bakePoints = static_cast<uint64_t>(r.params.intOr("bake_points", 0));
   t.bakeBounces = static_cast<int>(r.params.intOr("bake_bounces", 3));
   t.bakeCut = *cutPreset(r.params.choiceOr("bake_quality", "draft"));

@@ -4,6 +4,7 @@
 #include <numbers>
 #include <vector>
 
+#include <fmt/format.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -15,16 +16,28 @@ namespace pbgi {
 
 namespace {
 
+// How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
+// each page a small cache loads serves many of them, few enough that their microbuffers stay
+// bounded (512 of 12^2 x 6 pixels: about 21 MB a thread).
+constexpr size_t kGathersTogether = 512;
+
 class PerPixelScratch final : public IntegratorScratch {
  public:
   explicit PerPixelScratch(const PbgiSettings& settings)
-      : gatherer(settings.perPixel),
-        pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)) {}
-  Gatherer gatherer;
+      : pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)) {
+    gatherers.reserve(kGathersTogether);  // Gatherers stay where they are
+  }
   PixelGathers pixel;
+  std::vector<Gatherer> gatherers;
+  std::vector<Vec3f> positions, normals;  // the tile's gathers
+  std::vector<Rgb> values;
+  std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, gather) of each diffuse sample
 };
 
-class PerPixelPbgi final : public PixelIntegrator {
+// The per-pixel gather: every diffuse camera sample takes a gather of its own or shares one
+// of its pixel's earlier samples'; the tile's gathers then walk the tree together, in batches
+// (gatherTogether), so that a small page cache loads a page once for many of them.
+class PerPixelPbgi final : public Integrator {
  public:
   PerPixelPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
       : scene_(scene), tree_(tree), settings_(settings) {}
@@ -35,42 +48,71 @@ class PerPixelPbgi final : public PixelIntegrator {
     return std::make_unique<PerPixelScratch>(settings_);
   }
 
-  absl::Status shadePixel(std::span<const Ray> rays, std::span<Rng> rngs,
-                          std::span<PathSample> out, IntegratorScratch* scratch,
-                          RenderCounters* counters) const override {
+  absl::Status render(const TileSamples& samples, std::span<PathSample> out,
+                      IntegratorScratch* scratch, RenderCounters* counters) const override {
     auto& state = static_cast<PerPixelScratch&>(*scratch);
-    state.pixel.newPixel();
+    state.positions.clear();
+    state.normals.clear();
+    state.uses.clear();
     GatherStats stats;
-    for (size_t s = 0; s < rays.size(); ++s) {
-      const Receiver r = traceReceiver(scene_, rays[s], rngs[s], settings_.pathTracer, &out[s],
-                                       counters);
-      if (r.kind == ReceiverKind::kGlossy) {
-        absl::StatusOr<Rgb> lo =
-            state.pixel.reflect(tree_, scene_, r, out[s].albedo, rngs[s], &stats, counters);
-        if (!lo.ok()) return lo.status();
-        out[s].indirect = *lo;
-        continue;
+    const size_t spp = static_cast<size_t>(samples.spp);
+    for (size_t i = 0; i < samples.pixelCount(); ++i) {
+      state.pixel.newPixel();
+      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
+        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
+                                         settings_.pathTracer, &out[k], counters);
+        if (r.kind == ReceiverKind::kGlossy) {
+          absl::StatusOr<Rgb> lo = state.pixel.reflect(tree_, scene_, r, out[k].albedo,
+                                                       samples.rngs[k], &stats, counters);
+          if (!lo.ok()) {
+            return absl::Status(lo.status().code(),
+                                fmt::format("pixel ({}, {}): {}", samples.pixels[i].x,
+                                            samples.pixels[i].y,
+                                            std::string(lo.status().message())));
+          }
+          out[k].indirect = *lo;
+          continue;
+        }
+        if (r.kind != ReceiverKind::kDiffuse) continue;
+        uint32_t slot;
+        if (const SharedGather* g = state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
+          slot = g->slot;
+          ++(*counters)[kGatherReuses];
+        } else {
+          slot = static_cast<uint32_t>(state.positions.size());
+          state.positions.push_back(r.hit.p);
+          state.normals.push_back(r.n);
+          ++(*counters)[kGathers];
+          state.pixel.shared().add({.p = r.hit.p,
+                                    .n = r.n,
+                                    .reach = kReuseDistanceFraction * r.hit.t,
+                                    .planeReach = kReusePlaneFraction * r.hit.t,
+                                    .key = kNoMaterial,
+                                    .wo = Vec3f(0.0f),
+                                    .slot = slot});
+        }
+        state.uses.push_back({k, slot});
       }
-      if (r.kind != ReceiverKind::kDiffuse) continue;
-      Rgb e(0.0f);
-      if (const SharedGather* g = state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
-        e = g->value;
-        ++(*counters)[kGatherReuses];
-      } else {
-        absl::StatusOr<Rgb> gathered = state.gatherer.irradiance(tree_, r.hit.p, r.n, &stats);
-        if (!gathered.ok()) return gathered.status();
-        if (absl::Status st = checkGathered(*gathered); !st.ok()) return st;
-        e = *gathered;
-        ++(*counters)[kGathers];
-        state.pixel.shared().add({.p = r.hit.p,
-                                  .n = r.n,
-                                  .reach = kReuseDistanceFraction * r.hit.t,
-                                  .planeReach = kReusePlaneFraction * r.hit.t,
-                                  .key = kNoMaterial,
-                                  .wo = Vec3f(0.0f),
-                                  .value = e});
+    }
+    const size_t gathers = state.positions.size();
+    state.values.resize(gathers);
+    for (size_t first = 0; first < gathers; first += kGathersTogether) {
+      const size_t count = std::min(kGathersTogether, gathers - first);
+      while (state.gatherers.size() < count) state.gatherers.emplace_back(settings_.perPixel);
+      if (absl::Status s = gatherTogether(
+              tree_, std::span(state.gatherers).first(count),
+              std::span<const Vec3f>(state.positions).subspan(first, count),
+              std::span<const Vec3f>(state.normals).subspan(first, count),
+              std::span(state.values).subspan(first, count), &stats);
+          !s.ok()) {
+        return s;
       }
-      out[s].indirect = out[s].albedo * e * std::numbers::inv_pi_v<float>;
+    }
+    for (const Rgb& e : state.values) {
+      if (absl::Status s = checkGathered(e); !s.ok()) return s;
+    }
+    for (const auto& [k, slot] : state.uses) {
+      out[k].indirect = out[k].albedo * state.values[slot] * std::numbers::inv_pi_v<float>;
     }
     addGatherStats(stats, counters);
     return absl::OkStatus();

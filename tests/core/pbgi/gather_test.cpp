@@ -7,6 +7,7 @@
 #include <set>
 #include <vector>
 
+#include "core/pbgi/page_cache.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
 #include "tests/support/memory_tree.h"
@@ -236,6 +237,53 @@ TEST(Gather, DeterministicAcrossRunsGatherersAndPageLayouts) {
   EXPECT_EQ(*a, *b);
   EXPECT_EQ(*a, *c);
   EXPECT_GT(a->x, 0.0f);
+}
+
+// Gathers together: each receiver's value is its own (the same bits alone as among others, and
+// through a cache of any size), within the microbuffer's accuracy of the depth-first gather's,
+// and a cache of one page loads each page once for the whole batch. (Another page layout
+// orders a walk's splats otherwise: close, not the same bits.)
+TEST(Gather, TogetherEachReceiverIsItsOwnAndPagesAreShared) {
+  Rng rng(23);
+  std::vector<Surfel> surfels = sphereSurfels(8000, 1.0f, Rgb(0.0f));
+  for (Surfel& s : surfels) s.radiance = Rgb(rng.uniform(), rng.uniform(), rng.uniform());
+  auto onePage = treeOf(surfels);
+  auto manyPages = treeOf(surfels, 3);
+  ASSERT_GT(manyPages->pageCount(), 8u);
+  constexpr size_t kReceivers = 40;
+  std::vector<Vec3f> positions, normals;
+  for (size_t i = 0; i < kReceivers; ++i) {
+    positions.push_back(0.6f * (Vec3f(rng.uniform(), rng.uniform(), rng.uniform()) - Vec3f(0.5f)));
+    normals.push_back(normalize(Vec3f(rng.uniform(), rng.uniform(), rng.uniform()) - Vec3f(0.5f)));
+  }
+  std::vector<Gatherer> gatherers(kReceivers, Gatherer(GatherOptions{}));
+  std::vector<Rgb> together(kReceivers), paged(kReceivers);
+  ASSERT_TRUE(gatherTogether(*manyPages, gatherers, positions, normals, together, nullptr).ok());
+  std::vector<Rgb> onePageValues(kReceivers);
+  ASSERT_TRUE(
+      gatherTogether(*onePage, gatherers, positions, normals, onePageValues, nullptr).ok());
+  for (size_t i = 0; i < kReceivers; ++i) {
+    EXPECT_LT(std::abs(luminance(onePageValues[i]) / luminance(together[i]) - 1.0f), 0.01f);
+  }
+  const uint64_t fetchesBefore = manyPages->fetches();
+  PageCache cache(*manyPages, {.budgetBytes = 1, .policy = PageCachePolicy::kLeastRecent});
+  GatherStats stats;
+  ASSERT_TRUE(gatherTogether(cache, gatherers, positions, normals, paged, &stats).ok());
+  EXPECT_EQ(together, paged);
+  // One page held at a time, yet each page is loaded once for all 40 walks.
+  EXPECT_LE(manyPages->fetches() - fetchesBefore, manyPages->pageCount());
+  EXPECT_GT(stats.pagesTouched, 5 * manyPages->pageCount());
+  for (size_t i = 0; i < kReceivers; i += 7) {
+    Rgb alone;
+    ASSERT_TRUE(gatherTogether(*manyPages, std::span(gatherers).first(1),
+                               std::span(positions).subspan(i, 1), std::span(normals).subspan(i, 1),
+                               std::span(&alone, 1), nullptr)
+                    .ok());
+    EXPECT_EQ(alone, together[i]) << i;
+    auto depthFirst = gatherIrradiance(*manyPages, positions[i], normals[i], GatherOptions{}, nullptr);
+    ASSERT_TRUE(depthFirst.ok());
+    EXPECT_LT(std::abs(luminance(alone) / luminance(*depthFirst) - 1.0f), 0.02f) << i;
+  }
 }
 
 // A page the source cannot give fails the gather with the source's error, whichever page it
