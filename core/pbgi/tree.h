@@ -18,6 +18,21 @@
 // evaluate(areaSh, w) and sends intensity evaluate(powerSh, w); their ratio is the mean
 // radiance a receiver in direction w sees. Both are clamped at 0 by whoever evaluates
 // them: band-limited SH ring slightly negative behind a one-sided disk.
+//
+// A node goes by several types on its way from the builder to a traversal; each exists for one
+// stage:
+//   NodeAttributes (here)         what a node is, in float: every stage carries it.
+//   BuiltNode (tree_build.h)      the builder's output, in post-order: attributes, child
+//                                 count, a leaf's surfels.
+//   InMemoryNode (tree_build.h)   the same held whole in memory (tests, small trees).
+//   PageNode (tree_page.h)        a node placed in a page by the pager: children as NodeRefs,
+//                                 codebook indices, ghosts of children in other pages.
+//   GhostNode (tree_page.h)       a copy of a child's record kept in its parent's page.
+//   TreeNode (tree_page.h)        a node as a traversal reads it from a decoded TreePage:
+//                                 dequantized attributes, where its children or surfels are.
+//   NodeRef (tree_page.h)         where a node is: (page, index in the page).
+// The page's byte layout is in tree_page.h; the file around the pages in
+// formats/pbgi/page_file.h.
 #include <cstdint>
 #include <span>
 #include <string>

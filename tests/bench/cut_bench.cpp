@@ -173,9 +173,7 @@ int tileCacheRuns(const Scene& scene, const Args& args, const fs::path& out, std
   shot.width = 1024;
   shot.height = 1024;
   const FarmTile tile = farmTiles(shot, 256)[5];  // away from the frame's corner
-  // The cut only: the per-pixel gather's hit rates at small caches are accuracy_bench's (its
-  // every gather cuts through the whole tree, so a 5 % cache thrashes, at a page decode a miss:
-  // a 256^2 tile would take most of an hour).
+  // The cut only: both gathers at small caches are cache_bench's.
   {
     const std::string gather = "bidirectional";
     std::optional<Image> unlimited;
