@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "core/sampling/rng.h"
+#include "core/util/check.h"
 
 namespace pbgi {
 
@@ -10,35 +11,48 @@ bool reflectsLight(const Surfel& s) {
   return s.materialClass == MaterialClass::kDiffuse && !isBlack(s.albedo);
 }
 
-SurfelBouncer::SurfelBouncer(const CutOptions& options) : cut_(options) {}
+SurfelBouncer::SurfelBouncer(const CutOptions& options) : options_(options) {}
 
 absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
-                                   std::span<const Surfel> surfels, uint64_t key,
+                                   std::span<const Surfel> surfels, size_t groupSize,
+                                   std::span<const uint64_t> keys,
                                    std::span<SurfelIrradiance> irradiance, CutStats* stats) {
+  PBGI_CHECK_GT(groupSize, size_t{0});
+  PBGI_CHECK_EQ(irradiance.size(), surfels.size());
+  const size_t groups = (surfels.size() + groupSize - 1) / groupSize;
+  PBGI_CHECK_EQ(keys.size(), groups);
   std::fill(irradiance.begin(), irradiance.end(), SurfelIrradiance{});
+  while (sides_.size() < 2 * groups) sides_.emplace_back(options_);
   // One cut per side: a receiver tree of both sides would pair every receiver with its
   // opposite in each node, whose normals no cone narrower than a hemisphere holds, and share
   // nothing.
-  for (const int side : {0, 1}) {
-    receivers_.clear();
-    of_.clear();
-    for (size_t i = 0; i < surfels.size(); ++i) {
-      const Surfel& s = surfels[i];
-      if (!reflectsLight(s)) continue;
-      // A surfel lies on its triangle: its shadow rays leave from its centre along the side's
-      // normal.
-      const Vec3f n = side == 0 ? s.normal : -s.normal;
-      receivers_.push_back({.p = s.position, .n = n, .ng = n});
-      of_.push_back(static_cast<uint32_t>(i));
+  std::vector<BidirectionalCut*> cuts;
+  std::vector<CutJob> jobs;
+  for (size_t g = 0; g < groups; ++g) {
+    const size_t first = g * groupSize, end = std::min(surfels.size(), first + groupSize);
+    for (const int side : {0, 1}) {
+      Side& c = sides_[2 * g + side];
+      c.receivers.clear();
+      c.of.clear();
+      for (size_t i = first; i < end; ++i) {
+        const Surfel& s = surfels[i];
+        if (!reflectsLight(s)) continue;
+        // A surfel lies on its triangle: its shadow rays leave from its centre along the
+        // side's normal.
+        const Vec3f n = side == 0 ? s.normal : -s.normal;
+        c.receivers.push_back({.p = s.position, .n = n, .ng = n});
+        c.of.push_back(static_cast<uint32_t>(i));
+      }
+      c.gathered.resize(c.receivers.size());
+      cuts.push_back(&c.cut);
+      jobs.push_back({.receivers = c.receivers, .key = hashKeys(keys[g], side), .out = c.gathered});
     }
-    gathered_.resize(receivers_.size());
-    if (absl::Status s = cut_.irradiance(tree, scene, receivers_, hashKeys(key, side), gathered_,
-                                         stats);
-        !s.ok()) {
-      return s;
-    }
-    for (size_t r = 0; r < receivers_.size(); ++r) {
-      (side == 0 ? irradiance[of_[r]].front : irradiance[of_[r]].back) = gathered_[r];
+  }
+  if (absl::Status s = cutTogether(tree, scene, cuts, jobs, stats); !s.ok()) return s;
+  for (size_t k = 0; k < 2 * groups; ++k) {
+    const Side& c = sides_[k];
+    for (size_t r = 0; r < c.receivers.size(); ++r) {
+      (k % 2 == 0 ? irradiance[c.of[r]].front : irradiance[c.of[r]].back) = c.gathered[r];
     }
   }
   return absl::OkStatus();

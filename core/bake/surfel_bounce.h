@@ -34,22 +34,31 @@ struct SurfelIrradiance {
   Rgb back{0.0f};
 };
 
-// Gathers for chunks of surfels, reusing its buffers. One per thread.
+// Gathers for the surfels of a bake, reusing its buffers.
 class SurfelBouncer {
  public:
   explicit SurfelBouncer(const CutOptions& options);
 
   // irradiance[i] = what surfels[i]'s two sides gather from `tree` (black for surfels that
-  // reflect nothing). `key` seeds the cut: derive it from the chunk's place in the bake, so
-  // that the result does not depend on the threads.
+  // reflect nothing). The surfels fall in groups of `groupSize` consecutive ones (the last
+  // may be shorter), keys[g] seeding group g's two cuts (one per side): derive them from the
+  // groups' places in the bake, so that the result does not depend on the threads or on how
+  // many groups one call gathers. All the groups' cuts sweep the tree together
+  // (cutTogether, in parallel), so that a small page cache loads each page once per call.
   absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
-                      uint64_t key, std::span<SurfelIrradiance> irradiance, CutStats* stats);
+                      size_t groupSize, std::span<const uint64_t> keys,
+                      std::span<SurfelIrradiance> irradiance, CutStats* stats);
 
  private:
-  BidirectionalCut cut_;
-  std::vector<CutReceiver> receivers_;
-  std::vector<uint32_t> of_;  // receiver -> surfel
-  std::vector<Rgb> gathered_;
+  struct Side {
+    explicit Side(const CutOptions& options) : cut(options) {}
+    BidirectionalCut cut;
+    std::vector<CutReceiver> receivers;
+    std::vector<uint32_t> of;  // receiver -> surfel
+    std::vector<Rgb> gathered;
+  };
+  CutOptions options_;
+  std::vector<Side> sides_;  // group g's front side at 2 g, its back at 2 g + 1
 };
 
 // The power (per channel, area times radiance, both sides) that a surfel reflects from `e`.

@@ -146,7 +146,8 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
                                            BounceSpills spills, const TreeFileWriteOptions& options,
                                            const FrameBakeRequest& request, uint64_t seed,
                                            uint64_t surfels, int bounce, const Scene& scene,
-                                           CutStats* cutStats, Rgb* power) {
+                                           FrameBakeReport* report, Rgb* power) {
+  CutStats* cutStats = &report->bounceCut;
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
   // The bounce's cuts sweep the tree's pages (see bidirectional_cut.h).
@@ -162,13 +163,11 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
   if (spills.previous != nullptr) {
     if (auto s = spills.previous->rewind(); !s.ok()) return s;
   }
-  tbb::enumerable_thread_specific<SurfelBouncer> bouncers(
-      [&] { return SurfelBouncer(request.bounceCut); });
-  tbb::enumerable_thread_specific<CutStats> stats;
+  SurfelBouncer bouncer(request.bounceCut);
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
   std::vector<SurfelIrradiance> previous, irradiance;
-  std::vector<absl::Status> errors;
+  std::vector<uint64_t> keys;
   std::vector<uint8_t> bytes;
   double sum[3] = {0.0, 0.0, 0.0};
   for (uint64_t done = 0; done < surfels;) {
@@ -178,20 +177,16 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     chunk.resize(n);
     for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
     irradiance.assign(n, SurfelIrradiance{});
-    // The cut's chunks start at multiples of kBounceChunkSurfels in the sorted order and key
-    // their random numbers by it, whatever the threads.
-    const size_t cuts = (n + kBounceChunkSurfels - 1) / kBounceChunkSurfels;
-    errors.assign(cuts, absl::OkStatus());
-    tbb::parallel_for(size_t{0}, cuts, [&](size_t g) {
-      const size_t first = g * kBounceChunkSurfels;
-      const size_t count = std::min(kBounceChunkSurfels, n - first);
-      errors[g] = bouncers.local().gather(
-          cache, scene, std::span<const Surfel>(chunk).subspan(first, count),
-          hashKeys(seed, request.frame, bounce, done + first),
-          std::span<SurfelIrradiance>(irradiance).subspan(first, count), &stats.local());
-    });
-    for (const absl::Status& e : errors) {
-      if (!e.ok()) return e;
+    // The cuts' groups start at multiples of kBounceChunkSurfels in the sorted order and key
+    // their random numbers by it, whatever the threads; the chunk's cuts sweep together.
+    keys.clear();
+    for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
+      keys.push_back(hashKeys(seed, request.frame, bounce, done + first));
+    }
+    if (auto s = bouncer.gather(cache, scene, chunk, kBounceChunkSurfels, keys, irradiance,
+                                cutStats);
+        !s.ok()) {
+      return s;
     }
     if (auto s = writeIrradiance(*spills.next, irradiance, bytes); !s.ok()) return s;
     for (size_t i = 0; i < n; ++i) {
@@ -206,8 +201,11 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     done += n;
     if (request.progress) request.progress(fmt::format("bounce {}", bounce), done, surfels);
   }
-  for (const CutStats& s : stats) *cutStats += s;
   *power = Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
+  const PageCacheCounters c = cache.counters();
+  report->bounceCacheHits += c.hits;
+  report->bounceCacheLoads += c.misses;
+  report->bounceTreePages += (*from)->container().directory().size();
   if (writer == nullptr) return TreeWriteResult{};
   return writer->finish();
 }
@@ -448,7 +446,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                             {.previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
                              .next = &irradiance.back()},
                             treeOptions, request, shot.render.seed, report.sampling.surfels,
-                            bounce, scene, &report.bounceCut, &power);
+                            bounce, scene, &report, &power);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
       if (!lit.ok()) return result = lit.status(), void();

@@ -106,6 +106,12 @@ int runBake(const BakeOptions& o) {
   if (request.bounces > 0) {
     std::printf("  bounces: %s\n    cuts: %s\n", request.bounceCut.toString().c_str(),
                 report->bounceCut.toString().c_str());
+    std::printf("    page caches (%llu MiB each): %llu loads of %llu pages in the trees read, "
+                "%llu hits\n",
+                static_cast<unsigned long long>(request.memoryBudget / 4 >> 20),
+                static_cast<unsigned long long>(report->bounceCacheLoads),
+                static_cast<unsigned long long>(report->bounceTreePages),
+                static_cast<unsigned long long>(report->bounceCacheHits));
     std::printf("    reflected power per bounce (relative to the direct light's):");
     const Rgb& direct = report->bouncePower.front();
     for (size_t k = 1; k < report->bouncePower.size(); ++k) {
