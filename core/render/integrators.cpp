@@ -52,6 +52,10 @@ const std::vector<ParamSpec>& pbgiParams() {
                "sample costs a gather; a light sample is one shadow ray)"},
       {.key = "cut_block", .type = ParamType::kInt, .lo = 8, .hi = 1024, .defaultText = "64",
        .help = "bidirectional: pixels a side of the blocks whose samples share one cut"},
+      {.key = "cut_blocks_together", .type = ParamType::kInt, .lo = 1, .hi = 64,
+       .defaultText = "16",
+       .help = "bidirectional: blocks whose cuts sweep the tree's pages together (more: each "
+               "page loaded once for more of them; fewer: less memory); never changes pixels"},
       {.key = "max_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
        .loOpen = true, .defaultText = "the preset's",
        .help = "per-pixel: largest solid angle (sr) splatted as one cluster"},
@@ -90,6 +94,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.cut.normalAngle = radians(
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
+  s.blocksPerUnit = static_cast<int>(p.intOr("cut_blocks_together", 16));
   s.pathTracer = {.maxDepth = r.maxDepth,
                   .rouletteDepth = r.rouletteDepth,
                   .firstHitLightSamples = static_cast<int>(p.intOr("light_samples", 16))};

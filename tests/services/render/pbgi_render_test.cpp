@@ -155,6 +155,13 @@ TEST_F(PbgiRender, BidirectionalPixelsDoNotDependOnTilesThreadsRegionsOrCache) {
   ASSERT_GT(a.pixels().size(), 0u);
   EXPECT_TRUE(a.pixels() == b.pixels());
   EXPECT_GT(second.tree->cache.evictions, 0u);
+  // Blocks swept one at a time instead of together: more loads, the same pixels.
+  testing::setParam(r.params, "cut_blocks_together", "1");
+  r.outPath = (dir_ / "b1.exr").string();
+  FrameRenderReport alone;
+  EXPECT_TRUE(render(r, &alone).pixels() == a.pixels());
+  EXPECT_GT(alone.tree->cache.misses, second.tree->cache.misses);
+  testing::setParam(r.params, "cut_blocks_together", "16");
   // Regions that cut blocks in two (a farm tile of 24 against blocks of 16), assembled.
   const std::vector<FarmTile> tiles = farmTiles(shot_, 24);
   std::vector<std::string> paths;
