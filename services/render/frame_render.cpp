@@ -106,8 +106,14 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   report.integrator = settings.integrator;
   report.counterSpecs.assign(info->counters.begin(), info->counters.end());
 
-  auto frameScene = loadFrameScene(shot, request.frame);
-  if (!frameScene.ok()) return frameScene.status();
+  std::optional<FrameScene> loaded;
+  const FrameScene* frameScene = request.scene;
+  if (frameScene == nullptr) {
+    auto scene = loadFrameScene(shot, request.frame);
+    if (!scene.ok()) return scene.status();
+    loaded = std::move(*scene);
+    frameScene = &*loaded;
+  }
   report.warnings = frameScene->warnings;
   clock.lap("load");
 

@@ -12,6 +12,7 @@
 #include "core/pbgi/page_cache.h"
 #include "core/render/renderer.h"
 #include "core/scene/shot.h"
+#include "formats/scene/frame_scene.h"
 #include "services/util/stage_time.h"
 
 namespace pbgi {
@@ -38,6 +39,9 @@ struct FrameRenderRequest {
   std::string bakeDir;         // the frame's bake lives here; empty: beside the image
   bool rebake = false;         // bake even when a matching bake is on disk
   std::function<void(const std::string& stage, uint64_t done, uint64_t total)> bakeProgress;
+  // The frame's scene, loaded before (a worker keeps it across a frame's tasks); null: load
+  // it. Must be this shot's frame.
+  const FrameScene* scene = nullptr;
 };
 
 // What a PBGI render read: its tree, its bake, its page cache.

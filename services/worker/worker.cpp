@@ -8,7 +8,13 @@
 #include <thread>
 
 #include <fmt/format.h>
+#include <malloc.h>
 #include <unistd.h>
+#include <xxhash.h>
+
+#include <cstdio>
+#include <functional>
+#include <memory>
 
 #include "core/render/integrators.h"
 #include "core/util/log.h"
@@ -18,6 +24,7 @@
 #include "services/coordinator/farm_job.h"
 #include "services/render/frame_assembly.h"
 #include "services/render/frame_render.h"
+#include "formats/scene/frame_scene.h"
 
 namespace pbgi::farm {
 
@@ -32,6 +39,79 @@ std::string hostName() {
   if (::gethostname(name, sizeof name - 1) != 0) return "localhost";
   return name;
 }
+
+// Resident memory of this process (bytes), after handing freed heap back to the system.
+uint64_t residentBytes() {
+  ::malloc_trim(0);
+  long pages = 0, resident = 0;
+  if (std::FILE* f = std::fopen("/proc/self/statm", "r")) {
+    if (std::fscanf(f, "%ld %ld", &pages, &resident) != 2) resident = 0;
+    std::fclose(f);
+  }
+  return resident > 0 ? uint64_t(resident) * uint64_t(::sysconf(_SC_PAGESIZE)) : 0;
+}
+
+// The frames' scenes a worker keeps between tasks: a bake and the tiles of its frame load the
+// scene once. Keyed by the shot's bytes, its folder and the frame; each counted at the
+// resident memory its loading took; the least recently used goes first when the budget is
+// exceeded (a scene bigger than the whole budget is used once and not kept).
+class SceneKeeper {
+ public:
+  explicit SceneKeeper(size_t budgetBytes) : budget_(budgetBytes) {}
+
+  // The frame's scene, and a line for the task's log.
+  absl::StatusOr<std::shared_ptr<const FrameScene>> get(const ShotDesc& shot, int frame,
+                                                        std::string* log) {
+    const uint64_t key = XXH3_64bits_withSeed(shot.source.data(), shot.source.size(),
+                                              std::hash<std::string>{}(shot.dir) ^ uint64_t(frame));
+    ++clock_;
+    for (Entry& e : entries_) {
+      if (e.key == key && e.frame == frame && e.source == shot.source && e.dir == shot.dir) {
+        e.lastUse = clock_;
+        *log += fmt::format("scene: kept from an earlier task ({} MiB; {} kept, {} MiB)\n",
+                            e.bytes >> 20, entries_.size(), total() >> 20);
+        return e.scene;
+      }
+    }
+    const uint64_t before = residentBytes();
+    PBGI_ASSIGN_OR_RETURN(FrameScene loaded, loadFrameScene(shot, frame));
+    auto scene = std::make_shared<const FrameScene>(std::move(loaded));
+    const uint64_t after = residentBytes();
+    const size_t bytes = after > before ? after - before : 0;
+    if (bytes > budget_ || budget_ == 0) {
+      *log += fmt::format("scene: loaded ({} MiB, over the {} MiB kept between tasks: not kept)\n",
+                          bytes >> 20, budget_ >> 20);
+      return scene;
+    }
+    entries_.push_back({key, frame, shot.source, shot.dir, scene, bytes, clock_});
+    while (total() > budget_) {
+      auto oldest = std::min_element(entries_.begin(), entries_.end(),
+                                     [](const Entry& a, const Entry& b) { return a.lastUse < b.lastUse; });
+      entries_.erase(oldest);
+    }
+    *log += fmt::format("scene: loaded ({} MiB; {} kept, {} MiB of {} MiB)\n", bytes >> 20,
+                        entries_.size(), total() >> 20, budget_ >> 20);
+    return scene;
+  }
+
+ private:
+  struct Entry {
+    uint64_t key;
+    int frame;
+    std::string source, dir;
+    std::shared_ptr<const FrameScene> scene;
+    size_t bytes;
+    uint64_t lastUse;
+  };
+  size_t total() const {
+    size_t sum = 0;
+    for (const Entry& e : entries_) sum += e.bytes;
+    return sum;
+  }
+  size_t budget_;
+  uint64_t clock_ = 0;
+  std::vector<Entry> entries_;
+};
 
 uint64_t physicalMemory() {
   const long pages = ::sysconf(_SC_PHYS_PAGES);
@@ -123,7 +203,10 @@ struct TaskResult {
 class Worker {
  public:
   Worker(const WorkerOptions& options, std::string id)
-      : options_(options), id_(std::move(id)), client_(options.coordinator, options.token) {
+      : options_(options),
+        id_(std::move(id)),
+        client_(options.coordinator, options.token),
+        scenes_(options.sceneCacheBytes) {
     cacheDir_ = options.cacheDir.empty()
                     ? (fs::temp_directory_path() / fmt::format("pbgi-worker-{}", sanitized(id_)))
                           .string()
@@ -153,6 +236,7 @@ class Worker {
   const std::string id_;
   FarmClient client_;
   std::string cacheDir_;
+  SceneKeeper scenes_;
 };
 
 absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
@@ -163,10 +247,14 @@ absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTas
   request.progress = [&beat](const std::string&, uint64_t done, uint64_t total) {
     if (total > 0) beat.progress(double(done) / double(total));
   };
-  PBGI_ASSIGN_OR_RETURN(const FrameBakeReport report, bakeShotFrame(shot, request));
   TaskResult result;
-  result.log = fmt::format("tree {} ({} bytes)\n{}", report.treePath, report.treeFileBytes,
-                           formatStages(report.stages));
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const FrameScene> scene,
+                        scenes_.get(shot, task.frame(), &result.log));
+  PBGI_ASSIGN_OR_RETURN(const FrameBakeReport report,
+                        bakeShotFrame(shot, request, scene->scene.get()));
+  for (const std::string& w : scene->warnings) result.log += "warning: " + w + "\n";
+  result.log += fmt::format("tree {} ({} bytes)\n{}", report.treePath, report.treeFileBytes,
+                            formatStages(report.stages));
   for (const std::string& w : report.warnings) result.log += "warning: " + w + "\n";
   return result;
 }
@@ -226,6 +314,9 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
       request.treePath = shared;
     }
   }
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const FrameScene> scene,
+                        scenes_.get(shot, task.frame(), &result.log));
+  request.scene = scene.get();
   PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
   result.log += fmt::format("wrote {} (regions {})\n{}", report.exrPath,
                             regionsText(request.regions), formatStages(report.stages));

@@ -4,7 +4,8 @@
 //   bake      bakes the frame's tree into the job's bake folder;
 //   tile      renders one farm tile of the frame to its EXR (written to a temporary, renamed);
 //   assemble  checks every tile of the frame is there and writes the frame's EXR and preview.
-// Tiles read the frame's tree from the shared job folder when this machine can see it, and
+// A worker keeps the scenes it loaded for later tasks of the same frame (a bake, then its
+// tiles), within a memory budget. Tiles read the frame's tree from the shared job folder when this machine can see it, and
 // otherwise stream it from the coordinator's page service into a local disk cache. While a
 // task runs, a heartbeat thread extends its lease and reports progress. A coordinator that
 // does not answer is waited for: the task's result is reported when it is back.
@@ -28,6 +29,9 @@ struct WorkerOptions {
   size_t cacheBytes = 0;     // tree page cache budget; 0: the shot's cache_mb
   std::string cacheDir;      // streamed trees; empty: <temp>/pbgi-worker-<id>
   TreeSource treeSource = TreeSource::kAuto;
+  // Scenes (meshes, BVH, textures) kept between tasks, least recently used out first; each
+  // scene counted at the resident memory its loading took.
+  size_t sceneCacheBytes = size_t{2} << 30;
   double pollSeconds = 0.5;  // between lease requests while there is no work
 };
 

@@ -20,6 +20,7 @@ int workerDaemonMain(int argc, char** argv) {
   WorkerOptions o;
   std::string tokenFile;
   int cacheMb = 0;
+  int sceneCacheMb = 2048;
   app.add_option("--coordinator", o.coordinator, "The coordinator's host:port")->required();
   app.add_option("--token-file", tokenFile, "The farm token (default: $PBGI_TOKEN)");
   app.add_option("--id", o.id, "Worker name (default: host:pid)");
@@ -27,6 +28,10 @@ int workerDaemonMain(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--cache-mb", cacheMb, "Tree page cache in MiB (default: the shot's cache_mb)")
       ->check(CLI::PositiveNumber);
+  app.add_option("--scene-cache-mb", sceneCacheMb,
+                 "Memory for the scenes kept between tasks, in MiB (0: keep none)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--cache-dir", o.cacheDir,
                  "Local disk cache of streamed trees (default: <temp>/pbgi-worker-<id>)");
   app.add_option("--tree-source", o.treeSource,
@@ -51,6 +56,7 @@ int workerDaemonMain(int argc, char** argv) {
   }
   log::setLevel(log::Level::kInfo);
   o.cacheBytes = static_cast<size_t>(cacheMb) << 20;
+  o.sceneCacheBytes = static_cast<size_t>(sceneCacheMb) << 20;
   auto token = loadClientToken(tokenFile);
   if (!token.ok()) {
     std::fprintf(stderr, "pbgi-worker: error: %s\n", std::string(token.status().message()).c_str());

@@ -305,5 +305,30 @@ TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree
   expectFrameEqualsWholeRender(1);
 }
 
+// A worker keeps the scene it loaded for the frame's bake and uses it for the frame's tiles;
+// the frame is the same as `pbgi render` makes it.
+TEST_F(WorkerTest, AWorkerKeepsTheFramesSceneForItsTiles) {
+  start();
+  pbgi::testing::SmallShot pbgiShot;
+  pbgiShot.integrator = "pbgi";
+  pbgiShot.extraRender = "bake_points = 4000\nbake_bounces = 1\nquality = \"draft\"\n";
+  const int64_t job = submit(pbgiShot, {1});
+  startWorker("keeper");
+  std::string state;
+  ASSERT_TRUE(waitFor([&] { return settled(job, &state); }, 90.0)) << workerLogs();
+  ASSERT_EQ(state, "done") << workerLogs();
+  auto events = coordinator_->store().events(job, std::nullopt, std::nullopt);
+  ASSERT_TRUE(events.ok()) << events.status();
+  int loaded = 0, kept = 0;
+  for (const TaskEvent& e : *events) {
+    if (e.event != "done") continue;
+    loaded += e.text.find("scene: loaded") != std::string::npos;
+    kept += e.text.find("scene: kept from an earlier task") != std::string::npos;
+  }
+  EXPECT_EQ(loaded, 1);  // the bake
+  EXPECT_EQ(kept, 4);    // the 64^2 frame's four 32^2 tiles
+  expectFrameEqualsWholeRender(1);
+}
+
 }  // namespace
 }  // namespace pbgi::farm
