@@ -43,10 +43,12 @@ class SurfelBouncer {
   // reflect nothing). The surfels fall in groups of `groupSize` consecutive ones (the last
   // may be shorter), keys[g] seeding group g's two cuts (one per side): derive them from the
   // groups' places in the bake, so that the result does not depend on the threads or on how
-  // many groups one call gathers. All the groups' cuts sweep the tree together
-  // (cutTogether, in parallel), so that a small page cache loads each page once per call.
+  // many groups one call gathers. The cuts of `groupsTogether` groups at a time sweep the tree
+  // together (cutTogether, in parallel), so that a small page cache loads each page once per
+  // such batch; each cut in flight holds its waiting pairs (up to about a million for 4,096
+  // receivers), so the batch is what bounds the bounce's memory.
   absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
-                      size_t groupSize, std::span<const uint64_t> keys,
+                      size_t groupSize, std::span<const uint64_t> keys, size_t groupsTogether,
                       std::span<SurfelIrradiance> irradiance, CutStats* stats);
 
  private:

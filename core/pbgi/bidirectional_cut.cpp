@@ -963,6 +963,11 @@ absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* stats
     }
   }
   if (statsOut) *statsOut += stats;
+  // What waited for pages is gone: give the buckets' memory back (up to about a million
+  // pairs and descents at a cut's peak), so that cuts kept for later do not hold it.
+  std::unordered_map<uint32_t, Bucket>().swap(buckets);
+  std::vector<Pair>().swap(stack);
+  std::vector<Probe>().swap(probes);
   return absl::OkStatus();
 }
 

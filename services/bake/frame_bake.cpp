@@ -164,6 +164,14 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     if (auto s = spills.previous->rewind(); !s.ok()) return s;
   }
   SurfelBouncer bouncer(request.bounceCut);
+  // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
+  // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
+  // but hold their cuts' waiting pairs at once (about 6 MiB more per group there: 363 MB
+  // against 277 MB peak RSS). A group per 8 MiB of a quarter of the budget, at least one per
+  // thread.
+  const size_t groupsTogether =
+      std::max<size_t>(static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency())),
+                       request.memoryBudget / 4 / (size_t{8} << 20));
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
   std::vector<SurfelIrradiance> previous, irradiance;
@@ -183,8 +191,8 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
       keys.push_back(hashKeys(seed, request.frame, bounce, done + first));
     }
-    if (auto s = bouncer.gather(cache, scene, chunk, kBounceChunkSurfels, keys, irradiance,
-                                cutStats);
+    if (auto s = bouncer.gather(cache, scene, chunk, kBounceChunkSurfels, keys,
+                                groupsTogether, irradiance, cutStats);
         !s.ok()) {
       return s;
     }
