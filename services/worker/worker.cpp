@@ -10,21 +10,19 @@
 #include <fmt/format.h>
 #include <malloc.h>
 #include <unistd.h>
-#include <xxhash.h>
 
 #include <cstdio>
-#include <functional>
 #include <memory>
 
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/scene/frame_scene.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
 #include "services/render/frame_assembly.h"
 #include "services/render/frame_render.h"
-#include "formats/scene/frame_scene.h"
 
 namespace pbgi::farm {
 
@@ -52,7 +50,7 @@ uint64_t residentBytes() {
 }
 
 // The frames' scenes a worker keeps between tasks: a bake and the tiles of its frame load the
-// scene once. Keyed by the shot's bytes, its folder and the frame; each counted at the
+// scene once. Found by the shot's bytes, its folder and the frame; each counted at the
 // resident memory its loading took; the least recently used goes first when the budget is
 // exceeded (a scene bigger than the whole budget is used once and not kept).
 class SceneKeeper {
@@ -62,11 +60,9 @@ class SceneKeeper {
   // The frame's scene, and a line for the task's log.
   absl::StatusOr<std::shared_ptr<const FrameScene>> get(const ShotDesc& shot, int frame,
                                                         std::string* log) {
-    const uint64_t key = XXH3_64bits_withSeed(shot.source.data(), shot.source.size(),
-                                              std::hash<std::string>{}(shot.dir) ^ uint64_t(frame));
     ++clock_;
     for (Entry& e : entries_) {
-      if (e.key == key && e.frame == frame && e.source == shot.source && e.dir == shot.dir) {
+      if (e.frame == frame && e.dir == shot.dir && e.source == shot.source) {
         e.lastUse = clock_;
         *log += fmt::format("scene: kept from an earlier task ({} MiB; {} kept, {} MiB)\n",
                             e.bytes >> 20, entries_.size(), total() >> 20);
@@ -83,7 +79,7 @@ class SceneKeeper {
                           bytes >> 20, budget_ >> 20);
       return scene;
     }
-    entries_.push_back({key, frame, shot.source, shot.dir, scene, bytes, clock_});
+    entries_.push_back({frame, shot.source, shot.dir, scene, bytes, clock_});
     while (total() > budget_) {
       auto oldest = std::min_element(entries_.begin(), entries_.end(),
                                      [](const Entry& a, const Entry& b) { return a.lastUse < b.lastUse; });
@@ -96,7 +92,6 @@ class SceneKeeper {
 
  private:
   struct Entry {
-    uint64_t key;
     int frame;
     std::string source, dir;
     std::shared_ptr<const FrameScene> scene;
