@@ -468,19 +468,24 @@ struct BidirectionalCut::State {
   void build(std::span<const CutReceiver> receivers, int leafSize);
   ReceiverNode makeNode(std::span<const CutReceiver> receivers, uint32_t first, uint32_t count,
                         uint32_t parent) const;
-  void push(const Pair& p, uint32_t currentPage, CutStats* stats) {
+  // A pair to evaluate: now when its light is in the page at hand, else in its page's bucket.
+  void push(const Pair& p, uint32_t currentPage) {
     if (p.light.page == currentPage) {
       stack.push_back(p);
       return;
     }
-    Bucket& b = buckets[p.light.page];
-    b.pairs.push_back(p);
+    waitOn(p.light.page).pairs.push_back(p);
+  }
+  // The bucket of page `id`, queued for the sweep, for one more waiting pair or descent.
+  Bucket& waitOn(uint32_t id) {
+    Bucket& b = buckets[id];
     if (!b.queued) {
       b.queued = true;
-      pages.push(p.light.page);
+      pages.push(id);
     }
     ++pending;
-    stats->peakPendingPairs = std::max(stats->peakPendingPairs, pending);
+    stats.peakPendingPairs = std::max(stats.peakPendingPairs, pending);
+    return b;
   }
 
   ReceiverView receiverView(uint32_t item) const {
@@ -547,17 +552,6 @@ struct BidirectionalCut::State {
     return order[n.first + k];
   }
 
-  void pushProbe(Probe&& probe) {
-    Bucket& b = buckets[probe.at.page];
-    b.probes.push_back(std::move(probe));
-    if (!b.queued) {
-      b.queued = true;
-      pages.push(b.probes.back().at.page);
-    }
-    ++pending;
-    stats.peakPendingPairs = std::max(stats.peakPendingPairs, pending);
-  }
-
   // A cluster's light at a receiver item, once its shadow ray's target is known: deposited
   // when the ray arrives (or when no surfel sends it anything: nothing to hide), else dropped;
   // or, when the target lies in another page, waiting there.
@@ -571,8 +565,9 @@ struct BidirectionalCut::State {
         if (visibleSurfel(*scn, receivers[origin], d.surfel, &stats)) deposit(receiver, src, 1.0f);
         return;
       case Descent::Kind::kElsewhere:
-        pushProbe({.at = d.next, .depth = d.depth, .receiver = receiver, .origin = origin,
-                   .rng = rng, .src = src});
+        waitOn(d.next.page)
+            .probes.push_back({.at = d.next, .depth = d.depth, .receiver = receiver,
+                               .origin = origin, .rng = rng, .src = src});
         return;
     }
   }
@@ -586,11 +581,11 @@ struct BidirectionalCut::State {
     const ReceiverNode& n = nodes[pair.receiver];
     if (n.childCount > 0) {
       for (uint32_t c = 0; c < n.childCount; ++c) {
-        push({pair.light, n.firstChild + c, pair.depth}, page, &stats);
+        push({pair.light, n.firstChild + c, pair.depth}, page);
       }
     } else {
       for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-        push({pair.light, kReceiverBit | order[k], pair.depth}, page, &stats);
+        push({pair.light, kReceiverBit | order[k], pair.depth}, page);
       }
     }
   }
@@ -784,7 +779,7 @@ struct BidirectionalCut::State {
     ++stats.refinedLight;
     if (absl::Status s = checkInterior(page, node, pair.light, pair.depth); !s.ok()) return s;
     for (const NodeRef& child : page.childrenOf(node)) {
-      push({child, pair.receiver, pair.depth + 1}, page.id, &stats);
+      push({child, pair.receiver, pair.depth + 1}, page.id);
     }
     return absl::OkStatus();
   }
@@ -900,7 +895,7 @@ absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& s
   pending = 0;
   if (receivers.empty()) return absl::OkStatus();
   const NodeRef root = tree.root();
-  push({root, 0, 0}, ~root.page, &stats);
+  push({root, 0, 0}, ~root.page);
   return absl::OkStatus();
 }
 
@@ -986,10 +981,13 @@ absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
                          CutStats* statsOut) {
   PBGI_CHECK_EQ(cuts.size(), jobs.size());
   std::vector<absl::Status> errors(jobs.size());
+  // Runs step(i) for each cut i of `which` in parallel; the first error in job order.
+  std::vector<size_t> which(jobs.size());
+  for (size_t i = 0; i < which.size(); ++i) which[i] = i;
   auto forEachCut = [&](auto&& step) {
     tbb::this_task_arena::isolate([&] {
-      tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t i) {
-        if (errors[i].ok()) errors[i] = step(*cuts[i]->state_, jobs[i], *cuts[i]);
+      tbb::parallel_for(size_t{0}, which.size(), [&](size_t k) {
+        if (errors[which[k]].ok()) errors[which[k]] = step(which[k]);
       });
     });
     for (const absl::Status& e : errors) {
@@ -997,17 +995,17 @@ absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
     }
     return absl::OkStatus();
   };
-  if (absl::Status s = forEachCut([&](BidirectionalCut::State& st, const CutJob& job,
-                                      const BidirectionalCut& cut) {
-        PBGI_CHECK_EQ(job.out.size(), job.receivers.size());
-        return st.begin(tree, scene, job.receivers, job.key, cut.options());
+  if (absl::Status s = forEachCut([&](size_t i) {
+        PBGI_CHECK_EQ(jobs[i].out.size(), jobs[i].receivers.size());
+        return cuts[i]->state_->begin(tree, scene, jobs[i].receivers, jobs[i].key,
+                                      cuts[i]->options());
       });
       !s.ok()) {
     return s;
   }
-  // A window of pages at a time, from the highest down: every cut sweeps its own pages in
-  // its own order, so the window changes no cut's result, only how close in time the cuts
-  // ask for the same page.
+  // A window of pages at a time, from the highest down, for the cuts waiting on it: every cut
+  // sweeps its own pages in its own order, so the window changes no cut's result, only how
+  // close in time the cuts ask for the same page.
   for (;;) {
     std::optional<uint32_t> high;
     for (BidirectionalCut* cut : cuts) {
@@ -1016,8 +1014,12 @@ absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
     }
     if (!high) break;
     const uint32_t lowest = *high >= kCutWindowPages - 1 ? *high - (kCutWindowPages - 1) : 0;
-    if (absl::Status s = forEachCut([&](BidirectionalCut::State& st, const CutJob&,
-                                        const BidirectionalCut&) { return st.sweep(lowest); });
+    which.clear();
+    for (size_t i = 0; i < cuts.size(); ++i) {
+      const std::optional<uint32_t> next = cuts[i]->state_->nextPage();
+      if (next && *next >= lowest) which.push_back(i);
+    }
+    if (absl::Status s = forEachCut([&](size_t i) { return cuts[i]->state_->sweep(lowest); });
         !s.ok()) {
       return s;
     }

@@ -271,6 +271,38 @@ absl::StatusOr<const TreePage*> holdPage(std::vector<Held>& held, uint64_t& cloc
 
 namespace pbgi {
 
+namespace gather_internal {
+
+// One node of a walk (TreeWalk's and SweptWalk's): culled behind the receiver's tangent plane,
+// taken whole by splat(attributes, bounds), handed to leaf(page, node), or refined, each child
+// going to push(child, depth) last child first, so that they come off a stack in Morton order.
+template <typename Splat, typename Leaf, typename Push>
+absl::Status visitNode(const TreePage& page, NodeRef ref, uint32_t depth, const Vec3f& p,
+                       const Vec3f& n, float planeSlack, GatherStats* stats, Splat&& splat,
+                       Leaf&& leaf, Push&& push) {
+  absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, ref);
+  if (!nodeOr.ok()) return nodeOr.status();
+  const TreeNode& node = **nodeOr;
+  ++stats->nodesVisited;
+  NodeBounds bounds;
+  if (cullNode(node.attributes, p, n, planeSlack, &bounds) != NodeCull::kNone) {
+    ++stats->nodesCulledPlane;
+    return absl::OkStatus();
+  }
+  if (bounds.outside() && splat(node.attributes, bounds)) return absl::OkStatus();
+  if (node.leaf()) {
+    if (absl::Status s = checkLeaf(page, node, ref); !s.ok()) return s;
+    leaf(page, node);
+    return absl::OkStatus();
+  }
+  if (absl::Status s = checkInterior(page, node, ref, depth); !s.ok()) return s;
+  const std::span<const NodeRef> children = page.childrenOf(node);
+  for (size_t i = children.size(); i-- > 0;) push(children[i], depth + 1);
+  return absl::OkStatus();
+}
+
+}  // namespace gather_internal
+
 template <typename Splat, typename Leaf>
 absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
                            GatherStats* stats, Splat&& splat, Leaf&& leaf) {
@@ -287,32 +319,8 @@ absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
       status = pageOr.status();
       break;
     }
-    const TreePage& page = **pageOr;
-    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
-    if (!nodeOr.ok()) {
-      status = nodeOr.status();
-      break;
-    }
-    const TreeNode& node = **nodeOr;
-    ++stats->nodesVisited;
-    NodeBounds bounds;
-    const NodeCull cull = cullNode(node.attributes, p, n, planeSlack, &bounds);
-    if (cull != NodeCull::kNone) {
-      ++stats->nodesCulledPlane;
-      continue;
-    }
-    if (bounds.outside() && splat(node.attributes, bounds)) continue;
-    if (node.leaf()) {
-      status = checkLeaf(page, node, entry.ref);
-      if (status.ok()) leaf(page, node);
-      continue;
-    }
-    status = checkInterior(page, node, entry.ref, entry.depth);
-    if (!status.ok()) break;
-    // Reversed, so that children come off the stack in Morton order: the page is walked
-    // front to back.
-    const std::span<const NodeRef> children = page.childrenOf(node);
-    for (size_t i = children.size(); i-- > 0;) stack_.push_back({children[i], entry.depth + 1});
+    status = visitNode(**pageOr, entry.ref, entry.depth, p, n, planeSlack, stats, splat, leaf,
+                       [&](NodeRef child, uint32_t depth) { stack_.push_back({child, depth}); });
   }
   held_.clear();  // pages live no longer than the walk that used them
   return status;
@@ -349,34 +357,20 @@ absl::Status SweptWalk::sweep(TreePageSource& tree, uint32_t lowest, GatherStats
     absl::StatusOr<std::shared_ptr<const TreePage>> held = tree.page(id);
     if (!held.ok()) return held.status();
     PBGI_CHECK(*held != nullptr);  // a source returns a page or an error
-    const TreePage& page = **held;
     while (!stack_.empty()) {
       const Entry entry = stack_.back();
       stack_.pop_back();
-      absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, entry.ref);
-      if (!nodeOr.ok()) return nodeOr.status();
-      const TreeNode& node = **nodeOr;
-      ++stats->nodesVisited;
-      NodeBounds bounds;
-      if (cullNode(node.attributes, p_, n_, planeSlack, &bounds) != NodeCull::kNone) {
-        ++stats->nodesCulledPlane;
-        continue;
-      }
-      if (bounds.outside() && splat(node.attributes, bounds)) continue;
-      if (node.leaf()) {
-        if (absl::Status s = checkLeaf(page, node, entry.ref); !s.ok()) return s;
-        leaf(page, node);
-        continue;
-      }
-      if (absl::Status s = checkInterior(page, node, entry.ref, entry.depth); !s.ok()) return s;
-      const std::span<const NodeRef> children = page.childrenOf(node);
-      for (size_t i = children.size(); i-- > 0;) {
-        const Entry child{children[i], entry.depth + 1};
-        if (child.ref.page == id) {
-          stack_.push_back(child);
-        } else {
-          push(child);
-        }
+      if (absl::Status s = visitNode(**held, entry.ref, entry.depth, p_, n_, planeSlack, stats,
+                                     splat, leaf,
+                                     [&](NodeRef child, uint32_t depth) {
+                                       if (child.page == id) {
+                                         stack_.push_back({child, depth});
+                                       } else {
+                                         push({child, depth});
+                                       }
+                                     });
+          !s.ok()) {
+        return s;
       }
     }
   }

@@ -25,22 +25,30 @@ size_t TreePager::nodeBytes(const PageNode& node, size_t childCount) const {
   size_t bytes = nodeRecordBytes(options_.encoding) + childCount * kChildRefBytes +
                  node.surfels.size() * surfelRecordBytes(options_.encoding) +
                  (quantized(options_.encoding) && node.exact ? kExactShBytes : 0);
-  for (const GhostNode& g : node.ghosts) {
-    bytes += nodeRecordBytes(options_.encoding) +
-             (quantized(options_.encoding) && g.exact ? kExactShBytes : 0);
-  }
+  for (const GhostNode& g : node.ghosts) bytes += ghostBytes(g);
   return bytes;
+}
+
+size_t TreePager::ghostBytes(const GhostNode& ghost) const {
+  return nodeRecordBytes(options_.encoding) +
+         (quantized(options_.encoding) && ghost.exact ? kExactShBytes : 0);
 }
 
 namespace {
 
 // The record of a subtree's root, as a ghost in its parent's page.
-GhostNode ghostOf(const PageNode& root, uint32_t child) {
-  return {.child = child,
-          .attributes = root.attributes,
+GhostNode ghostOf(const PageNode& root) {
+  return {.attributes = root.attributes,
           .powerIndex = root.powerIndex,
           .areaIndex = root.areaIndex,
           .exact = root.exact};
+}
+
+// `child` placed in another page becomes `parent`'s next child, with its ghost.
+void adoptPlaced(PageNode& parent, const NodeRef& child, const GhostNode& root) {
+  parent.ghosts.push_back(root);
+  parent.ghosts.back().child = static_cast<uint32_t>(parent.children.size());
+  parent.children.push_back(child);
 }
 
 }  // namespace
@@ -50,8 +58,8 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
   const size_t own = nodeBytes(node, childCount);
   PBGI_CHECK_LE(kTreePageHeaderBytes + own, options_.pageSize);
   const auto children = std::span(stack_).subspan(stack_.size() - childCount);
-  size_t pending = 0;
-  for (const Subtree& c : children) pending += c.placed ? 0 : c.bytes;
+  size_t pending = 0;  // children's subtrees that would join the node, and ghosts of the rest
+  for (const Subtree& c : children) pending += c.placed ? ghostBytes(c.root) : c.bytes;
 
   Subtree tree;
   node.children.clear();
@@ -61,10 +69,7 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
     tree.nodes.push_back(std::move(node));
     for (Subtree& c : children) {
       if (c.placed) {
-        PageNode& self = tree.nodes.front();
-        self.ghosts.push_back(c.root);
-        self.ghosts.back().child = static_cast<uint32_t>(self.children.size());
-        self.children.push_back(c.ref);
+        adoptPlaced(tree.nodes.front(), c.ref, c.root);
         continue;
       }
       const auto offset = static_cast<uint32_t>(tree.nodes.size());
@@ -76,7 +81,7 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
         tree.nodes.push_back(std::move(n));
       }
     }
-    tree.bytes = nodeBytes(tree.nodes.front(), childCount) + pending;
+    tree.bytes = own + pending;
   } else {
     // The children go to pages of their own; the node keeps their records as ghosts.
     for (Subtree& c : children) {
@@ -84,9 +89,7 @@ absl::Status TreePager::add(PageNode node, uint32_t childCount) {
         auto ref = place(c);
         if (!ref.ok()) return ref.status();
       }
-      node.ghosts.push_back(c.root);
-      node.ghosts.back().child = static_cast<uint32_t>(node.children.size());
-      node.children.push_back(c.ref);
+      adoptPlaced(node, c.ref, c.root);
     }
     tree.bytes = nodeBytes(node, childCount);
     PBGI_CHECK_LE(kTreePageHeaderBytes + tree.bytes, options_.pageSize);
@@ -104,7 +107,7 @@ absl::StatusOr<NodeRef> TreePager::place(Subtree& subtree) {
   }
   const auto pageId = static_cast<uint32_t>(stats_.pages);
   const auto base = static_cast<uint32_t>(open_.size());
-  subtree.root = ghostOf(subtree.nodes.front(), 0);
+  subtree.root = ghostOf(subtree.nodes.front());
   for (PageNode& n : subtree.nodes) {
     for (NodeRef& r : n.children) {
       if (r.page == kUnplaced) r = NodeRef{pageId, base + r.index};

@@ -67,6 +67,7 @@ class TreePager {
   absl::StatusOr<NodeRef> place(Subtree& subtree);
   absl::Status flushPage();
   size_t nodeBytes(const PageNode& node, size_t childCount) const;
+  size_t ghostBytes(const GhostNode& ghost) const;
 
   TreePagerOptions options_;
   const TreeCodebooks* codebooks_;

@@ -16,6 +16,38 @@ namespace pbgi {
 
 namespace {
 
+// The first hits of pixels [firstPixel, endPixel) of a unit, as both gathers take them: each
+// pixel's glossy samples gather here through its warped microbuffer (shared within the pixel),
+// and each diffuse one goes to diffuse(k, receiver) for the caller's gather. Errors name the
+// pixel.
+template <typename Diffuse>
+absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings,
+                            const TileSamples& samples, size_t firstPixel, size_t endPixel,
+                            std::span<PathSample> out, PixelGathers& pixel, GatherStats* stats,
+                            RenderCounters* counters, Diffuse&& diffuse) {
+  const size_t spp = static_cast<size_t>(samples.spp);
+  for (size_t i = firstPixel; i < endPixel; ++i) {
+    pixel.newPixel();
+    for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
+      const Receiver r = traceReceiver(scene, samples.rays[k], samples.rngs[k],
+                                       settings.pathTracer, &out[k], counters);
+      if (r.kind == ReceiverKind::kGlossy) {
+        absl::StatusOr<Rgb> lo =
+            pixel.reflect(tree, scene, r, out[k].albedo, samples.rngs[k], stats, counters);
+        if (!lo.ok()) {
+          return absl::Status(lo.status().code(),
+                              fmt::format("pixel ({}, {}): {}", samples.pixels[i].x,
+                                          samples.pixels[i].y, std::string(lo.status().message())));
+        }
+        out[k].indirect = *lo;
+      } else if (r.kind == ReceiverKind::kDiffuse) {
+        diffuse(k, r);
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
 // How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
 // each page a small cache loads serves many of them, few enough that their microbuffers stay
 // bounded (512 of 12^2 x 6 pixels: about 21 MB a thread).
@@ -55,44 +87,32 @@ class PerPixelPbgi final : public Integrator {
     state.normals.clear();
     state.uses.clear();
     GatherStats stats;
-    const size_t spp = static_cast<size_t>(samples.spp);
-    for (size_t i = 0; i < samples.pixelCount(); ++i) {
-      state.pixel.newPixel();
-      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
-        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
-                                         settings_.pathTracer, &out[k], counters);
-        if (r.kind == ReceiverKind::kGlossy) {
-          absl::StatusOr<Rgb> lo = state.pixel.reflect(tree_, scene_, r, out[k].albedo,
-                                                       samples.rngs[k], &stats, counters);
-          if (!lo.ok()) {
-            return absl::Status(lo.status().code(),
-                                fmt::format("pixel ({}, {}): {}", samples.pixels[i].x,
-                                            samples.pixels[i].y,
-                                            std::string(lo.status().message())));
-          }
-          out[k].indirect = *lo;
-          continue;
-        }
-        if (r.kind != ReceiverKind::kDiffuse) continue;
-        uint32_t slot;
-        if (const SharedGather* g = state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
-          slot = g->slot;
-          ++(*counters)[kGatherReuses];
-        } else {
-          slot = static_cast<uint32_t>(state.positions.size());
-          state.positions.push_back(r.hit.p);
-          state.normals.push_back(r.n);
-          ++(*counters)[kGathers];
-          state.pixel.shared().add({.p = r.hit.p,
-                                    .n = r.n,
-                                    .reach = kReuseDistanceFraction * r.hit.t,
-                                    .planeReach = kReusePlaneFraction * r.hit.t,
-                                    .key = kNoMaterial,
-                                    .wo = Vec3f(0.0f),
-                                    .slot = slot});
-        }
-        state.uses.push_back({k, slot});
-      }
+    if (absl::Status s = traceFirstHits(
+            scene_, tree_, settings_, samples, 0, samples.pixelCount(), out, state.pixel, &stats,
+            counters,
+            [&](size_t k, const Receiver& r) {
+              uint32_t slot;
+              if (const SharedGather* g =
+                      state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
+                slot = g->slot;
+                ++(*counters)[kGatherReuses];
+              } else {
+                slot = static_cast<uint32_t>(state.positions.size());
+                state.positions.push_back(r.hit.p);
+                state.normals.push_back(r.n);
+                ++(*counters)[kGathers];
+                state.pixel.shared().add({.p = r.hit.p,
+                                          .n = r.n,
+                                          .reach = kReuseDistanceFraction * r.hit.t,
+                                          .planeReach = kReusePlaneFraction * r.hit.t,
+                                          .key = kNoMaterial,
+                                          .wo = Vec3f(0.0f),
+                                          .slot = slot});
+              }
+              state.uses.push_back({k, slot});
+            });
+        !s.ok()) {
+      return s;
     }
     const size_t gathers = state.positions.size();
     state.values.resize(gathers);
@@ -206,22 +226,16 @@ class BidirectionalPbgi final : public Integrator {
     block.counters = RenderCounters{};
     block.counters.values.assign(counterCount, 0);
     GatherStats stats;
-    const size_t spp = static_cast<size_t>(samples.spp);
-    for (size_t i = unitBlock.firstPixel; i < unitBlock.firstPixel + unitBlock.pixelCount; ++i) {
-      block.pixel.newPixel();
-      for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
-        const Receiver r = traceReceiver(scene_, samples.rays[k], samples.rngs[k],
-                                         settings_.pathTracer, &out[k], &block.counters);
-        if (r.kind == ReceiverKind::kGlossy) {
-          absl::StatusOr<Rgb> lo = block.pixel.reflect(tree_, scene_, r, out[k].albedo,
-                                                       samples.rngs[k], &stats, &block.counters);
-          if (!lo.ok()) return lo.status();
-          out[k].indirect = *lo;
-        } else if (r.kind == ReceiverKind::kDiffuse) {
-          block.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
-          block.sampleOf.push_back(k);
-        }
-      }
+    if (absl::Status s = traceFirstHits(
+            scene_, tree_, settings_, samples, unitBlock.firstPixel,
+            unitBlock.firstPixel + unitBlock.pixelCount, out, block.pixel, &stats,
+            &block.counters,
+            [&](size_t k, const Receiver& r) {
+              block.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
+              block.sampleOf.push_back(k);
+            });
+        !s.ok()) {
+      return s;
     }
     addGatherStats(stats, &block.counters);
     block.irradiance.resize(block.receivers.size());

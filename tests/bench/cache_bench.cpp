@@ -60,31 +60,15 @@ int runBench(const Args& args) {
   const fs::path out(args.out);
   std::error_code ec;
   fs::create_directories(out, ec);
-  const std::map<std::string, std::string> shotFiles = {
-      {"cornell-box", "cornell.shot.toml"}, {"sponza", "sponza.shot.toml"}};
   const std::string csvPath = (out / "cache.csv").string();
   std::FILE* csv = std::fopen(csvPath.c_str(), "w");
   if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
   std::fprintf(csv, "scene,gather,width,height,spp,budget_percent,cache_bytes,seconds,"
                     "time_ratio,hit_rate,hits,misses,pages_read,pages_in_file,identical\n");
   for (const std::string& name : args.scenes) {
-    const auto file = shotFiles.find(name);
-    if (file == shotFiles.end()) {
-      std::fprintf(stderr, "unknown scene %s (cornell-box, sponza)\n", name.c_str());
-      return 2;
-    }
-    auto loaded = loadShotFile((*shared / name / file->second).string());
-    if (!loaded.ok()) return std::fprintf(stderr, "%s\n", loaded.status().ToString().c_str()), 1;
-    ShotDesc shot = *loaded;
-    shot.render.integrator = "pbgi";
-    if (args.bakePoints > 0) {
-      testing::setParam(shot.render.params, "bake_points", std::to_string(args.bakePoints));
-    }
-    for (const std::string& line : args.set) {
-      const size_t eq = line.find('=');
-      if (eq == std::string::npos) return std::fprintf(stderr, "--set %s: KEY=VALUE\n", line.c_str()), 2;
-      testing::setParam(shot.render.params, line.substr(0, eq), line.substr(eq + 1));
-    }
+    auto loaded = testing::devPbgiShot(*shared, name, args.bakePoints, args.set);
+    if (!loaded.ok()) return std::fprintf(stderr, "%s\n", loaded.status().ToString().c_str()), 2;
+    const ShotDesc& shot = *loaded;
     absl::StatusOr<testing::BakedTree> baked = testing::BakedTree{.path = args.tree};
     if (args.tree.empty()) baked = testing::bakeTree(shot, out / "bake", out, args.threads);
     if (!baked.ok()) return std::fprintf(stderr, "%s\n", baked.status().ToString().c_str()), 1;

@@ -236,8 +236,6 @@ int runBench(const Args& args) {
   std::error_code ec;
   fs::create_directories(out, ec);
   const fs::path cache = args.cache.empty() ? out / "reference" : fs::path(args.cache);
-  const std::map<std::string, std::string> shotFiles = {
-      {"cornell-box", "cornell.shot.toml"}, {"sponza", "sponza.shot.toml"}};
   const std::string csvPath = (out / "cut.csv").string();
   std::FILE* csv = std::fopen(csvPath.c_str(), "w");
   if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
@@ -246,25 +244,11 @@ int runBench(const Args& args) {
   std::vector<Run> runs;
   int rc = 0;
   for (const std::string& name : args.scenes) {
-    const auto file = shotFiles.find(name);
-    if (file == shotFiles.end()) {
-      std::fprintf(stderr, "unknown scene %s (cornell-box, sponza)\n", name.c_str());
-      return 2;
-    }
-    auto shot = loadShotFile((*shared / name / file->second).string());
-    if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+    auto shot = testing::devPbgiShot(*shared, name, args.bakePoints, args.set);
+    if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 2;
     Scene scene;
     scene.name = name;
     scene.shot = *shot;
-    scene.shot.render.integrator = "pbgi";
-    if (args.bakePoints > 0) {
-      testing::setParam(scene.shot.render.params, "bake_points", std::to_string(args.bakePoints));
-    }
-    for (const std::string& line : args.set) {
-      const size_t eq = line.find('=');
-      if (eq == std::string::npos) return std::fprintf(stderr, "--set %s: KEY=VALUE\n", line.c_str()), 2;
-      testing::setParam(scene.shot.render.params, line.substr(0, eq), line.substr(eq + 1));
-    }
     // The reference, square like the runs.
     ShotDesc refShot = scene.shot;
     refShot.width = args.referenceSize;

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <algorithm>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 
@@ -18,7 +19,9 @@
 #include "core/render/image.h"
 #include "core/scene/shot.h"
 #include "formats/image/image_io.h"
+#include "formats/shot/shot_file.h"
 #include "services/render/frame_render.h"
+#include "tests/support/params.h"
 
 namespace pbgi::testing {
 
@@ -135,6 +138,37 @@ inline absl::StatusOr<BakedTree> bakeTree(ShotDesc shot, const std::filesystem::
   return BakedTree{.path = report->tree->treePath,
                    .seconds = stageSeconds(report->stages, baked ? "bake" : "tree"),
                    .baked = baked};
+}
+
+// A dev scene's shot (`shared`/<name>, the Cornell box or Sponza) as the PBGI benchmarks
+// render it: integrator pbgi, `bakePoints` surfels when above 0, then each "KEY=VALUE" of
+// `sets` (a user's --set). InvalidArgument names an unknown scene or a bad setting.
+inline absl::StatusOr<ShotDesc> devPbgiShot(const std::filesystem::path& shared,
+                                            const std::string& name, uint64_t bakePoints,
+                                            const std::vector<std::string>& sets) {
+  static const std::map<std::string, std::string> files = {
+      {"cornell-box", "cornell.shot.toml"}, {"sponza", "sponza.shot.toml"}};
+  const auto file = files.find(name);
+  if (file == files.end()) {
+    return absl::InvalidArgumentError(
+        fmt::format("unknown scene {} (cornell-box, sponza)", name));
+  }
+  absl::StatusOr<ShotDesc> shot = loadShotFile((shared / name / file->second).string());
+  if (!shot.ok()) return shot.status();
+  shot->render.integrator = "pbgi";
+  if (bakePoints > 0) setParam(shot->render.params, "bake_points", std::to_string(bakePoints));
+  for (const std::string& line : sets) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) {
+      return absl::InvalidArgumentError(fmt::format("--set {}: expected KEY=VALUE", line));
+    }
+    if (absl::Status s = setParamText(shot->render.params, line.substr(0, eq),
+                                      line.substr(eq + 1), {"--set"});
+        !s.ok()) {
+      return s;
+    }
+  }
+  return shot;
 }
 
 }  // namespace pbgi::testing

@@ -221,12 +221,19 @@ TEST(Gather, ReceiverOnAFlatSurfaceDoesNotSeeItself) {
   }
 }
 
-TEST(Gather, DeterministicAcrossRunsGatherersAndPageLayouts) {
-  Rng rng(17);
+// A sphere of 8,000 surfels of random colours, in one page and cut into pages at depth 3.
+struct ColouredSphere {
+  std::unique_ptr<MemoryTreeSource> onePage, manyPages;
+};
+ColouredSphere colouredSphere(Rng& rng) {
   std::vector<Surfel> surfels = sphereSurfels(8000, 1.0f, Rgb(0.0f));
   for (Surfel& s : surfels) s.radiance = Rgb(rng.uniform(), rng.uniform(), rng.uniform());
-  auto onePage = treeOf(surfels);
-  auto manyPages = treeOf(surfels, 3);
+  return {treeOf(surfels), treeOf(surfels, 3)};
+}
+
+TEST(Gather, DeterministicAcrossRunsGatherersAndPageLayouts) {
+  Rng rng(17);
+  auto [onePage, manyPages] = colouredSphere(rng);
   ASSERT_GT(manyPages->pageCount(), 8u);
   const Vec3f p(0.2f, -0.3f, 0.1f), n = normalize(Vec3f(1, 2, 3));
   auto a = gatherIrradiance(*onePage, p, n, GatherOptions{}, nullptr);
@@ -245,10 +252,7 @@ TEST(Gather, DeterministicAcrossRunsGatherersAndPageLayouts) {
 // orders a walk's splats otherwise: close, not the same bits.)
 TEST(Gather, TogetherEachReceiverIsItsOwnAndPagesAreShared) {
   Rng rng(23);
-  std::vector<Surfel> surfels = sphereSurfels(8000, 1.0f, Rgb(0.0f));
-  for (Surfel& s : surfels) s.radiance = Rgb(rng.uniform(), rng.uniform(), rng.uniform());
-  auto onePage = treeOf(surfels);
-  auto manyPages = treeOf(surfels, 3);
+  auto [onePage, manyPages] = colouredSphere(rng);
   ASSERT_GT(manyPages->pageCount(), 8u);
   constexpr size_t kReceivers = 40;
   std::vector<Vec3f> positions, normals;
