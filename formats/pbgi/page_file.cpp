@@ -287,29 +287,78 @@ absl::Status PageFileWriter::finish(const PageFileMetadata& m) {
 // ---------------------------------------------------------------------------------------------
 // Reading
 
-PageFileReader::PageFileReader(std::string path, int fd) : path_(std::move(path)), fd_(fd) {}
+namespace {
 
-PageFileReader::~PageFileReader() {
-  if (fd_ >= 0) ::close(fd_);
+class LocalPageFile final : public PageFileStore {
+ public:
+  LocalPageFile(std::string path, int fd, uint64_t size)
+      : path_(std::move(path)), fd_(fd), size_(size) {}
+  ~LocalPageFile() override { ::close(fd_); }
+
+  const std::string& name() const override { return path_; }
+  uint64_t size() const override { return size_; }
+  absl::StatusOr<size_t> read(uint64_t offset, std::span<uint8_t> out) override {
+    absl::StatusOr<size_t> n = preadAll(fd_, out.data(), out.size(), offset);
+    if (!n.ok()) return withContext(n.status(), path_);
+    return n;
+  }
+
+ private:
+  std::string path_;
+  int fd_;
+  uint64_t size_;
+};
+
+}  // namespace
+
+absl::StatusOr<std::vector<uint8_t>> PageFileStore::readPage(uint32_t id, const PageEntry& entry) {
+  std::vector<uint8_t> bytes(entry.compressedSize);
+  absl::StatusOr<size_t> n = read(entry.offset, bytes);
+  if (!n.ok()) return withContext(n.status(), describePage(id, entry));
+  bytes.resize(*n);
+  return bytes;
 }
 
-absl::StatusOr<std::unique_ptr<PageFileReader>> PageFileReader::open(const std::string& path) {
+absl::StatusOr<std::unique_ptr<PageFileStore>> openLocalPageFile(const std::string& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return absl::ErrnoToStatus(errno, fmt::format("{}: cannot open", path));
-  std::unique_ptr<PageFileReader> reader(new PageFileReader(path, fd));
   struct stat st {};
-  if (::fstat(fd, &st) != 0)
-    return absl::ErrnoToStatus(errno, fmt::format("{}: cannot stat", path));
+  if (::fstat(fd, &st) != 0) {
+    const int e = errno;
+    ::close(fd);
+    return absl::ErrnoToStatus(e, fmt::format("{}: cannot stat", path));
+  }
   if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
     return absl::InvalidArgumentError(fmt::format("{}: not a regular file", path));
   }
-  const auto fileSize = static_cast<uint64_t>(st.st_size);
+  return std::make_unique<LocalPageFile>(path, fd, static_cast<uint64_t>(st.st_size));
+}
+
+uint64_t PageFileHead::treeId() const { return pageFileChecksum(header); }
+
+PageFileReader::PageFileReader(std::unique_ptr<PageFileStore> store) : store_(std::move(store)) {}
+
+PageFileReader::~PageFileReader() = default;
+
+absl::StatusOr<std::unique_ptr<PageFileReader>> PageFileReader::open(const std::string& path) {
+  absl::StatusOr<std::unique_ptr<PageFileStore>> store = openLocalPageFile(path);
+  if (!store.ok()) return store.status();
+  return open(*std::move(store));
+}
+
+absl::StatusOr<std::unique_ptr<PageFileReader>> PageFileReader::open(
+    std::unique_ptr<PageFileStore> store) {
+  std::unique_ptr<PageFileReader> reader(new PageFileReader(std::move(store)));
+  PageFileStore& in = *reader->store_;
+  const std::string& path = in.name();
+  const uint64_t fileSize = in.size();
 
   // Reads a region whose size the header has already checked against the file size.
   auto readRegion = [&](uint64_t offset, uint64_t size) -> absl::StatusOr<std::vector<uint8_t>> {
     std::vector<uint8_t> bytes(size);
-    absl::StatusOr<size_t> n = preadAll(fd, bytes.data(), bytes.size(), offset);
-    if (!n.ok()) return withContext(n.status(), path);
+    absl::StatusOr<size_t> n = in.read(offset, bytes);
+    if (!n.ok()) return n.status();
     bytes.resize(*n);
     reader->bytesRead_ += *n;
     return bytes;
@@ -347,29 +396,46 @@ absl::StatusOr<std::unique_ptr<PageFileReader>> PageFileReader::open(const std::
       decodePageFileSections(*sectionBytes, *header);
   if (!sections.ok()) return withContext(sections.status(), path);
 
+  // The regions follow each other (page_file.h): the tail is the directory, then the sections.
+  reader->head_.header = std::move(*headerBytes);
+  reader->head_.tailOffset = header->directoryOffset;
+  reader->head_.tail = std::move(*directoryBytes);
+  reader->head_.tail.insert(reader->head_.tail.end(), sectionBytes->begin(), sectionBytes->end());
+  reader->head_.fileSize = fileSize;
   reader->info_ = std::move(header->info);
   reader->info_.sections = std::move(*sections);
   reader->directory_ = std::move(*directory);
   return reader;
 }
 
-absl::StatusOr<std::vector<uint8_t>> PageFileReader::readPage(uint32_t id) const {
+absl::StatusOr<std::vector<uint8_t>> PageFileReader::storedPage(uint32_t id) const {
   if (id >= directory_.size()) {
     return absl::OutOfRangeError(fmt::format("{}: page {} does not exist; the file has {} pages",
-                                             path_, id, directory_.size()));
+                                             path(), id, directory_.size()));
   }
-  const PageEntry& entry = directory_[id];
-  std::vector<uint8_t> compressed(entry.compressedSize);
-  absl::StatusOr<size_t> n = preadAll(fd_, compressed.data(), compressed.size(), entry.offset);
-  if (!n.ok()) {
-    return withContext(n.status(), fmt::format("{}: {}", path_, describePage(id, entry)));
-  }
-  bytesRead_.fetch_add(*n, std::memory_order_relaxed);
+  absl::StatusOr<std::vector<uint8_t>> bytes = store_->readPage(id, directory_[id]);
+  if (!bytes.ok()) return bytes.status();
+  bytesRead_.fetch_add(bytes->size(), std::memory_order_relaxed);
   pagesRead_.fetch_add(1, std::memory_order_relaxed);
+  return bytes;
+}
+
+absl::StatusOr<std::vector<uint8_t>> PageFileReader::readPage(uint32_t id) const {
+  absl::StatusOr<std::vector<uint8_t>> compressed = storedPage(id);
+  if (!compressed.ok()) return compressed.status();
   absl::StatusOr<std::vector<uint8_t>> page =
-      decodePage(id, entry, std::span<const uint8_t>(compressed).first(*n), info_.pageSize);
-  if (!page.ok()) return withContext(page.status(), path_);
+      decodePage(id, directory_[id], *compressed, info_.pageSize);
+  if (!page.ok()) return withContext(page.status(), path());
   return page;
+}
+
+absl::StatusOr<std::vector<uint8_t>> PageFileReader::readStoredPage(uint32_t id) const {
+  absl::StatusOr<std::vector<uint8_t>> compressed = storedPage(id);
+  if (!compressed.ok()) return compressed.status();
+  if (absl::Status s = checkStoredPage(id, directory_[id], *compressed); !s.ok()) {
+    return withContext(s, path());
+  }
+  return compressed;
 }
 
 absl::Status PageFileReader::verifyAll() const {

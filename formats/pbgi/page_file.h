@@ -164,6 +164,9 @@ absl::StatusOr<std::vector<PageEntry>> decodePageDirectory(std::span<const uint8
 // `bytes` are the header.sectionsSize bytes at header.sectionsOffset.
 absl::StatusOr<std::vector<PageFileSection>> decodePageFileSections(std::span<const uint8_t> bytes,
                                                                     const PageFileHeader& header);
+// Checks stored page bytes against their directory entry: size and checksum (DataLoss).
+absl::Status checkStoredPage(uint32_t id, const PageEntry& entry,
+                             std::span<const uint8_t> compressed);
 // Checks `compressed` (the bytes at entry.offset) against the entry and decompresses it.
 absl::StatusOr<std::vector<uint8_t>> decodePage(uint32_t id, const PageEntry& entry,
                                                 std::span<const uint8_t> compressed,
@@ -206,12 +209,47 @@ class PageFileWriter {
   std::unique_ptr<State> state_;
 };
 
+// Where a reader's bytes come from: a local file (pread), or a copy of a file on another
+// machine (remote_page_file.h: its header, directory and sections held in memory, its pages
+// fetched on demand). Thread-safe.
+class PageFileStore {
+ public:
+  virtual ~PageFileStore() = default;
+  // For messages: a path, or which tree from where.
+  virtual const std::string& name() const = 0;
+  virtual uint64_t size() const = 0;
+  // Reads up to out.size() bytes at `offset`; returns how many (fewer only at the end).
+  virtual absl::StatusOr<size_t> read(uint64_t offset, std::span<uint8_t> out) = 0;
+  // The stored (compressed) bytes of page `id`, placed by its directory entry; the reader
+  // checks them. This reads them with read(); a remote store fetches them.
+  virtual absl::StatusOr<std::vector<uint8_t>> readPage(uint32_t id, const PageEntry& entry);
+};
+
+// A local file, read with pread.
+absl::StatusOr<std::unique_ptr<PageFileStore>> openLocalPageFile(const std::string& path);
+
+// The bytes of a file that are not pages: its header, and its tail (directory and sections).
+// What a remote reader needs before it asks for its first page.
+struct PageFileHead {
+  std::vector<uint8_t> header;
+  uint64_t tailOffset = 0;  // the directory's offset
+  std::vector<uint8_t> tail;
+  uint64_t fileSize = 0;
+
+  // The file's identity: the header's checksum, which covers the directory's (so every
+  // page's) and the sections' checksums.
+  uint64_t treeId() const;
+  uint64_t bytes() const { return header.size() + tail.size(); }
+};
+
 // Random access to the pages of a .pbgi file by id. open() validates the header, the
 // directory and the sections; every page is validated when it is read. Thread-safe: pages
 // are read with pread and nothing is cached here (the page cache is above this layer).
 class PageFileReader {
  public:
   static absl::StatusOr<std::unique_ptr<PageFileReader>> open(const std::string& path);
+  static absl::StatusOr<std::unique_ptr<PageFileReader>> open(
+      std::unique_ptr<PageFileStore> store);
 
   PageFileReader(const PageFileReader&) = delete;
   PageFileReader& operator=(const PageFileReader&) = delete;
@@ -219,10 +257,17 @@ class PageFileReader {
 
   const PageFileInfo& info() const { return info_; }
   const std::vector<PageEntry>& directory() const { return directory_; }
-  const std::string& path() const { return path_; }
+  // The store's name: the file's path, for a local file.
+  const std::string& path() const { return store_->name(); }
+  PageFileStore& store() const { return *store_; }
 
   // The uncompressed bytes of page `id`, after checking its size and checksum.
   absl::StatusOr<std::vector<uint8_t>> readPage(uint32_t id) const;
+  // The stored bytes of page `id`, checked against its directory entry (what a page service
+  // sends).
+  absl::StatusOr<std::vector<uint8_t>> readStoredPage(uint32_t id) const;
+  // The header and tail bytes as they are in the file (what a page service sends first).
+  const PageFileHead& head() const { return head_; }
 
   // Reads and checks every page. The error names the first damaged page and counts them all.
   absl::Status verifyAll() const;
@@ -233,10 +278,11 @@ class PageFileReader {
   uint64_t pagesRead() const { return pagesRead_.load(std::memory_order_relaxed); }
 
  private:
-  PageFileReader(std::string path, int fd);
+  explicit PageFileReader(std::unique_ptr<PageFileStore> store);
+  absl::StatusOr<std::vector<uint8_t>> storedPage(uint32_t id) const;
 
-  std::string path_;
-  int fd_ = -1;
+  std::unique_ptr<PageFileStore> store_;
+  PageFileHead head_;
   PageFileInfo info_;
   std::vector<PageEntry> directory_;
   mutable std::atomic<uint64_t> bytesRead_{0};

@@ -312,6 +312,21 @@ absl::StatusOr<std::vector<PageFileSection>> decodePageFileSections(std::span<co
   return sections;
 }
 
+absl::Status checkStoredPage(uint32_t id, const PageEntry& entry,
+                             std::span<const uint8_t> compressed) {
+  if (compressed.size() != entry.compressedSize) {
+    return absl::DataLossError(fmt::format("{}: {} bytes could be read: truncated",
+                                           describePage(id, entry), compressed.size()));
+  }
+  const uint64_t checksum = pageFileChecksum(compressed);
+  if (checksum != entry.checksum) {
+    return absl::DataLossError(
+        fmt::format("{}: checksum mismatch: the bytes hash to {}, the directory records {}",
+                    describePage(id, entry), hex(checksum), hex(entry.checksum)));
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::vector<uint8_t>> decodePage(uint32_t id, const PageEntry& entry,
                                                 std::span<const uint8_t> compressed,
                                                 uint32_t pageSize) {
@@ -320,16 +335,7 @@ absl::StatusOr<std::vector<uint8_t>> decodePage(uint32_t id, const PageEntry& en
         fmt::format("page {}: page size {}; expected {}", id, pageSize, pageSizeRule()));
   }
   const std::string what = describePage(id, entry);
-  if (compressed.size() != entry.compressedSize) {
-    return absl::DataLossError(
-        fmt::format("{}: {} bytes could be read: truncated", what, compressed.size()));
-  }
-  const uint64_t checksum = pageFileChecksum(compressed);
-  if (checksum != entry.checksum) {
-    return absl::DataLossError(
-        fmt::format("{}: checksum mismatch: the bytes hash to {}, the directory records {}", what,
-                    hex(checksum), hex(entry.checksum)));
-  }
+  if (absl::Status s = checkStoredPage(id, entry, compressed); !s.ok()) return s;
   if (entry.uncompressedSize > pageSize) {
     return absl::DataLossError(
         fmt::format("{}: claims {} uncompressed bytes, more than the page size {}", what,

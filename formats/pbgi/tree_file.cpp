@@ -141,10 +141,17 @@ absl::StatusOr<TreeWriteResult> TreeFileWriter::finish() {
 // ---- Reading -----------------------------------------------------------------------------
 
 absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(const std::string& path) {
-  auto reader = PageFileReader::open(path);
+  auto store = openLocalPageFile(path);
+  if (!store.ok()) return store.status();
+  return open(*std::move(store));
+}
+
+absl::StatusOr<std::unique_ptr<TreeFile>> TreeFile::open(std::unique_ptr<PageFileStore> store) {
+  auto reader = PageFileReader::open(std::move(store));
   if (!reader.ok()) return reader.status();
   auto file = std::unique_ptr<TreeFile>(new TreeFile());
   file->reader_ = std::move(*reader);
+  const std::string& path = file->reader_->path();
   const PageFileInfo& info = file->reader_->info();
   auto sectionText = [&](std::string_view name) -> absl::StatusOr<std::string_view> {
     const PageFileSection* s = info.findSection(name);

@@ -70,6 +70,8 @@ struct TreeFileDescription {
 class TreeFile : public TreePageSource {
  public:
   static absl::StatusOr<std::unique_ptr<TreeFile>> open(const std::string& path);
+  // A tree whose bytes come from elsewhere (remote_page_file.h).
+  static absl::StatusOr<std::unique_ptr<TreeFile>> open(std::unique_ptr<PageFileStore> store);
 
   NodeRef root() const override { return root_; }
   // Errors name the file and the page.
