@@ -11,6 +11,8 @@
 #include <thread>
 #include <unordered_map>
 
+#include <sys/stat.h>
+
 #include <fmt/format.h>
 #include <google/protobuf/util/json_util.h>
 #include <grpcpp/grpcpp.h>
@@ -19,6 +21,7 @@
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/pbgi/page_file.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_job.h"
@@ -89,8 +92,10 @@ struct CoordinatorMetrics {
   std::atomic<uint64_t> staleCompletions{0};
   std::atomic<uint64_t> cacheHits{0};
   std::atomic<uint64_t> cacheMisses{0};
-  std::atomic<uint64_t> treesStreamed{0};
   std::atomic<uint64_t> treeBytesStreamed{0};
+  std::atomic<uint64_t> treesOpened{0};
+  std::atomic<uint64_t> pagesServed{0};
+  std::atomic<uint64_t> pageBytesServed{0};
   std::map<std::string, Histogram> durations;  // by task kind; under mutex
 };
 
@@ -118,6 +123,17 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
   };
   std::mutex jobsMutex;
   std::unordered_map<int64_t, std::shared_ptr<const JobView>> jobs;
+
+  // Trees the page service has open, oldest first: a file is known by path, inode and
+  // modification time, so a frame baked again is opened again.
+  struct OpenTreeKey {
+    std::string path;
+    uint64_t inode = 0;
+    int64_t mtimeNs = 0;
+    bool operator==(const OpenTreeKey&) const = default;
+  };
+  std::mutex treesMutex;
+  std::vector<std::pair<OpenTreeKey, std::shared_ptr<const PageFileReader>>> openTrees;
 
   // ---- helpers ----
 
@@ -421,10 +437,7 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     if (!done.ok()) return toGrpc(done.status());
     metrics.cacheHits.fetch_add(request->cache_hits());
     metrics.cacheMisses.fetch_add(request->cache_misses());
-    if (request->tree_bytes_streamed() > 0) {
-      metrics.treesStreamed.fetch_add(1);
-      metrics.treeBytesStreamed.fetch_add(request->tree_bytes_streamed());
-    }
+    metrics.treeBytesStreamed.fetch_add(request->tree_bytes_streamed());
     {
       std::lock_guard lock(metrics.mutex);
       metrics.durations[toString(done->kind)].add(request->seconds());
@@ -444,42 +457,83 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     return grpc::Status::OK;
   }
 
+  // The frame's tree, opened (its head read and checked) once and kept while its file is the
+  // same one: a worker asks for a page at a time.
+  absl::StatusOr<std::shared_ptr<const PageFileReader>> openTree(int64_t job, int frame) {
+    PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, jobView(job));
+    PBGI_ASSIGN_OR_RETURN(const std::string path,
+                          jobTreePath(view->shot, workDir(job), frame));
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) {
+      return absl::NotFoundError(fmt::format(
+          "job {} frame {}: no tree at {} (has the frame's bake run?)", job, frame, path));
+    }
+    const OpenTreeKey key{path, static_cast<uint64_t>(st.st_ino),
+                          static_cast<int64_t>(st.st_mtim.tv_sec) * 1000000000 +
+                              st.st_mtim.tv_nsec};
+    {
+      std::lock_guard lock(treesMutex);
+      for (const auto& [k, reader] : openTrees) {
+        if (k == key) return reader;
+      }
+    }
+    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageFileReader> opened, PageFileReader::open(path));
+    std::shared_ptr<const PageFileReader> reader = std::move(opened);
+    std::lock_guard lock(treesMutex);
+    std::erase_if(openTrees, [&](const auto& t) { return t.first.path == path; });
+    openTrees.emplace_back(key, reader);
+    constexpr size_t kOpenTrees = 16;  // each holds its head and a descriptor
+    if (openTrees.size() > kOpenTrees) openTrees.erase(openTrees.begin());
+    return reader;
+  }
+
+  grpc::Status OpenTree(grpc::ServerContext* context, const v1::OpenTreeRequest* request,
+                        v1::OpenTreeResponse* response) override {
+    if (!authorized(context)) return refusedStatus();
+    auto tree = openTree(request->job(), request->frame());
+    if (!tree.ok()) return toGrpc(tree.status());
+    const PageFileHead& head = (*tree)->head();
+    response->set_header(head.header.data(), head.header.size());
+    response->set_tail_offset(head.tailOffset);
+    response->set_tail(head.tail.data(), head.tail.size());
+    response->set_file_size(head.fileSize);
+    metrics.treesOpened.fetch_add(1);
+    metrics.pageBytesServed.fetch_add(head.bytes());
+    return grpc::Status::OK;
+  }
+
   grpc::Status FetchPages(grpc::ServerContext* context, const v1::FetchPagesRequest* request,
                           grpc::ServerWriter<v1::PageChunk>* writer) override {
     if (!authorized(context)) return refusedStatus();
-    if (request->pages_size() > 0) {
-      return grpc::Status(grpc::StatusCode::UNIMPLEMENTED,
-                          "FetchPages serves whole trees only: leave pages empty");
+    if (request->pages_size() == 0) {
+      return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                          "FetchPages: name the pages (whole trees are not served)");
     }
-    auto view = jobView(request->job());
-    if (!view.ok()) return toGrpc(view.status());
-    auto tree = jobTreePath((*view)->shot, workDir(request->job()), request->frame());
+    auto tree = openTree(request->job(), request->frame());
     if (!tree.ok()) return toGrpc(tree.status());
-    const std::string& path = *tree;
-    std::FILE* in = std::fopen(path.c_str(), "rb");
-    if (in == nullptr) {
-      return grpc::Status(grpc::StatusCode::NOT_FOUND,
-                          fmt::format("job {} frame {}: no tree at {} (has the frame's bake run?)",
-                                      request->job(), request->frame(), path));
+    const PageFileReader& reader = **tree;
+    if (reader.head().treeId() != request->tree_id()) {
+      return grpc::Status(
+          grpc::StatusCode::FAILED_PRECONDITION,
+          fmt::format("job {} frame {}: the tree is {:016x} now, not {:016x} (baked again); open "
+                      "it again",
+                      request->job(), request->frame(), reader.head().treeId(),
+                      request->tree_id()));
     }
-    constexpr size_t kChunk = 1 << 20;
-    std::string buffer(kChunk, '\0');
-    uint64_t offset = 0;
     v1::PageChunk chunk;
-    for (;;) {
-      const size_t n = std::fread(buffer.data(), 1, kChunk, in);
-      if (n == 0) break;
-      chunk.set_page(0xffffffffu);
-      chunk.set_offset(offset);
-      chunk.set_data(buffer.data(), n);
+    for (const uint32_t id : request->pages()) {
+      // Checked here too: a page damaged on this disk is named as such, not as the network's.
+      auto bytes = reader.readStoredPage(id);
+      if (!bytes.ok()) {
+        return toGrpc(withContext(bytes.status(), fmt::format("page service of job {} frame {}",
+                                                              request->job(), request->frame())));
+      }
+      chunk.set_page(id);
+      chunk.set_offset(reader.directory()[id].offset);
+      chunk.set_data(bytes->data(), bytes->size());
       if (!writer->Write(chunk)) break;  // the worker went away
-      offset += n;
-    }
-    const bool readError = std::ferror(in) != 0;
-    std::fclose(in);
-    if (readError) {
-      return grpc::Status(grpc::StatusCode::DATA_LOSS,
-                          fmt::format("{}: read failed at byte {}", path, offset));
+      metrics.pagesServed.fetch_add(1);
+      metrics.pageBytesServed.fetch_add(bytes->size());
     }
     return grpc::Status::OK;
   }
@@ -546,9 +600,15 @@ std::string Coordinator::Impl::metricsText() {
           metrics.cacheHits.load());
   counter("pbgi_page_cache_misses_total", "Tree page cache misses reported with completed tasks.",
           metrics.cacheMisses.load());
-  counter("pbgi_trees_streamed_total", "Trees workers fetched from the page service.",
-          metrics.treesStreamed.load());
-  counter("pbgi_tree_bytes_streamed_total", "Bytes of trees workers fetched from the page service.",
+  counter("pbgi_trees_opened_total", "Trees workers opened through the page service.",
+          metrics.treesOpened.load());
+  counter("pbgi_tree_pages_served_total", "Tree pages the page service sent.",
+          metrics.pagesServed.load());
+  counter("pbgi_tree_bytes_served_total",
+          "Bytes the page service sent: pages, and the heads of the trees opened.",
+          metrics.pageBytesServed.load());
+  counter("pbgi_tree_bytes_streamed_total",
+          "Bytes of trees fetched from the page service, as completed tasks reported them.",
           metrics.treeBytesStreamed.load());
   const uint64_t hits = metrics.cacheHits.load();
   const uint64_t misses = metrics.cacheMisses.load();

@@ -60,8 +60,9 @@ FarmClient::FarmClient(const std::string& address, std::string token, double dea
   impl_->token = std::move(token);
   impl_->deadlineSeconds = deadlineSeconds;
   grpc::ChannelArguments args;
-  // Tree streams are chunked well below this; status of a large job is not.
-  args.SetMaxReceiveMessageSize(64 << 20);
+  // A tree's head holds its codebooks (sections of at most 256 MiB); a page is at most
+  // 16 MiB; status of a large job is large too.
+  args.SetMaxReceiveMessageSize(320 << 20);
   // A coordinator restarting on its port is found again within a second or two.
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 200);
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 2000);
@@ -95,56 +96,55 @@ PBGI_FARM_CALL(failTask, FailTask)
 
 #undef PBGI_FARM_CALL
 
-absl::StatusOr<uint64_t> FarmClient::fetchTree(int64_t job, int frame, const std::string& outPath) {
-  namespace fs = std::filesystem;
-  std::error_code ec;
-  fs::create_directories(fs::path(outPath).parent_path(), ec);
-  const std::string temp = fmt::format("{}.part{}", outPath, static_cast<long>(::getpid()));
-  std::FILE* out = std::fopen(temp.c_str(), "wb");
-  if (out == nullptr) {
-    return absl::PermissionDeniedError(
-        fmt::format("{}: cannot write the streamed tree", temp));
-  }
+absl::StatusOr<PageFileHead> FarmClient::openTree(int64_t job, int frame) {
   grpc::ClientContext context;
   impl_->prepare(context);
-  // A tree takes longer than one call: the deadline covers the whole stream, at 10 MB/s.
-  context.set_deadline(std::chrono::system_clock::now() + std::chrono::minutes(30));
+  v1::OpenTreeRequest request;
+  request.set_job(job);
+  request.set_frame(frame);
+  v1::OpenTreeResponse response;
+  const grpc::Status s = impl_->stub->OpenTree(&context, request, &response);
+  if (!s.ok()) return fromGrpc(s, address_, "OpenTree");
+  PageFileHead head;
+  head.header.assign(response.header().begin(), response.header().end());
+  head.tailOffset = response.tail_offset();
+  head.tail.assign(response.tail().begin(), response.tail().end());
+  head.fileSize = response.file_size();
+  return head;
+}
+
+absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(
+    int64_t job, int frame, uint64_t treeId, std::span<const uint32_t> pages) {
+  grpc::ClientContext context;
+  impl_->prepare(context);
   v1::FetchPagesRequest request;
   request.set_job(job);
   request.set_frame(frame);
+  request.set_tree_id(treeId);
+  for (const uint32_t id : pages) request.add_pages(id);
   auto reader = impl_->stub->FetchPages(&context, request);
+  std::vector<std::vector<uint8_t>> out;
   v1::PageChunk chunk;
-  uint64_t received = 0;
   absl::Status failed;
   while (reader->Read(&chunk)) {
-    if (chunk.offset() != received) {
+    if (out.size() >= pages.size() || chunk.page() != pages[out.size()]) {
       failed = absl::DataLossError(fmt::format(
-          "tree of job {} frame {} from {}: chunk at byte {} where {} was expected", job, frame,
-          address_, chunk.offset(), received));
+          "tree of job {} frame {} from {}: page {} arrived where page {} was expected", job,
+          frame, address_, chunk.page(),
+          out.size() < pages.size() ? fmt::format("{}", pages[out.size()]) : "none"));
       context.TryCancel();
       break;
     }
-    if (std::fwrite(chunk.data().data(), 1, chunk.data().size(), out) != chunk.data().size()) {
-      failed = absl::ResourceExhaustedError(fmt::format("{}: write failed (disk full?)", temp));
-      context.TryCancel();
-      break;
-    }
-    received += chunk.data().size();
+    out.emplace_back(chunk.data().begin(), chunk.data().end());
   }
   const grpc::Status finished = reader->Finish();
-  const bool closed = std::fclose(out) == 0;
   if (failed.ok() && !finished.ok()) failed = fromGrpc(finished, address_, "FetchPages");
-  if (failed.ok() && !closed) failed = absl::ResourceExhaustedError(fmt::format("{}: write failed", temp));
-  if (!failed.ok()) {
-    fs::remove(temp, ec);
-    return failed;
+  if (failed.ok() && out.size() != pages.size()) {
+    failed = absl::DataLossError(fmt::format("tree of job {} frame {} from {}: {} of {} pages arrived",
+                                             job, frame, address_, out.size(), pages.size()));
   }
-  fs::rename(temp, outPath, ec);
-  if (ec) {
-    fs::remove(temp, ec);
-    return absl::InternalError(fmt::format("{}: cannot rename into place: {}", outPath, ec.message()));
-  }
-  return received;
+  if (!failed.ok()) return failed;
+  return out;
 }
 
 }  // namespace pbgi::farm

@@ -9,6 +9,10 @@
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
 
+#include <span>
+#include <vector>
+
+#include "formats/pbgi/page_file.h"
 #include "pbgi/farm/v1/farm.pb.h"
 
 namespace pbgi::farm {
@@ -41,9 +45,13 @@ class FarmClient {
   absl::StatusOr<v1::CompleteTaskResponse> completeTask(const v1::CompleteTaskRequest& request);
   absl::StatusOr<v1::FailTaskResponse> failTask(const v1::FailTaskRequest& request);
 
-  // Streams a frame's tree from the coordinator's page service into `outPath` (written to a
-  // temporary beside it, then renamed). Returns the bytes received.
-  absl::StatusOr<uint64_t> fetchTree(int64_t job, int frame, const std::string& outPath);
+  // The coordinator's page service: the head of a frame's tree (header, directory, sections),
+  // then the stored bytes of single pages of it, in the order asked. Pages are not checked
+  // here (remote_page_file.h does that).
+  absl::StatusOr<PageFileHead> openTree(int64_t job, int frame);
+  absl::StatusOr<std::vector<std::vector<uint8_t>>> fetchPages(int64_t job, int frame,
+                                                               uint64_t treeId,
+                                                               std::span<const uint32_t> pages);
 
  private:
   struct Impl;

@@ -34,6 +34,11 @@ absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
                                                     const RenderSettings& settings,
                                                     const FrameRenderRequest& request,
                                                     const Scene& scene, TreeReadReport* report) {
+  if (request.openTree) {
+    auto opened = request.openTree();
+    if (opened.ok()) report->treePath = (*opened)->container().path();
+    return opened;
+  }
   if (!request.treePath.empty()) {
     report->treePath = request.treePath;
     return TreeFile::open(request.treePath);
@@ -147,6 +152,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
     report.tree->cache = cache->counters();
     report.tree->pagesRead = cache->distinctPagesLoaded();
     report.tree->pagesInFile = treeFile->container().directory().size();
+    report.tree->fileBytes = treeFile->container().info().fileSize;
   }
   if (!request.regions.empty()) {
     PBGI_ASSIGN_OR_RETURN(image, cropRegions(*image, request.regions));

@@ -3,6 +3,7 @@
 // `pbgi render` and, later, the farm's workers share this.
 
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -12,6 +13,7 @@
 #include "core/pbgi/page_cache.h"
 #include "core/render/renderer.h"
 #include "core/scene/shot.h"
+#include "formats/pbgi/tree_file.h"
 #include "formats/scene/frame_scene.h"
 #include "services/util/stage_time.h"
 
@@ -36,6 +38,8 @@ struct FrameRenderRequest {
   IntegratorParams params;
   size_t cacheBytes = 0;       // page cache budget; 0: the integrator's cache_mb
   std::string treePath;        // render from this tree; empty: the frame's bake (below)
+  // Or from the tree this opens (a worker's remote tree); takes precedence over treePath.
+  std::function<absl::StatusOr<std::unique_ptr<TreeFile>>()> openTree;
   std::string bakeDir;         // the frame's bake lives here; empty: beside the image
   bool rebake = false;         // bake even when a matching bake is on disk
   std::function<void(const std::string& stage, uint64_t done, uint64_t total)> bakeProgress;
@@ -53,6 +57,7 @@ struct TreeReadReport {
   PageCacheCounters cache;
   uint64_t pagesRead = 0;      // distinct pages the render loaded
   uint64_t pagesInFile = 0;
+  uint64_t fileBytes = 0;
   std::string gather;          // the integrator's description: its gather and thresholds
 };
 

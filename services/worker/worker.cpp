@@ -17,6 +17,8 @@
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/pbgi/remote_page_file.h"
+#include "formats/pbgi/tree_file.h"
 #include "formats/scene/frame_scene.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_client.h"
@@ -188,6 +190,39 @@ class Heartbeat {
   std::thread thread_;
 };
 
+// A frame's tree at the coordinator's page service, a page at a time. A coordinator that does
+// not answer (restarting) is waited for, as a task's result is.
+class FarmPageFetcher final : public PageFetcher {
+ public:
+  FarmPageFetcher(FarmClient& client, int64_t job, int frame)
+      : client_(client),
+        job_(job),
+        frame_(frame),
+        name_(fmt::format("tree of job {} frame {} from {}", job, frame, client.address())) {}
+
+  const std::string& name() const override { return name_; }
+  absl::StatusOr<PageFileHead> head() override {
+    auto head = callPatiently([&] { return client_.openTree(job_, frame_); }, kPatience,
+                              "OpenTree");
+    if (!head.ok()) return withContext(head.status(), name_);
+    return head;
+  }
+  absl::StatusOr<std::vector<uint8_t>> page(uint64_t treeId, uint32_t id) override {
+    const uint32_t ids[1] = {id};
+    auto pages = callPatiently([&] { return client_.fetchPages(job_, frame_, treeId, ids); },
+                               kPatience, "FetchPages");
+    if (!pages.ok()) return withContext(pages.status(), fmt::format("{}: page {}", name_, id));
+    return std::move(pages->front());
+  }
+
+ private:
+  static constexpr double kPatience = 60.0;
+  FarmClient& client_;
+  int64_t job_;
+  int frame_;
+  std::string name_;
+};
+
 struct TaskResult {
   std::string log;
   uint64_t cacheHits = 0;
@@ -227,12 +262,25 @@ class Worker {
   void report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
               double seconds);
 
+  // The disk cache of streamed pages, opened at the first tile that streams.
+  absl::StatusOr<std::shared_ptr<PageDiskCache>> pageDisk();
+
   const WorkerOptions& options_;
   const std::string id_;
   FarmClient client_;
   std::string cacheDir_;
   SceneKeeper scenes_;
+  std::shared_ptr<PageDiskCache> pageDisk_;
 };
+
+absl::StatusOr<std::shared_ptr<PageDiskCache>> Worker::pageDisk() {
+  if (!pageDisk_) {
+    PBGI_ASSIGN_OR_RETURN(pageDisk_,
+                          PageDiskCache::open((fs::path(cacheDir_) / "pages").string(),
+                                              options_.diskCacheBytes));
+  }
+  return pageDisk_;
+}
 
 absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
                                         Heartbeat& beat) {
@@ -281,8 +329,10 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     if (total > 0) beat.progress(double(done) / double(total));
   };
   TaskResult result;
+  std::shared_ptr<RemoteFetchStats> streamed;
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
   if (integrator->needsTree) {
+    streamed = std::make_shared<RemoteFetchStats>();
     // The bake task made the tree; a tile never bakes one of its own.
     PBGI_ASSIGN_OR_RETURN(const std::string shared,
                           jobTreePath(shot, task.work_dir(), task.frame()));
@@ -295,16 +345,14 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     }
     if (options_.treeSource == TreeSource::kStream ||
         (options_.treeSource == TreeSource::kAuto && !visible)) {
-      const std::string local = (fs::path(cacheDir_) / fmt::format("job{}", task.job()) /
-                                 fmt::format("frame.{:04d}.pbgi", task.frame()))
-                                    .string();
-      if (!fs::exists(local)) {
-        PBGI_ASSIGN_OR_RETURN(result.treeBytesStreamed,
-                              client_.fetchTree(task.job(), task.frame(), local));
-        result.log += fmt::format("streamed the tree from {}: {} bytes into {}\n",
-                                  client_.address(), result.treeBytesStreamed, local);
-      }
-      request.treePath = local;
+      // Single pages as the traversals reach them, through this worker's disk cache.
+      PBGI_ASSIGN_OR_RETURN(std::shared_ptr<PageDiskCache> disk, pageDisk());
+      auto fetcher = std::make_shared<FarmPageFetcher>(client_, task.job(), task.frame());
+      PBGI_ASSIGN_OR_RETURN(PageFileHead head, fetcher->head());
+      request.openTree = [fetcher, disk, stats = streamed,
+                          head = std::move(head)]() -> absl::StatusOr<std::unique_ptr<TreeFile>> {
+        return TreeFile::open(openRemotePageFile(head, fetcher, disk, stats));
+      };
     } else {
       request.treePath = shared;
     }
@@ -321,6 +369,16 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     result.log += fmt::format("tree {}; cache {}; pages read {} of {}\n", report.tree->treePath,
                               report.tree->cache.toString(), report.tree->pagesRead,
                               report.tree->pagesInFile);
+  }
+  if (request.openTree) {
+    // What the tile cost the network, against the file.
+    const uint64_t fileBytes = report.tree ? report.tree->fileBytes : 0;
+    result.treeBytesStreamed = streamed->headBytes + streamed->bytesFetched;
+    result.log += fmt::format(
+        "pages over the network {} ({} bytes) and the head ({} bytes): {} of the file's {} "
+        "bytes; pages from the disk cache {}; damaged on the way and fetched again {}\n",
+        streamed->pagesFetched.load(), streamed->bytesFetched.load(), streamed->headBytes.load(),
+        result.treeBytesStreamed, fileBytes, streamed->diskHits.load(), streamed->damaged.load());
   }
   result.log += fmt::format("samples {}, discarded (NaN/Inf) {}\n", report.counters.cameraSamples,
                             report.counters.discardedSamples);
@@ -418,7 +476,7 @@ int Worker::run(const std::atomic<bool>& stop) {
     log::warn("worker={}: {}; trying again", id_, answer.status().message());
     sleepUnlessStopped(wait, stop);
   }
-  log::info("worker={} registered with {} (tree source {}, cache {})", id_, options_.coordinator,
+  log::info("worker={} registered with {} (tree source {}, disk cache {})", id_, options_.coordinator,
             options_.treeSource == TreeSource::kAuto     ? "auto"
             : options_.treeSource == TreeSource::kShared ? "shared"
                                                          : "stream",

@@ -5,8 +5,10 @@
 //   tile      renders one farm tile of the frame to its EXR (written to a temporary, renamed);
 //   assemble  checks every tile of the frame is there and writes the frame's EXR and preview.
 // A worker keeps the scenes it loaded for later tasks of the same frame (a bake, then its
-// tiles), within a memory budget. Tiles read the frame's tree from the shared job folder when this machine can see it, and
-// otherwise stream it from the coordinator's page service into a local disk cache. While a
+// tiles), within a memory budget. Tiles read the frame's tree from the shared job folder when
+// this machine can see it, and otherwise fetch single pages of it from the coordinator's page
+// service as their traversals reach them, each checked, through a bounded disk cache (of
+// stored pages, kept between tasks and across restarts). While a
 // task runs, a heartbeat thread extends its lease and reports progress. A coordinator that
 // does not answer is waited for: the task's result is reported when it is back.
 #include <atomic>
@@ -27,7 +29,8 @@ struct WorkerOptions {
   std::string id;            // empty: <host>:<pid>
   int threads = 0;           // 0: all cores
   size_t cacheBytes = 0;     // tree page cache budget; 0: the shot's cache_mb
-  std::string cacheDir;      // streamed trees; empty: <temp>/pbgi-worker-<id>
+  std::string cacheDir;      // streamed pages; empty: <temp>/pbgi-worker-<id>
+  size_t diskCacheBytes = size_t{4} << 30;  // budget of the streamed pages kept on disk
   TreeSource treeSource = TreeSource::kAuto;
   // Scenes (meshes, BVH, textures) kept between tasks, least recently used out first; each
   // scene counted at the resident memory its loading took.

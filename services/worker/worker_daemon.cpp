@@ -32,8 +32,13 @@ int workerDaemonMain(int argc, char** argv) {
                  "Memory for the scenes kept between tasks, in MiB (0: keep none)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  int diskCacheMb = 4096;
   app.add_option("--cache-dir", o.cacheDir,
-                 "Local disk cache of streamed trees (default: <temp>/pbgi-worker-<id>)");
+                 "Local disk cache of streamed tree pages (default: <temp>/pbgi-worker-<id>)");
+  app.add_option("--disk-cache-mb", diskCacheMb,
+                 "Disk the streamed pages may take in --cache-dir, in MiB (0: keep none)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--tree-source", o.treeSource,
                  "auto: the shared job folder when visible, else stream; shared; stream")
       ->transform(CLI::CheckedTransformer(
@@ -57,6 +62,7 @@ int workerDaemonMain(int argc, char** argv) {
   log::setLevel(log::Level::kInfo);
   o.cacheBytes = static_cast<size_t>(cacheMb) << 20;
   o.sceneCacheBytes = static_cast<size_t>(sceneCacheMb) << 20;
+  o.diskCacheBytes = static_cast<size_t>(diskCacheMb) << 20;
   auto token = loadClientToken(tokenFile);
   if (!token.ok()) {
     std::fprintf(stderr, "pbgi-worker: error: %s\n", std::string(token.status().message()).c_str());

@@ -52,7 +52,7 @@ TEST(FarmApi, ServiceIsVersionedAndHasItsMethods) {
   ASSERT_NE(d, nullptr);
   for (const char* m : {"SubmitJob", "GetStatus", "CancelJob", "RetryJob", "RegisterWorker",
                         "ListWorkers", "LeaseTask", "Heartbeat", "CompleteTask", "FailTask",
-                        "FetchPages"}) {
+                        "OpenTree", "FetchPages"}) {
     EXPECT_NE(d->FindMethodByName(m), nullptr) << m;
   }
   EXPECT_TRUE(d->FindMethodByName("FetchPages")->server_streaming());

@@ -69,14 +69,14 @@ TEST_F(CoordinatorTest, EveryCallWithoutTheTokenIsRefusedAndCounted) {
   EXPECT_EQ(none.leaseTask(lease).status().code(), absl::StatusCode::kUnauthenticated);
   EXPECT_EQ(wrong.getStatus(v1::GetStatusRequest()).status().code(),
             absl::StatusCode::kUnauthenticated);
-  EXPECT_EQ(wrong.fetchTree(1, 1, (dir_ / "tree.pbgi").string()).status().code(),
-            absl::StatusCode::kUnauthenticated);
-  EXPECT_FALSE(fs::exists(dir_ / "tree.pbgi"));
+  EXPECT_EQ(wrong.openTree(1, 1).status().code(), absl::StatusCode::kUnauthenticated);
+  const uint32_t page[1] = {0};
+  EXPECT_EQ(wrong.fetchPages(1, 1, 0, page).status().code(), absl::StatusCode::kUnauthenticated);
   // Nothing was submitted by the refused call; the right token works.
   auto status = client_->getStatus(v1::GetStatusRequest());
   ASSERT_TRUE(status.ok()) << status.status();
   EXPECT_EQ(status->jobs_size(), 0);
-  EXPECT_NE(metrics().find("pbgi_rpc_refused_total 4"), std::string::npos) << metrics();
+  EXPECT_NE(metrics().find("pbgi_rpc_refused_total 5"), std::string::npos) << metrics();
 }
 
 TEST_F(CoordinatorTest, OutputsOutsideTheOutputRootAreRejected) {

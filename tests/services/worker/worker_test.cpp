@@ -7,9 +7,12 @@
 
 #include <fmt/format.h>
 
+#include <fstream>
+#include <iterator>
 #include <map>
 
 #include "formats/image/image_io.h"
+#include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_client.h"
@@ -23,6 +26,12 @@ namespace {
 namespace fs = std::filesystem;
 using pbgi::testing::Process;
 using pbgi::testing::waitFor;
+
+// A counter's value in Prometheus text; 0 when it is not there.
+uint64_t metricValue(const std::string& text, const std::string& name) {
+  const size_t at = text.find("\n" + name + " ");
+  return at == std::string::npos ? 0 : std::stoull(text.substr(at + name.size() + 2));
+}
 
 class WorkerTest : public ::testing::Test {
  protected:
@@ -294,14 +303,34 @@ TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree
   std::string state;
   ASSERT_TRUE(waitFor([&] { return settled(job, &state); }, 90.0)) << workerLogs();
   ASSERT_EQ(state, "done") << workerLogs();
-  EXPECT_TRUE(fs::exists(dir_ / "cache-good/job1/frame.0001.pbgi"));
   auto s = jobStatus(job);
   ASSERT_TRUE(s.ok());
   for (const auto& t : s->tasks()) {
     if (t.kind() == "tile") EXPECT_EQ(t.worker(), "good");
   }
+  // No whole-tree copy: single pages, each fetched once for the frame's four tiles (the disk
+  // cache keeps them between tasks), every one held intact.
+  auto tree = TreeFile::open(*jobTreePath(*loadShotFile(shotPath_.string()),
+                                          jobWorkDir(options_.stateDir, job), 1));
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  const PageFileReader& file = (*tree)->container();
   const std::string metrics = coordinator_->metricsText();
-  EXPECT_NE(metrics.find("pbgi_trees_streamed_total 1"), std::string::npos) << metrics;
+  EXPECT_NE(metrics.find("pbgi_trees_opened_total 4"), std::string::npos) << metrics;
+  const uint64_t served = metricValue(metrics, "pbgi_tree_pages_served_total");
+  EXPECT_GT(served, 0u);
+  EXPECT_LE(served, file.info().pageCount) << metrics;
+  int held = 0;
+  for (const auto& e : fs::directory_iterator(dir_ / "cache-good" / "pages")) {
+    if (e.path().extension() != ".page") continue;
+    const std::string name = e.path().filename().string();
+    EXPECT_EQ(name.substr(0, 16), fmt::format("{:016x}", file.head().treeId()));
+    const uint32_t id = static_cast<uint32_t>(std::stoul(name.substr(17, 8), nullptr, 16));
+    std::ifstream in(e.path(), std::ios::binary);
+    const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), {});
+    EXPECT_TRUE(checkStoredPage(id, file.directory().at(id), bytes).ok()) << name;
+    ++held;
+  }
+  EXPECT_EQ(static_cast<uint64_t>(held), served);
   expectFrameEqualsWholeRender(1);
 }
 
