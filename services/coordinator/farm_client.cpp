@@ -11,6 +11,8 @@
 #include <grpcpp/grpcpp.h>
 
 #include "pbgi/farm/v1/farm.grpc.pb.h"
+#include "core/util/log.h"
+#include "core/util/status.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::farm {
@@ -145,6 +147,35 @@ absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(
   }
   if (!failed.ok()) return failed;
   return out;
+}
+
+void logRetry(const char* what, const absl::Status& status, double waitSeconds) {
+  log::warn("{}: {}; trying again in {:.1f} s", what, status.message(), waitSeconds);
+}
+
+namespace {
+constexpr double kPagePatienceSeconds = 60.0;
+}  // namespace
+
+FarmPageFetcher::FarmPageFetcher(FarmClient& client, int64_t job, int frame)
+    : client_(client),
+      job_(job),
+      frame_(frame),
+      name_(fmt::format("tree of job {} frame {} from {}", job, frame, client.address())) {}
+
+absl::StatusOr<PageFileHead> FarmPageFetcher::head() {
+  auto head = callPatiently([&] { return client_.openTree(job_, frame_); }, kPagePatienceSeconds,
+                            "OpenTree");
+  if (!head.ok()) return withContext(head.status(), name_);
+  return head;
+}
+
+absl::StatusOr<std::vector<uint8_t>> FarmPageFetcher::page(uint64_t treeId, uint32_t id) {
+  const uint32_t ids[1] = {id};
+  auto pages = callPatiently([&] { return client_.fetchPages(job_, frame_, treeId, ids); },
+                             kPagePatienceSeconds, "FetchPages");
+  if (!pages.ok()) return withContext(pages.status(), fmt::format("{}: page {}", name_, id));
+  return std::move(pages->front());
 }
 
 }  // namespace pbgi::farm

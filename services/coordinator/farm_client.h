@@ -2,9 +2,12 @@
 // A connection to a coordinator, for workers and for `pbgi submit/status/...`. Every call
 // carries the farm's token and a deadline, and comes back as a Status whose message says
 // which coordinator did not answer or what it refused. gRPC itself stays inside the .cpp.
+#include <algorithm>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <thread>
 
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
@@ -12,7 +15,7 @@
 #include <span>
 #include <vector>
 
-#include "formats/pbgi/page_file.h"
+#include "formats/pbgi/remote_page_file.h"
 #include "pbgi/farm/v1/farm.pb.h"
 
 namespace pbgi::farm {
@@ -62,5 +65,42 @@ class FarmClient {
 // True for the errors that mean "the coordinator is not there right now" (UNAVAILABLE,
 // DEADLINE_EXCEEDED): a worker waits and calls again rather than giving up its task.
 bool isTransient(const absl::Status& status);
+
+// Says a call will be tried again (a warning in the log).
+void logRetry(const char* what, const absl::Status& status, double waitSeconds);
+
+// Calls `rpc` until it answers with anything but "the coordinator is not there", waiting a
+// little longer each time. A worker that has finished a task keeps its result until the
+// coordinator can take it (within `patienceSeconds`; after that the lease has long expired
+// and the task runs again elsewhere).
+template <typename Rpc>
+auto callPatiently(Rpc&& rpc, double patienceSeconds, const char* what) -> decltype(rpc()) {
+  using Clock = std::chrono::steady_clock;
+  const auto giveUp = Clock::now() + std::chrono::duration<double>(patienceSeconds);
+  double wait = 0.2;
+  for (;;) {
+    auto result = rpc();
+    if (result.ok() || !isTransient(result.status()) || Clock::now() >= giveUp) return result;
+    logRetry(what, result.status(), wait);
+    std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+    wait = std::min(wait * 2.0, 2.0);
+  }
+}
+
+// A frame's tree at the coordinator's page service, a page a call (remote_page_file.h checks
+// and keeps them). A coordinator that does not answer (restarting) is waited for, a minute.
+class FarmPageFetcher final : public PageFetcher {
+ public:
+  FarmPageFetcher(FarmClient& client, int64_t job, int frame);
+  const std::string& name() const override { return name_; }
+  absl::StatusOr<PageFileHead> head() override;
+  absl::StatusOr<std::vector<uint8_t>> page(uint64_t treeId, uint32_t id) override;
+
+ private:
+  FarmClient& client_;
+  int64_t job_;
+  int frame_;
+  std::string name_;
+};
 
 }  // namespace pbgi::farm

@@ -123,23 +123,6 @@ void sleepUnlessStopped(double seconds, const std::atomic<bool>& stop) {
   }
 }
 
-// Calls `rpc` until it answers with anything but "the coordinator is not there", waiting a
-// little longer each time. A worker that has finished a task keeps its result until the
-// coordinator can take it (within `patienceSeconds`; after that the lease has long expired
-// and the task runs again elsewhere).
-template <typename Rpc>
-auto callPatiently(Rpc&& rpc, double patienceSeconds, const char* what) -> decltype(rpc()) {
-  const auto giveUp = Clock::now() + std::chrono::duration<double>(patienceSeconds);
-  double wait = 0.2;
-  for (;;) {
-    auto result = rpc();
-    if (result.ok() || !isTransient(result.status()) || Clock::now() >= giveUp) return result;
-    log::warn("{}: {}; trying again in {:.1f} s", what, result.status().message(), wait);
-    std::this_thread::sleep_for(std::chrono::duration<double>(wait));
-    wait = std::min(wait * 2.0, 2.0);
-  }
-}
-
 // Reports progress and keeps the lease alive while a task runs.
 class Heartbeat {
  public:
@@ -188,39 +171,6 @@ class Heartbeat {
   std::condition_variable changed_;
   bool done_ = false;
   std::thread thread_;
-};
-
-// A frame's tree at the coordinator's page service, a page at a time. A coordinator that does
-// not answer (restarting) is waited for, as a task's result is.
-class FarmPageFetcher final : public PageFetcher {
- public:
-  FarmPageFetcher(FarmClient& client, int64_t job, int frame)
-      : client_(client),
-        job_(job),
-        frame_(frame),
-        name_(fmt::format("tree of job {} frame {} from {}", job, frame, client.address())) {}
-
-  const std::string& name() const override { return name_; }
-  absl::StatusOr<PageFileHead> head() override {
-    auto head = callPatiently([&] { return client_.openTree(job_, frame_); }, kPatience,
-                              "OpenTree");
-    if (!head.ok()) return withContext(head.status(), name_);
-    return head;
-  }
-  absl::StatusOr<std::vector<uint8_t>> page(uint64_t treeId, uint32_t id) override {
-    const uint32_t ids[1] = {id};
-    auto pages = callPatiently([&] { return client_.fetchPages(job_, frame_, treeId, ids); },
-                               kPatience, "FetchPages");
-    if (!pages.ok()) return withContext(pages.status(), fmt::format("{}: page {}", name_, id));
-    return std::move(pages->front());
-  }
-
- private:
-  static constexpr double kPatience = 60.0;
-  FarmClient& client_;
-  int64_t job_;
-  int frame_;
-  std::string name_;
 };
 
 struct TaskResult {

@@ -9,11 +9,18 @@
 // gathers cuts through the whole tree, and at 1 % of the tree a frame the cut's size takes it
 // most of an hour.
 //
-// Writes OUT/cache.csv (a row per run). Reports numbers; never fails on time.
+// Then, for the first gather, the unlimited run again as a farm worker with no shared files
+// renders it: the tree through the page service of a real coordinator on loopback, a page a
+// call, into a fresh disk cache and then with that cache warm: seconds against the local
+// tree, pages and bytes over the network against the file, pages the traversals touched.
+//
+// Writes OUT/cache.csv (a row per run; a remote row's "misses" are its pages over the network).
+// Reports numbers; never fails on time.
 //
 // Run: build/bin/cache_bench [--out DIR] [--scenes cornell-box,sponza] [--gathers
 //        bidirectional,per-pixel] [--budgets 100,20,10,5,2,1] [--size 256] [--per-pixel-size 64]
 //        [--spp 1] [--bake-points N | --tree FILE.pbgi] [--threads N] [--set KEY=VALUE]...
+//        [--no-remote]
 
 #include <cstdio>
 #include <filesystem>
@@ -25,8 +32,14 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "core/util/status.h"
+#include "formats/pbgi/remote_page_file.h"
 #include "formats/shot/shot_file.h"
+#include "services/coordinator/coordinator.h"
+#include "services/coordinator/farm_client.h"
+#include "services/coordinator/farm_job.h"
 #include "services/render/frame_render.h"
+#include "tests/support/farm_fixtures.h"
 #include "tests/support/params.h"
 #include "tests/support/reference_image.h"
 #include "tests/support/test_paths.h"
@@ -49,7 +62,80 @@ struct Args {
   std::string tree;         // a tree baked before (one scene), instead of baking
   int threads = 0;
   std::vector<std::string> set;
+  bool remote = true;
 };
+
+// A tile rendered as by a worker with no shared files: the tree through the page service (a
+// real coordinator on loopback, a page a call) and a fresh disk cache, then again with that
+// disk cache warm (a later tile of the frame), against the same render from the local file.
+absl::Status remoteTile(const std::string& name, const ShotDesc& frame,
+                        const FrameRenderRequest& local, const std::string& treePath,
+                        uint64_t treeBytes, double localSeconds, std::optional<Image>* localImage,
+                        const fs::path& out, std::FILE* csv) {
+  namespace farm = pbgi::farm;
+  const fs::path dir = out / ("page-service-" + name);
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+  farm::CoordinatorOptions o;
+  o.stateDir = (dir / "state").string();
+  o.outputRoot = dir.string();
+  o.token = "cache-bench";
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<farm::Coordinator> coordinator,
+                        farm::Coordinator::start(o));
+  farm::FarmClient client(coordinator->address(), o.token);
+  farm::v1::SubmitJobRequest submit;
+  submit.set_shot_path(frame.path);
+  submit.set_shot_text(testing::slurpFile(frame.path));
+  submit.add_overrides("integrator=pbgi");
+  submit.set_output_dir((dir / "frames").string());
+  submit.add_frames(frame.firstFrame);
+  PBGI_ASSIGN_OR_RETURN(const farm::v1::SubmitJobResponse job, client.submitJob(submit));
+  // The frame's bake, where the job's bake task would have written it.
+  PBGI_ASSIGN_OR_RETURN(const ShotDesc jobShot,
+                        farm::jobShot(submit.shot_text(), frame.path, {"integrator=pbgi"}));
+  PBGI_ASSIGN_OR_RETURN(const std::string jobTree,
+                        farm::jobTreePath(jobShot, farm::jobWorkDir(o.stateDir, job.job()),
+                                          frame.firstFrame));
+  fs::create_directories(fs::path(jobTree).parent_path());
+  fs::copy_file(treePath, jobTree, fs::copy_options::overwrite_existing);
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<PageDiskCache> disk,
+                        PageDiskCache::open((dir / "worker-cache").string(), uint64_t{4} << 30));
+  for (const char* state : {"cold", "warm"}) {
+    auto stats = std::make_shared<RemoteFetchStats>();
+    auto fetcher = std::make_shared<farm::FarmPageFetcher>(client, job.job(), frame.firstFrame);
+    FrameRenderRequest r = local;
+    r.treePath.clear();
+    r.outPath = (dir / fmt::format("remote-{}.exr", state)).string();
+    r.openTree = [&]() -> absl::StatusOr<std::unique_ptr<TreeFile>> {
+      PBGI_ASSIGN_OR_RETURN(PageFileHead head, fetcher->head());
+      return TreeFile::open(openRemotePageFile(std::move(head), fetcher, disk, stats));
+    };
+    PBGI_ASSIGN_OR_RETURN(const testing::CacheRun run,
+                          testing::renderWithCache(frame, r, treeBytes, 0.0, localImage));
+    const uint64_t fileBytes = fs::file_size(treePath);
+    std::printf("%-12s remote tile (%s disk cache): render %7.2f s (%.2fx the local tree)  pages "
+                "over the network %llu of %llu (%.2f of %.2f MiB, head %.1f KiB), from disk %llu, "
+                "touched by the traversals %llu  %s\n",
+                name.c_str(), state, run.renderSeconds, run.renderSeconds / localSeconds,
+                static_cast<unsigned long long>(stats->pagesFetched.load()),
+                static_cast<unsigned long long>(run.tree.pagesInFile),
+                (stats->bytesFetched + stats->headBytes) / 1048576.0, fileBytes / 1048576.0,
+                stats->headBytes / 1024.0,
+                static_cast<unsigned long long>(stats->diskHits.load()),
+                static_cast<unsigned long long>(run.tree.pagesRead),
+                run.identical ? "bit-identical" : "DIFFERS from the local tree");
+    std::fflush(stdout);
+    std::fprintf(csv, "%s,remote-%s,%d,%d,0,100,%zu,%.3f,%.3f,%.5f,%llu,%llu,%llu,%llu,%d\n",
+                 name.c_str(), state, frame.width, frame.height, run.cacheBytes, run.renderSeconds,
+                 run.renderSeconds / localSeconds, run.tree.cache.hitRate(),
+                 static_cast<unsigned long long>(run.tree.cache.hits),
+                 static_cast<unsigned long long>(stats->pagesFetched.load()),
+                 static_cast<unsigned long long>(run.tree.pagesRead),
+                 static_cast<unsigned long long>(run.tree.pagesInFile), run.identical ? 1 : 0);
+    if (!run.identical) return absl::InternalError("the remote tree's pixels differ");
+  }
+  return absl::OkStatus();
+}
 
 int runBench(const Args& args) {
   const auto shared = testing::sharedScenesDir();
@@ -121,6 +207,14 @@ int runBench(const Args& args) {
                      static_cast<unsigned long long>(t.pagesInFile), run->identical ? 1 : 0);
         std::fflush(csv);
         if (!run->identical) return std::fclose(csv), 1;
+        if (fraction == 0.0 && args.remote && gather == args.gathers.front()) {
+          if (absl::Status s = remoteTile(name, frame, r, baked->path, *total, unlimitedSeconds,
+                                          &unlimited, out, csv);
+              !s.ok()) {
+            std::fprintf(stderr, "remote tile: %s\n", s.ToString().c_str());
+            return std::fclose(csv), 1;
+          }
+        }
       }
     }
   }
@@ -148,6 +242,8 @@ int main(int argc, char** argv) {
                  "A tree baked before (pbgi bake) instead of baking; with one scene, its own");
   app.add_option("--threads", args.threads, "Render threads (default: all cores)");
   app.add_option("--set", args.set, "An integrator parameter for every run, KEY=VALUE");
+  app.add_flag("!--no-remote", args.remote,
+               "Skip the remote tile (the tree through the page service on loopback)");
   CLI11_PARSE(app, argc, argv);
   if (args.budgets.empty() || args.budgets.front() < 100) {
     std::fprintf(stderr, "--budgets: the first must be 100 (the unlimited run the others match)\n");
