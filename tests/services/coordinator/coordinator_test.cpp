@@ -6,7 +6,12 @@
 
 #include <httplib.h>
 
+#include <fstream>
 #include <regex>
+
+#include "formats/pbgi/remote_page_file.h"
+#include "services/bake/frame_bake.h"
+#include "services/coordinator/farm_job.h"
 
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_client.h"
@@ -220,6 +225,73 @@ TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
   EXPECT_NE(text.find("pbgi_tasks{state=\"ready\"} 8"), std::string::npos) << text;
   EXPECT_NE(text.find("pbgi_tasks{state=\"blocked\"} 2"), std::string::npos) << text;
   EXPECT_NE(text.find("# TYPE pbgi_task_seconds histogram"), std::string::npos) << text;
+}
+
+// The page service: a frame's tree opened, single pages sent as stored; a page damaged on the
+// coordinator's disk named as such; a worker holding an older tree of the frame refused.
+TEST_F(CoordinatorTest, ThePageServiceSendsSinglePagesAndNamesDamage) {
+  start();
+  pbgi::testing::SmallShot pbgiShot;
+  pbgiShot.integrator = "pbgi";
+  pbgiShot.extraRender = "bake_points = 4000\nbake_bounces = 0\n";
+  v1::SubmitJobRequest request = shotRequest(pbgiShot);
+  request.add_frames(1);
+  auto job = client_->submitJob(request);
+  ASSERT_TRUE(job.ok()) << job.status();
+  // The bake task's work, done here: the tree lands where the page service looks.
+  auto shot = jobShot(request.shot_text(), request.shot_path(), {});
+  ASSERT_TRUE(shot.ok()) << shot.status();
+  auto bake = shotBakeRequest(*shot, 1);
+  ASSERT_TRUE(bake.ok());
+  bake->outDir = jobBakeDir(jobWorkDir(options_.stateDir, job->job()));
+  auto baked = bakeShotFrame(*shot, *bake);
+  ASSERT_TRUE(baked.ok()) << baked.status();
+  auto local = PageFileReader::open(baked->treePath);
+  ASSERT_TRUE(local.ok()) << local.status();
+  const uint32_t pages = (*local)->info().pageCount;
+  ASSERT_GE(pages, 2u);
+
+  auto fetcher = std::make_shared<FarmPageFetcher>(*client_, job->job(), 1);
+  auto stats = std::make_shared<RemoteFetchStats>();
+  auto head = fetcher->head();
+  ASSERT_TRUE(head.ok()) << head.status();
+  EXPECT_EQ(head->treeId(), (*local)->head().treeId());
+  auto remote = PageFileReader::open(openRemotePageFile(*head, fetcher, nullptr, stats));
+  ASSERT_TRUE(remote.ok()) << remote.status();
+  for (uint32_t id = 0; id < pages; ++id) {
+    auto page = (*remote)->readPage(id);
+    ASSERT_TRUE(page.ok()) << page.status();
+    EXPECT_EQ(*page, *(*local)->readPage(id)) << "page " << id;
+  }
+  EXPECT_EQ(stats->pagesFetched.load(), pages);
+  EXPECT_NE(metrics().find(fmt::format("pbgi_tree_pages_served_total {}", pages)),
+            std::string::npos);
+
+  // A byte of page 1 damaged on the coordinator's disk.
+  {
+    std::fstream f(baked->treePath, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(static_cast<std::streamoff>((*local)->directory()[1].offset + 3));
+    f.put('\x77');
+  }
+  auto again = PageFileReader::open(openRemotePageFile(*head, fetcher, nullptr, nullptr));
+  ASSERT_TRUE(again.ok());
+  auto damaged = (*again)->readPage(1);
+  ASSERT_FALSE(damaged.ok());
+  EXPECT_TRUE(absl::IsDataLoss(damaged.status())) << damaged.status();
+  for (const char* part : {"page service of job", "page 1", "checksum mismatch"}) {
+    EXPECT_NE(damaged.status().message().find(part), std::string::npos) << damaged.status();
+  }
+  // The frame's tree replaced (baked again): pages of the old one are refused.
+  {
+    auto writer = PageFileWriter::create(baked->treePath);
+    ASSERT_TRUE(writer.ok());
+    ASSERT_TRUE(writer->appendPage(std::vector<uint8_t>(100, 1)).ok());
+    ASSERT_TRUE(writer->finish({}).ok());
+  }
+  const uint32_t first[1] = {0};
+  auto stale = client_->fetchPages(job->job(), 1, head->treeId(), first);
+  EXPECT_TRUE(absl::IsFailedPrecondition(stale.status())) << stale.status();
+  EXPECT_NE(stale.status().message().find("baked again"), std::string::npos) << stale.status();
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <fstream>
 #include <iterator>
 #include <map>
+#include <regex>
 
 #include "formats/image/image_io.h"
 #include "formats/pbgi/tree_file.h"
@@ -31,6 +32,32 @@ using pbgi::testing::waitFor;
 uint64_t metricValue(const std::string& text, const std::string& name) {
   const size_t at = text.find("\n" + name + " ");
   return at == std::string::npos ? 0 : std::stoull(text.substr(at + name.size() + 2));
+}
+
+// Every page in a worker's disk cache is a page of one of `trees`, intact; returns how many.
+int expectPagesIntact(const fs::path& dir, const std::vector<std::unique_ptr<TreeFile>>& trees) {
+  int held = 0;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    if (name == "lock") continue;
+    EXPECT_EQ(e.path().extension(), ".page") << name << ": not a page (a temporary left over?)";
+    const PageFileReader* file = nullptr;
+    for (const auto& t : trees) {
+      if (name.starts_with(fmt::format("{:016x}.", t->container().head().treeId()))) {
+        file = &t->container();
+      }
+    }
+    if (file == nullptr) {
+      ADD_FAILURE() << name << ": a page of no tree of the job";
+      continue;
+    }
+    const uint32_t id = static_cast<uint32_t>(std::stoul(name.substr(17, 8), nullptr, 16));
+    std::ifstream in(e.path(), std::ios::binary);
+    const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), {});
+    EXPECT_TRUE(checkStoredPage(id, file->directory().at(id), bytes).ok()) << name;
+    ++held;
+  }
+  return held;
 }
 
 class WorkerTest : public ::testing::Test {
@@ -56,12 +83,15 @@ class WorkerTest : public ::testing::Test {
     coordinator_ = *std::move(c);
     client_ = std::make_unique<FarmClient>(coordinator_->address(), options_.token, 10.0);
   }
+  // `launcher`: words before the worker's own (a wrapper that runs it).
   Process& startWorker(const std::string& id, std::vector<std::string> extra = {},
-                       const std::string& address = {}) {
-    std::vector<std::string> argv = {pbgi::testing::binary("pbgi-worker").string(),
+                       const std::string& address = {}, std::vector<std::string> launcher = {}) {
+    std::vector<std::string> argv = launcher;
+    const std::vector<std::string> own = {pbgi::testing::binary("pbgi-worker").string(),
                                      "--coordinator",
                                      address.empty() ? coordinator_->address() : address,
                                      "--id", id, "--threads", "1", "--poll-seconds", "0.05"};
+    argv.insert(argv.end(), own.begin(), own.end());
     if (std::find(extra.begin(), extra.end(), "--cache-dir") == extra.end()) {
       extra.insert(extra.end(), {"--cache-dir", (dir_ / ("cache-" + id)).string()});
     }
@@ -197,7 +227,7 @@ TEST_F(WorkerTest, SigtermFinishesAndReportsTheTaskInHandThenExits) {
   EXPECT_NE(polite.log().find("stopping"), std::string::npos) << polite.log();
 }
 
-TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwice) {
+TEST_F(WorkerTest, AKilledCoordinatorAndAWorkerKilledMidTileLoseNothingAndNoTaskCompletesTwice) {
   // The coordinator is a process here, so that kill -9 is real.
   const fs::path state = dir_ / "daemon-state";
   auto startDaemon = [&](const std::string& listen) {
@@ -216,17 +246,34 @@ TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwic
     return t.substr(0, t.find('\n'));
   }();
   client_ = std::make_unique<FarmClient>(address, token, 5.0);
+  // PBGI tiles that read their trees a page at a time from the page service (this process's).
   pbgi::testing::SmallShot shot;
-  shot.spp = 48;
+  shot.integrator = "pbgi";
+  shot.spp = 8;
+  shot.extraRender = "bake_points = 20000\nbake_bounces = 1\nquality = \"draft\"\n";
   const int64_t job = submit(shot);
   ASSERT_NE(job, 0);
   options_.token = token;
-  startWorker("steady", {}, address);
-  // Kill the coordinator once some tiles are done and some are not.
+  startWorker("steady", {"--tree-source", "stream"}, address);
+  Process& victim = startWorker("victim", {"--tree-source", "stream"}, address);
+  // Kill a worker in the middle of a tile, and the coordinator (the page service) once some
+  // tiles are done and some are not.
   ASSERT_TRUE(waitFor(
       [&] {
         auto s = jobStatus(job);
-        return s.ok() && s->tasks_by_state().count("done") && s->tasks_by_state().at("done") >= 2;
+        if (!s.ok()) return false;
+        for (const auto& t : s->tasks()) {
+          if (t.kind() == "tile" && t.worker() == "victim" && t.state() == "leased") return true;
+        }
+        return false;
+      },
+      60.0))
+      << workerLogs() << daemon.log();
+  victim.signal(SIGKILL);
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto s = jobStatus(job);
+        return s.ok() && s->tasks_by_state().count("done") && s->tasks_by_state().at("done") >= 4;
       },
       60.0))
       << workerLogs() << daemon.log();
@@ -234,6 +281,10 @@ TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwic
   EXPECT_EQ(daemon.wait(5.0), 128 + SIGKILL);
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   Process restarted = startDaemon(address);
+  // The killed worker comes back on its disk cache (what it left half written is removed).
+  startWorker("victim-again", {"--tree-source", "stream", "--cache-dir",
+                               (dir_ / "cache-victim").string()},
+              address);
   std::string final;
   ASSERT_TRUE(waitFor([&] { return settled(job, &final); }, 120.0))
       << workerLogs() << restarted.log();
@@ -246,8 +297,19 @@ TEST_F(WorkerTest, AKilledCoordinatorRestartsOnItsDatabaseAndNoTaskCompletesTwic
   for (const auto& e : entries->entries()) {
     if (e.event() == "done") ++completions[e.task()];
   }
-  EXPECT_EQ(completions.size(), 10u);  // 2 frames x (4 tiles + assemble)
+  EXPECT_EQ(completions.size(), 12u);  // 2 frames x (bake + 4 tiles + assemble)
   for (const auto& [task, n] : completions) EXPECT_EQ(n, 1) << "task " << task;
+  // Nothing damaged in either disk cache.
+  auto loaded = loadShotFile(shotPath_.string());
+  ASSERT_TRUE(loaded.ok());
+  std::vector<std::unique_ptr<TreeFile>> trees;
+  for (int frame : {1, 2}) {
+    auto tree = TreeFile::open(*jobTreePath(*loaded, jobWorkDir(state.string(), job), frame));
+    ASSERT_TRUE(tree.ok()) << tree.status();
+    trees.push_back(*std::move(tree));
+  }
+  EXPECT_GT(expectPagesIntact(dir_ / "cache-steady" / "pages", trees), 0);
+  expectPagesIntact(dir_ / "cache-victim" / "pages", trees);
   expectFrameEqualsWholeRender(1);
   expectFrameEqualsWholeRender(2);
 }
@@ -279,7 +341,7 @@ TEST_F(WorkerTest, ATileThatAlwaysFailsIsDeadAndTheJobSaysWhichAndWhy) {
   EXPECT_FALSE(fs::exists(dir_ / "out/small.0001.exr"));
 }
 
-TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree) {
+TEST_F(WorkerTest, AWorkerOnAFullDiskIsBlocklistedAndAGoodOneStreamsSinglePages) {
   options_.retry.maxAttempts = 5;
   options_.retry.blocklistAfter = 2;
   start();
@@ -287,8 +349,25 @@ TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree
   pbgiShot.integrator = "pbgi";
   pbgiShot.extraRender = "bake_points = 4000\nbake_bounces = 1\nquality = \"draft\"\n";
   const int64_t job = submit(pbgiShot, {1});
-  // This worker bakes fine, but streams trees into a cache it cannot write: every tile fails.
-  Process& bad = startWorker("bad", {"--tree-source", "stream", "--cache-dir", "/proc/pbgi-no"});
+  // This worker bakes fine, but its disk cache is on a full disk (a 4 KiB tmpfs mounted in a
+  // mount namespace of its own, as root can): every tile fails, saying so. Where no mount
+  // namespace can be made, a cache folder that cannot be created fails them instead.
+  const fs::path smallDisk = dir_ / "small-disk";
+  fs::create_directories(smallDisk);
+  const bool canMount = std::system("unshare -m true >/dev/null 2>&1") == 0;
+  std::vector<std::string> launcher;
+  if (canMount) {
+    launcher = {"/usr/bin/unshare", "-m", "/bin/sh", "-c",
+                "mount -t tmpfs -o size=4k pbgi-full-disk \"$1\" && shift && exec \"$@\"", "sh",
+                smallDisk.string()};
+  } else {
+    std::printf("[ note ] unshare -m fails here: the bad worker's cache cannot be created instead "
+                "of being on a full disk\n");
+  }
+  Process& bad = startWorker(
+      "bad",
+      {"--tree-source", "stream", "--cache-dir", canMount ? smallDisk.string() : "/proc/pbgi-no"},
+      {}, launcher);
   ASSERT_TRUE(waitFor(
       [&] {
         auto b = coordinator_->store().blocklisted(job, "bad");
@@ -308,29 +387,34 @@ TEST_F(WorkerTest, AWorkerThatKeepsFailingIsBlocklistedAndAGoodOneStreamsTheTree
   for (const auto& t : s->tasks()) {
     if (t.kind() == "tile") EXPECT_EQ(t.worker(), "good");
   }
+  auto events = coordinator_->store().events(job, std::nullopt, std::nullopt);
+  ASSERT_TRUE(events.ok()) << events.status();
+  int fullDisk = 0;
+  uint64_t fetchedByGood = 0;  // pages over the network, as the good worker's tiles logged them
+  const std::regex fetched("pages over the network ([0-9]+) ");
+  for (const TaskEvent& e : *events) {
+    fullDisk += e.event == "failed" && e.text.find("the disk is full") != std::string::npos &&
+                e.text.find("page disk cache " + smallDisk.string()) != std::string::npos;
+    std::smatch m;
+    if (e.event == "done" && e.worker == "good" && std::regex_search(e.text, m, fetched)) {
+      fetchedByGood += std::stoull(m[1]);
+    }
+  }
+  if (canMount) EXPECT_GE(fullDisk, 2) << workerLogs();
   // No whole-tree copy: single pages, each fetched once for the frame's four tiles (the disk
   // cache keeps them between tasks), every one held intact.
   auto tree = TreeFile::open(*jobTreePath(*loadShotFile(shotPath_.string()),
                                           jobWorkDir(options_.stateDir, job), 1));
   ASSERT_TRUE(tree.ok()) << tree.status();
   const PageFileReader& file = (*tree)->container();
+  EXPECT_GT(fetchedByGood, 0u);
+  EXPECT_LE(fetchedByGood, file.info().pageCount);
   const std::string metrics = coordinator_->metricsText();
-  EXPECT_NE(metrics.find("pbgi_trees_opened_total 4"), std::string::npos) << metrics;
-  const uint64_t served = metricValue(metrics, "pbgi_tree_pages_served_total");
-  EXPECT_GT(served, 0u);
-  EXPECT_LE(served, file.info().pageCount) << metrics;
-  int held = 0;
-  for (const auto& e : fs::directory_iterator(dir_ / "cache-good" / "pages")) {
-    if (e.path().extension() != ".page") continue;
-    const std::string name = e.path().filename().string();
-    EXPECT_EQ(name.substr(0, 16), fmt::format("{:016x}", file.head().treeId()));
-    const uint32_t id = static_cast<uint32_t>(std::stoul(name.substr(17, 8), nullptr, 16));
-    std::ifstream in(e.path(), std::ios::binary);
-    const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), {});
-    EXPECT_TRUE(checkStoredPage(id, file.directory().at(id), bytes).ok()) << name;
-    ++held;
-  }
-  EXPECT_EQ(static_cast<uint64_t>(held), served);
+  EXPECT_GE(metricValue(metrics, "pbgi_tree_pages_served_total"), fetchedByGood) << metrics;
+  std::vector<std::unique_ptr<TreeFile>> trees;
+  trees.push_back(*std::move(tree));
+  EXPECT_EQ(static_cast<uint64_t>(expectPagesIntact(dir_ / "cache-good" / "pages", trees)),
+            fetchedByGood);
   expectFrameEqualsWholeRender(1);
 }
 
