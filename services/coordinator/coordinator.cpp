@@ -355,8 +355,12 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
     if (!authorized(context)) return refusedStatus();
     // A job whose stored shot no longer parses (a newer file format, a damaged row) must not
     // stop the farm: its task fails with the reason and the next one is offered.
+    std::vector<HeldFrame> held;
+    if (options.localityDispatch) {
+      for (const v1::HeldFrame& h : request->held()) held.push_back({h.job(), h.frame()});
+    }
     for (;;) {
-      auto lease = store->lease(request->worker(), wallClock(), options.leaseSeconds);
+      auto lease = store->lease(request->worker(), wallClock(), options.leaseSeconds, held);
       if (!lease.ok()) return toGrpc(lease.status());
       if (!lease->has_value()) {
         response->set_has_task(false);

@@ -28,6 +28,9 @@ struct CoordinatorOptions {
   double expiryIntervalSeconds = 1.0;  // how often expired leases are reclaimed
   int tileSize = 0;                    // farm tile edge; 0: kDefaultFarmTileSize
   RetryPolicy retry;
+  // Lease a worker the tasks of frames it holds first (within the job it would get anyway);
+  // false: plain order (priority, job age, frame, kind, tile).
+  bool localityDispatch = true;
 };
 
 // Counters since this coordinator started (Prometheus counters reset with the process).

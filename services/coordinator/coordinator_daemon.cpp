@@ -1,6 +1,7 @@
 // pbgi-coordinator [--config FILE] [--listen HOST:PORT] [--state DIR] ...
 
 #include <cstdio>
+#include <map>
 #include <filesystem>
 
 #include <CLI/CLI.hpp>
@@ -52,6 +53,12 @@ int coordinatorDaemonMain(int argc, char** argv) {
   app.add_option("--backoff-max", o.retry.backoffMax, "Longest retry back-off in seconds")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  app.add_option("--dispatch", o.localityDispatch,
+                 "locality: a worker gets the tasks of frames it holds first (within the job it "
+                 "would get anyway); plain: priority, job age, frame, kind, tile")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, bool>{{"locality", true}, {"plain", false}}, CLI::ignore_case))
+      ->default_str("locality");
   app.add_option("--blocklist-after", o.retry.blocklistAfter,
                  "Failures of one job on one worker that blocklist the worker for the job (0: never)")
       ->check(CLI::NonNegativeNumber)

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -64,6 +65,13 @@ struct TaskRef {
   int frame = 0;
   int tile = -1;  // tiles only
   std::string toString() const;  // "job 3 frame 12 tile 7" / "job 3 frame 12 bake"
+};
+
+// A frame a worker has loaded (its scene, its tree's pages): where its tiles are cheapest.
+struct HeldFrame {
+  int64_t job = 0;
+  int frame = 0;
+  bool operator==(const HeldFrame&) const = default;
 };
 
 struct Lease {
@@ -130,9 +138,12 @@ class JobStore {
 
   // The most urgent ready task (priority, then job age, then frame, kind, tile) whose back-off
   // has passed and whose job has not blocklisted `worker`, leased until now + leaseSeconds;
-  // nullopt when there is none.
+  // nullopt when there is none. Within the most urgent job that has a ready task, a task of a
+  // frame in `held` (frames whose scene and pages the worker has loaded) comes first: locality
+  // never reorders jobs, so no job waits on another's frames.
   virtual absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
-                                                     Seconds leaseSeconds) = 0;
+                                                     Seconds leaseSeconds,
+                                                     std::span<const HeldFrame> held = {}) = 0;
   // Extends the lease to now + leaseSeconds and records progress. FailedPrecondition when
   // the attempt is not the task's current leased one (the lease was lost).
   virtual absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,

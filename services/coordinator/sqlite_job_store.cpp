@@ -149,7 +149,8 @@ class SqliteJobStore final : public JobStore {
   absl::Status registerWorker(const WorkerInfo& worker) override;
   absl::StatusOr<std::vector<WorkerInfo>> workers() override;
   absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
-                                             Seconds leaseSeconds) override;
+                                             Seconds leaseSeconds,
+                                             std::span<const HeldFrame> held) override;
   absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
                          Seconds leaseSeconds) override;
   absl::StatusOr<TaskRef> complete(int64_t task, int attempt, Seconds now,
@@ -630,7 +631,8 @@ absl::StatusOr<std::vector<WorkerInfo>> SqliteJobStore::workers() {
 }
 
 absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& worker, Seconds now,
-                                                           Seconds leaseSeconds) {
+                                                           Seconds leaseSeconds,
+                                                           std::span<const HeldFrame> held) {
   if (worker.empty()) return absl::InvalidArgumentError("a lease needs a worker id");
   return transaction(Access::kWrite, [&]() -> absl::StatusOr<std::optional<Lease>> {
     Lease lease;
@@ -650,13 +652,19 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
       }
     }
     bool found = false;
-    for (const int64_t job : order) {
+    // The first ready task of `job`, of `frame` only when one is given.
+    auto pickFrom = [&](int64_t job, std::optional<int> frame) -> absl::StatusOr<bool> {
       Query pick = query(
-          "SELECT id, job, kind, frame, tile, attempt FROM tasks INDEXED BY tasks_by_job_state "
-          "WHERE job = ?1 AND state = 1 AND not_before <= ?2 ORDER BY frame, kind, tile LIMIT 1");
+          frame ? "SELECT id, job, kind, frame, tile, attempt FROM tasks INDEXED BY "
+                  "tasks_by_job_state WHERE job = ?1 AND state = 1 AND frame = ?3 AND "
+                  "not_before <= ?2 ORDER BY kind, tile LIMIT 1"
+                : "SELECT id, job, kind, frame, tile, attempt FROM tasks INDEXED BY "
+                  "tasks_by_job_state WHERE job = ?1 AND state = 1 AND not_before <= ?2 ORDER "
+                  "BY frame, kind, tile LIMIT 1");
       pick.bind(1, job).bind(2, now);
+      if (frame) pick.bind(3, *frame);
       PBGI_ASSIGN_OR_RETURN(const bool row, pick.step());
-      if (!row) continue;
+      if (!row) return false;
       lease.task = pick.int64(0);
       lease.ref.job = pick.int64(1);
       lease.ref.kind = static_cast<TaskKind>(pick.integer(2));
@@ -664,8 +672,19 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
       lease.ref.tile = pick.integer(4);
       lease.attempt = pick.integer(5) + 1;
       lease.expires = now + leaseSeconds;
-      found = true;
-      break;
+      return true;
+    };
+    for (const int64_t job : order) {
+      // The worker's own frames of this job first, most recently held first.
+      for (const HeldFrame& h : held) {
+        if (h.job != job) continue;
+        PBGI_ASSIGN_OR_RETURN(found, pickFrom(job, h.frame));
+        if (found) break;
+      }
+      if (!found) {
+        PBGI_ASSIGN_OR_RETURN(found, pickFrom(job, std::nullopt));
+      }
+      if (found) break;
     }
     if (!found) return std::optional<Lease>();
     {

@@ -23,6 +23,7 @@
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/job_store.h"
 #include "services/render/frame_assembly.h"
 #include "services/render/frame_render.h"
 
@@ -215,13 +216,25 @@ class Worker {
   // The disk cache of streamed pages, opened at the first tile that streams.
   absl::StatusOr<std::shared_ptr<PageDiskCache>> pageDisk();
 
+  // Remembers that this worker holds the frame's scene and pages now, most recent first.
+  void hold(int64_t job, int frame);
+
   const WorkerOptions& options_;
   const std::string id_;
   FarmClient client_;
+  std::vector<HeldFrame> held_;
   std::string cacheDir_;
   SceneKeeper scenes_;
   std::shared_ptr<PageDiskCache> pageDisk_;
 };
+
+void Worker::hold(int64_t job, int frame) {
+  // As many as the scenes kept between tasks could hold; the oldest drop off.
+  constexpr size_t kHeldFrames = 8;
+  std::erase(held_, HeldFrame{job, frame});
+  held_.insert(held_.begin(), HeldFrame{job, frame});
+  if (held_.size() > kHeldFrames) held_.resize(kHeldFrames);
+}
 
 absl::StatusOr<std::shared_ptr<PageDiskCache>> Worker::pageDisk() {
   if (!pageDisk_) {
@@ -435,6 +448,12 @@ int Worker::run(const std::atomic<bool>& stop) {
   ask.set_worker(id_);
   double backoff = options_.pollSeconds;
   while (!stop.load()) {
+    ask.clear_held();
+    for (const HeldFrame& h : held_) {
+      v1::HeldFrame* out = ask.add_held();
+      out->set_job(h.job);
+      out->set_frame(h.frame);
+    }
     auto task = client_.leaseTask(ask);
     if (!task.ok()) {
       if (!isTransient(task.status())) {
@@ -455,6 +474,9 @@ int Worker::run(const std::atomic<bool>& stop) {
     {
       Heartbeat beat(client_, id_, *task);
       result = execute(*task, beat);
+    }
+    if (result.ok() && (task->kind() == "bake" || task->kind() == "tile")) {
+      hold(task->job(), task->frame());
     }
     report(*task, result, std::chrono::duration<double>(Clock::now() - started).count());
   }

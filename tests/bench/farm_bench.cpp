@@ -3,7 +3,9 @@
 //      committed to SQLite with synchronous=FULL) with 200 simulated workers;
 //   2. 1 against 2 pbgi-worker processes on a 4-frame Cornell box job through `pbgi run`;
 //   3. the page service: every page of a baked tree fetched over loopback, MB/s and pages/s.
-// Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|--stream-only]
+//   4. locality-aware dispatch against plain: 2 workers streaming pages, bytes sent and time.
+// Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|
+//   --stream-only|--dispatch-only]
 
 #include <algorithm>
 #include <atomic>
@@ -189,6 +191,88 @@ void pageStream() {
   fs::remove_all(dir);
 }
 
+// Locality-aware dispatch against plain dispatch: 2 pbgi-worker processes that see no shared
+// tree (--tree-source stream, a disk cache each) render a 4-frame PBGI Cornell box; the page
+// service's bytes sent (pages and heads) and the wall time, with each.
+void localityDispatch() {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-locality");
+  pbgi::testing::SmallShot cornell;
+  cornell.integrator = "pbgi";
+  cornell.width = 256;
+  cornell.height = 256;
+  cornell.lastFrame = 4;
+  cornell.spp = 1;
+  cornell.extraRender = "bake_points = 200000\nbake_bounces = 1\n";
+  const fs::path shot = pbgi::testing::writeSmallShot(dir, cornell);
+  std::printf("dispatch: 2 workers streaming pages (no shared tree), 4-frame PBGI Cornell box, "
+              "256x256, 200,000-surfel trees, 4 tiles a frame:\n");
+  uint64_t plainBytes = 0;
+  double plainSeconds = 0.0;
+  for (const bool locality : {false, true}) {
+    const fs::path run = dir / (locality ? "locality" : "plain");
+    CoordinatorOptions o;
+    o.stateDir = (run / "state").string();
+    o.outputRoot = dir.string();
+    o.token = "bench";
+    o.tileSize = 128;
+    o.leaseSeconds = 60;
+    o.localityDispatch = locality;
+    auto coordinator = Coordinator::start(o);
+    if (!coordinator.ok()) std::exit(1);
+    FarmClient client((*coordinator)->address(), o.token);
+    const auto t0 = Clock::now();
+    auto job = client.submitJob(jobRequest(shot));
+    if (!job.ok()) std::exit(1);
+    std::vector<pbgi::testing::Process> workers;
+    for (int w = 0; w < 2; ++w) {
+      const std::string id = fmt::format("w{}", w);
+      workers.emplace_back(
+          std::vector<std::string>{pbgi::testing::binary("pbgi-worker").string(), "--coordinator",
+                                   (*coordinator)->address(), "--id", id, "--threads", "1",
+                                   "--poll-seconds", "0.05", "--tree-source", "stream",
+                                   "--cache-dir", (run / ("cache-" + id)).string()},
+          run / (id + ".log"), std::vector<std::string>{"PBGI_TOKEN=bench"});
+    }
+    std::string state;
+    const bool settled = pbgi::testing::waitFor(
+        [&] {
+          v1::GetStatusRequest r;
+          r.set_job(job->job());
+          auto st = client.getStatus(r);
+          if (st.ok() && st->jobs_size() > 0) state = st->jobs(0).state();
+          return state != "active" && !state.empty();
+        },
+        1800.0);
+    const double seconds = since(t0);
+    if (!settled || state != "done") {
+      std::fprintf(stderr, "farm_bench: the locality run ended %s\n", state.c_str());
+      std::exit(1);
+    }
+    const std::string metrics = (*coordinator)->metricsText();
+    const auto value = [&](const std::string& name) -> uint64_t {
+      const size_t at = metrics.find("\n" + name + " ");
+      return at == std::string::npos ? 0 : std::stoull(metrics.substr(at + name.size() + 2));
+    };
+    const uint64_t bytes = value("pbgi_tree_bytes_served_total");
+    const uint64_t pages = value("pbgi_tree_pages_served_total");
+    if (!locality) {
+      plainBytes = bytes;
+      plainSeconds = seconds;
+    }
+    std::printf("  %-8s dispatch: %.2f s, %llu pages, %.2f MiB from the page service%s\n",
+                locality ? "locality" : "plain", seconds, static_cast<unsigned long long>(pages),
+                bytes / 1048576.0,
+                locality ? fmt::format(" ({:.2f}x the bytes, {:.2f}x the time of plain)",
+                                       double(bytes) / std::max<uint64_t>(plainBytes, 1),
+                                       seconds / plainSeconds)
+                               .c_str()
+                         : "");
+    for (auto& w : workers) w.signal(SIGTERM);
+    for (auto& w : workers) w.wait(30.0);
+  }
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace pbgi::farm
 
@@ -198,5 +282,6 @@ int main(int argc, char** argv) {
   if (only.empty() || only == "--leases-only") pbgi::farm::leaseRoundTrips();
   if (only.empty() || only == "--workers-only") pbgi::farm::workerScaling();
   if (only.empty() || only == "--stream-only") pbgi::farm::pageStream();
+  if (only.empty() || only == "--dispatch-only") pbgi::farm::localityDispatch();
   return 0;
 }

@@ -263,6 +263,32 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
       << "a done task takes no second completion";
 }
 
+// Locality: a worker gets the tasks of the frames it holds first, most recent first, but only
+// within the job it would be leased from anyway (no job waits on another's frames).
+TEST_F(SqliteJobStoreTest, AWorkerGetsTheTasksOfFramesItHoldsWithinTheMostUrgentJob) {
+  const int64_t a = submit(makeSpec({1, 2, 3}, 2, false), 0);
+  auto leaseHolding = [&](const std::string& worker, std::vector<HeldFrame> held) {
+    auto l = store_->lease(worker, 1, kLease, held);
+    EXPECT_TRUE(l.ok() && l->has_value()) << l.status();
+    return l.ok() && l->has_value() ? **l : Lease{};
+  };
+  // Nothing held: plain order.
+  EXPECT_EQ(leaseHolding("w1", {}).ref.frame, 1);
+  // Frames of another job are no reason; frame 3 then frame 2, most recent first.
+  const Lease third = leaseHolding("w2", {{a + 7, 1}, {a, 3}, {a, 2}});
+  EXPECT_EQ(third.ref.frame, 3);
+  EXPECT_EQ(third.ref.tile, 0);
+  EXPECT_EQ(leaseHolding("w2", {{a, 3}, {a, 2}}).ref.frame, 3);
+  EXPECT_EQ(leaseHolding("w2", {{a, 3}, {a, 2}}).ref.frame, 2);  // frame 3's tiles are out
+  // A more urgent job comes first whatever a worker holds.
+  const int64_t b = submit(makeSpec({9}, 1, false, /*priority=*/5), 1);
+  const Lease urgent = leaseHolding("w2", {{a, 2}});
+  EXPECT_EQ(urgent.ref.job, b);
+  EXPECT_EQ(urgent.ref.frame, 9);
+  // Back to the held frame once the urgent job has nothing ready.
+  EXPECT_EQ(leaseHolding("w2", {{a, 2}}).ref.frame, 2);
+}
+
 TEST_F(SqliteJobStoreTest, ATaskDeadAtTheCapTakesItsDependentsAndFailsTheJob) {
   RetryPolicy policy;
   policy.maxAttempts = 2;
