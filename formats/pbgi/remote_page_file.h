@@ -93,8 +93,21 @@ class PageDiskCache {
   PageDiskCacheStats stats_;
 };
 
+// A snapshot of RemoteFetchStats; the difference of two is what happened between them.
+struct RemoteFetchCounts {
+  uint64_t headBytes = 0, pagesFetched = 0, bytesFetched = 0, diskHits = 0, damaged = 0;
+  RemoteFetchCounts operator-(const RemoteFetchCounts& o) const {
+    return {headBytes - o.headBytes, pagesFetched - o.pagesFetched, bytesFetched - o.bytesFetched,
+            diskHits - o.diskHits, damaged - o.damaged};
+  }
+};
+
 // What a remote file cost: pages and bytes over the network, pages found on local disk.
 struct RemoteFetchStats {
+  RemoteFetchCounts counts() const {
+    return {headBytes.load(), pagesFetched.load(), bytesFetched.load(), diskHits.load(),
+            damaged.load()};
+  }
   std::atomic<uint64_t> headBytes{0};
   std::atomic<uint64_t> pagesFetched{0};
   std::atomic<uint64_t> bytesFetched{0};

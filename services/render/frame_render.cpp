@@ -30,7 +30,7 @@ std::string previewPathFor(const std::string& exrPath) {
 
 // The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
 // the same shot bytes and bake settings is on disk, else a new bake.
-absl::StatusOr<std::unique_ptr<TreeFile>> frameTree(const ShotDesc& shot,
+absl::StatusOr<std::shared_ptr<TreeFile>> frameTree(const ShotDesc& shot,
                                                     const RenderSettings& settings,
                                                     const FrameRenderRequest& request,
                                                     const Scene& scene, TreeReadReport* report) {
@@ -130,7 +130,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
 
   // An integrator that needs the frame's tree reads it through a page cache; both outlive the
   // render.
-  std::unique_ptr<TreeFile> treeFile;
+  std::shared_ptr<TreeFile> treeFile;
   std::optional<PageCache> cache;
   if (info->needsTree) {
     const TreeNeeds needs = info->treeNeeds(settings);

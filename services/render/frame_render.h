@@ -38,8 +38,9 @@ struct FrameRenderRequest {
   IntegratorParams params;
   size_t cacheBytes = 0;       // page cache budget; 0: the integrator's cache_mb
   std::string treePath;        // render from this tree; empty: the frame's bake (below)
-  // Or from the tree this opens (a worker's remote tree); takes precedence over treePath.
-  std::function<absl::StatusOr<std::unique_ptr<TreeFile>>()> openTree;
+  // Or from the tree this opens (a worker's remote tree, kept across tasks); takes precedence
+  // over treePath.
+  std::function<absl::StatusOr<std::shared_ptr<TreeFile>>()> openTree;
   std::string bakeDir;         // the frame's bake lives here; empty: beside the image
   bool rebake = false;         // bake even when a matching bake is on disk
   std::function<void(const std::string& stage, uint64_t done, uint64_t total)> bakeProgress;

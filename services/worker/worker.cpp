@@ -4,6 +4,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
+#include <map>
 #include <mutex>
 #include <thread>
 
@@ -174,6 +175,12 @@ class Heartbeat {
   std::thread thread_;
 };
 
+// A frame's tree read through the page service, and what it has cost so far.
+struct RemoteTree {
+  std::shared_ptr<TreeFile> tree;
+  std::shared_ptr<RemoteFetchStats> stats;
+};
+
 struct TaskResult {
   std::string log;
   uint64_t cacheHits = 0;
@@ -218,11 +225,15 @@ class Worker {
 
   // Remembers that this worker holds the frame's scene and pages now, most recent first.
   void hold(int64_t job, int frame);
+  // A frame's tree through the page service, opened (its head fetched) once and kept while the
+  // worker holds the frame. `opened`: whether this call opened it.
+  absl::StatusOr<RemoteTree> remoteTree(int64_t job, int frame, bool* opened);
 
   const WorkerOptions& options_;
   const std::string id_;
   FarmClient client_;
   std::vector<HeldFrame> held_;
+  std::map<std::pair<int64_t, int>, RemoteTree> remoteTrees_;
   std::string cacheDir_;
   SceneKeeper scenes_;
   std::shared_ptr<PageDiskCache> pageDisk_;
@@ -234,6 +245,25 @@ void Worker::hold(int64_t job, int frame) {
   std::erase(held_, HeldFrame{job, frame});
   held_.insert(held_.begin(), HeldFrame{job, frame});
   if (held_.size() > kHeldFrames) held_.resize(kHeldFrames);
+  std::erase_if(remoteTrees_, [&](const auto& t) {
+    return std::find(held_.begin(), held_.end(), HeldFrame{t.first.first, t.first.second}) ==
+           held_.end();
+  });
+}
+
+absl::StatusOr<RemoteTree> Worker::remoteTree(int64_t job, int frame, bool* opened) {
+  *opened = false;
+  if (auto it = remoteTrees_.find({job, frame}); it != remoteTrees_.end()) return it->second;
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<PageDiskCache> disk, pageDisk());
+  auto fetcher = std::make_shared<FarmPageFetcher>(client_, job, frame);
+  PBGI_ASSIGN_OR_RETURN(PageFileHead head, fetcher->head());
+  RemoteTree remote{.stats = std::make_shared<RemoteFetchStats>()};
+  PBGI_ASSIGN_OR_RETURN(remote.tree,
+                        TreeFile::open(openRemotePageFile(std::move(head), fetcher, disk,
+                                                          remote.stats)));
+  *opened = true;
+  remoteTrees_[{job, frame}] = remote;
+  return remote;
 }
 
 absl::StatusOr<std::shared_ptr<PageDiskCache>> Worker::pageDisk() {
@@ -292,10 +322,11 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     if (total > 0) beat.progress(double(done) / double(total));
   };
   TaskResult result;
-  std::shared_ptr<RemoteFetchStats> streamed;
+  RemoteTree remote;
+  bool opened = false;
+  RemoteFetchCounts before;
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
   if (integrator->needsTree) {
-    streamed = std::make_shared<RemoteFetchStats>();
     // The bake task made the tree; a tile never bakes one of its own.
     PBGI_ASSIGN_OR_RETURN(const std::string shared,
                           jobTreePath(shot, task.work_dir(), task.frame()));
@@ -308,13 +339,12 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
     }
     if (options_.treeSource == TreeSource::kStream ||
         (options_.treeSource == TreeSource::kAuto && !visible)) {
-      // Single pages as the traversals reach them, through this worker's disk cache.
-      PBGI_ASSIGN_OR_RETURN(std::shared_ptr<PageDiskCache> disk, pageDisk());
-      auto fetcher = std::make_shared<FarmPageFetcher>(client_, task.job(), task.frame());
-      PBGI_ASSIGN_OR_RETURN(PageFileHead head, fetcher->head());
-      request.openTree = [fetcher, disk, stats = streamed,
-                          head = std::move(head)]() -> absl::StatusOr<std::unique_ptr<TreeFile>> {
-        return TreeFile::open(openRemotePageFile(head, fetcher, disk, stats));
+      // Single pages as the traversals reach them, through this worker's disk cache; the tree
+      // stays open for the frame's later tiles.
+      PBGI_ASSIGN_OR_RETURN(remote, remoteTree(task.job(), task.frame(), &opened));
+      before = remote.stats->counts();
+      request.openTree = [tree = remote.tree]() -> absl::StatusOr<std::shared_ptr<TreeFile>> {
+        return tree;
       };
     } else {
       request.treePath = shared;
@@ -333,15 +363,17 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
                               report.tree->cache.toString(), report.tree->pagesRead,
                               report.tree->pagesInFile);
   }
-  if (request.openTree) {
+  if (remote.tree) {
     // What the tile cost the network, against the file.
-    const uint64_t fileBytes = report.tree ? report.tree->fileBytes : 0;
-    result.treeBytesStreamed = streamed->headBytes + streamed->bytesFetched;
+    const RemoteFetchCounts cost = remote.stats->counts() - before;
+    const uint64_t headBytes = opened ? remote.stats->headBytes.load() : 0;
+    result.treeBytesStreamed = headBytes + cost.bytesFetched;
     result.log += fmt::format(
-        "pages over the network {} ({} bytes) and the head ({} bytes): {} of the file's {} "
+        "pages over the network {} ({} bytes) and the head ({} bytes{}): {} of the file's {} "
         "bytes; pages from the disk cache {}; damaged on the way and fetched again {}\n",
-        streamed->pagesFetched.load(), streamed->bytesFetched.load(), streamed->headBytes.load(),
-        result.treeBytesStreamed, fileBytes, streamed->diskHits.load(), streamed->damaged.load());
+        cost.pagesFetched, cost.bytesFetched, headBytes,
+        opened ? "" : ", open from an earlier tile", result.treeBytesStreamed,
+        remote.tree->container().info().fileSize, cost.diskHits, cost.damaged);
   }
   result.log += fmt::format("samples {}, discarded (NaN/Inf) {}\n", report.counters.cameraSamples,
                             report.counters.discardedSamples);
@@ -477,6 +509,8 @@ int Worker::run(const std::atomic<bool>& stop) {
     }
     if (result.ok() && (task->kind() == "bake" || task->kind() == "tile")) {
       hold(task->job(), task->frame());
+    } else if (!result.ok() && task->kind() == "tile") {
+      remoteTrees_.erase({task->job(), task->frame()});  // the frame baked again, say
     }
     report(*task, result, std::chrono::duration<double>(Clock::now() - started).count());
   }

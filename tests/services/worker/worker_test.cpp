@@ -391,6 +391,7 @@ TEST_F(WorkerTest, AWorkerOnAFullDiskIsBlocklistedAndAGoodOneStreamsSinglePages)
   ASSERT_TRUE(events.ok()) << events.status();
   int fullDisk = 0;
   uint64_t fetchedByGood = 0;  // pages over the network, as the good worker's tiles logged them
+  int keptOpen = 0;
   const std::regex fetched("pages over the network ([0-9]+) ");
   for (const TaskEvent& e : *events) {
     fullDisk += e.event == "failed" && e.text.find("the disk is full") != std::string::npos &&
@@ -398,8 +399,10 @@ TEST_F(WorkerTest, AWorkerOnAFullDiskIsBlocklistedAndAGoodOneStreamsSinglePages)
     std::smatch m;
     if (e.event == "done" && e.worker == "good" && std::regex_search(e.text, m, fetched)) {
       fetchedByGood += std::stoull(m[1]);
+      keptOpen += e.text.find("open from an earlier tile") != std::string::npos;
     }
   }
+  EXPECT_EQ(keptOpen, 3) << "the frame's tree is opened for its first tile and kept";
   if (canMount) EXPECT_GE(fullDisk, 2) << workerLogs();
   // No whole-tree copy: single pages, each fetched once for the frame's four tiles (the disk
   // cache keeps them between tasks), every one held intact.
