@@ -11,6 +11,16 @@ bool reflectsLight(const Surfel& s) {
   return s.materialClass == MaterialClass::kDiffuse && !isBlack(s.albedo);
 }
 
+CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
+  if (bounce <= 1) return first;
+  CutOptions o = first;
+  const float hi = 4.0f * kPi;
+  o.lightSolidAngle = std::min(hi, o.lightSolidAngle * kLaterBounceCoarsening);
+  o.lightBound = std::min(hi, o.lightBound * kLaterBounceCoarsening);
+  o.receiverBound = std::min(hi, o.receiverBound * kLaterBounceCoarsening);
+  return o;
+}
+
 SurfelBouncer::SurfelBouncer(const CutOptions& options) : options_(options) {}
 
 absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,

@@ -25,6 +25,13 @@
 
 namespace pbgi {
 
+// How bounce `bounce` (1 is the first) gathers, given how the first gathers: light reflected
+// twice or more is smoother and dimmer than the direct light the first bounce gathers, so
+// later bounces gather with the first's solid-angle thresholds (eps_L, eps~_L, eps~_E) times
+// kLaterBounceCoarsening, clamped to their valid range.
+inline constexpr float kLaterBounceCoarsening = 4.0f;
+CutOptions bounceCutOptions(const CutOptions& first, int bounce);
+
 // Whether a surfel reflects gathered light at all.
 bool reflectsLight(const Surfel& s);
 

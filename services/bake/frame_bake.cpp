@@ -31,8 +31,9 @@ namespace {
 // Surfels shaded per batch: enough to keep every core busy, small next to any budget.
 constexpr size_t kChunkSurfels = 64 * 1024;
 static_assert(kChunkSurfels % kBounceChunkSurfels == 0);
-// How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail.
-constexpr int kBounceRevision = 3;
+// How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail, 4
+// each bounce gathering only the light the last one added, later bounces coarser.
+constexpr int kBounceRevision = 4;
 // A surfel's spilled irradiance: front then back, 3 x f32 each, little-endian.
 constexpr size_t kIrradianceBytes = 24;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
@@ -136,17 +137,19 @@ struct BounceSpills {
   SpillFile* next = nullptr;      // this bounce's
 };
 
-// Lights every surfel of the sorted spill with bounce `bounce`, gathered from the tree at
-// `fromPath` through a page cache: writes each surfel's irradiance to spills.next, adds the
-// bounce's own reflected power (what its irradiance adds over the last bounce's) to `power`,
-// and, when `toPath` is given, writes the next tree (direct light plus albedo / pi of the
-// irradiance; only diffuse surfels reflect it, as in the direct pass).
+// Lights every surfel of the sorted spill with bounce `bounce`: the irradiance the tree at
+// `fromPath` sends it (the light the last bounce added, or the direct light before the first),
+// gathered through a page cache with `cut`. Writes each surfel's irradiance so far (the last
+// bounce's plus this one's) to spills.next, adds this bounce's reflected power to `power`,
+// and, when `toPath` is given, writes the tree of the light this bounce adds (albedo / pi of
+// its irradiance; only diffuse surfels reflect it, as in the direct pass) for the next.
 absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
                                            const std::string* toPath, SpillFile& sorted,
                                            BounceSpills spills, const TreeFileWriteOptions& options,
-                                           const FrameBakeRequest& request, uint64_t seed,
-                                           uint64_t surfels, int bounce, const Scene& scene,
-                                           FrameBakeReport* report, Rgb* power) {
+                                           const FrameBakeRequest& request, const CutOptions& cut,
+                                           uint64_t seed, uint64_t surfels, int bounce,
+                                           const Scene& scene, FrameBakeReport* report,
+                                           Rgb* power) {
   CutStats* cutStats = &report->bounceCut;
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
@@ -163,7 +166,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
   if (spills.previous != nullptr) {
     if (auto s = spills.previous->rewind(); !s.ok()) return s;
   }
-  SurfelBouncer bouncer(request.bounceCut);
+  SurfelBouncer bouncer(cut);
   // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
   // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
   // but hold their cuts' waiting pairs at once (about 6 MiB more per group there: 363 MB
@@ -174,7 +177,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
                        request.memoryBudget / 4 / (size_t{8} << 20));
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
-  std::vector<SurfelIrradiance> previous, irradiance;
+  std::vector<SurfelIrradiance> previous, added, total;
   std::vector<uint64_t> keys;
   std::vector<uint8_t> bytes;
   double sum[3] = {0.0, 0.0, 0.0};
@@ -184,7 +187,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     if (auto s = readIrradiance(spills.previous, n, bytes, previous); !s.ok()) return s;
     chunk.resize(n);
     for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
-    irradiance.assign(n, SurfelIrradiance{});
+    added.assign(n, SurfelIrradiance{});
     // The cuts' groups start at multiples of kBounceChunkSurfels in the sorted order and key
     // their random numbers by it, whatever the threads; the chunk's cuts sweep together.
     keys.clear();
@@ -192,18 +195,23 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
       keys.push_back(hashKeys(seed, request.frame, bounce, done + first));
     }
     if (auto s = bouncer.gather(cache, scene, chunk, kBounceChunkSurfels, keys,
-                                groupsTogether, irradiance, cutStats);
+                                groupsTogether, added, cutStats);
         !s.ok()) {
       return s;
     }
-    if (auto s = writeIrradiance(*spills.next, irradiance, bytes); !s.ok()) return s;
+    total.resize(n);
     for (size_t i = 0; i < n; ++i) {
-      const Rgb p = reflectedPower(chunk[i], {irradiance[i].front - previous[i].front,
-                                              irradiance[i].back - previous[i].back});
+      total[i] = {previous[i].front + added[i].front, previous[i].back + added[i].back};
+    }
+    if (auto s = writeIrradiance(*spills.next, total, bytes); !s.ok()) return s;
+    for (size_t i = 0; i < n; ++i) {
+      const Rgb p = reflectedPower(chunk[i], added[i]);
       for (int c = 0; c < 3; ++c) sum[c] += p[c];
       if (writer == nullptr) continue;
       SortedSurfel lit = batch[i];
-      addReflected(lit.surfel, irradiance[i]);
+      lit.surfel.radiance = Rgb(0.0f);
+      lit.surfel.backRadiance = Rgb(0.0f);
+      addReflected(lit.surfel, added[i]);
       if (auto s = writer->add(lit); !s.ok()) return s;
     }
     done += n;
@@ -453,7 +461,8 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       auto lit = bakeBounce(bounceTreePath(bounce - 1), last ? nullptr : &to, *sorted,
                             {.previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
                              .next = &irradiance.back()},
-                            treeOptions, request, shot.render.seed, report.sampling.surfels,
+                            treeOptions, request, bounceCutOptions(request.bounceCut, bounce),
+                            shot.render.seed, report.sampling.surfels,
                             bounce, scene, &report, &power);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);

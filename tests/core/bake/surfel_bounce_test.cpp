@@ -1,0 +1,69 @@
+// The bake's bounce rules that need no scene: how each bounce gathers, what a surfel reflects,
+// and the tail that stands in for the bounces not baked.
+
+#include "core/bake/surfel_bounce.h"
+
+#include <gtest/gtest.h>
+
+namespace pbgi {
+namespace {
+
+TEST(SurfelBounce, LaterBouncesGatherAtCoarserSolidAnglesThanTheFirst) {
+  const CutOptions first = *cutPreset("draft");
+  EXPECT_EQ(bounceCutOptions(first, 1), first);
+  for (int bounce : {2, 3, 16}) {
+    const CutOptions later = bounceCutOptions(first, bounce);
+    EXPECT_FLOAT_EQ(later.lightSolidAngle, first.lightSolidAngle * kLaterBounceCoarsening);
+    EXPECT_FLOAT_EQ(later.lightBound, first.lightBound * kLaterBounceCoarsening);
+    EXPECT_FLOAT_EQ(later.receiverBound, first.receiverBound * kLaterBounceCoarsening);
+    EXPECT_EQ(later.normalAngle, first.normalAngle);
+    EXPECT_EQ(later.selfSkipRadius, first.selfSkipRadius);
+    EXPECT_TRUE(later.validate().ok());
+  }
+  // Thresholds near the top of their range stay valid.
+  CutOptions wide = first;
+  wide.lightSolidAngle = wide.lightBound = wide.receiverBound = 10.0f;
+  EXPECT_TRUE(bounceCutOptions(wide, 2).validate().ok()) << bounceCutOptions(wide, 2).toString();
+  // Zero thresholds (every surfel against every receiver) stay exact.
+  CutOptions exact = first;
+  exact.lightSolidAngle = exact.lightBound = exact.receiverBound = 0.0f;
+  EXPECT_EQ(bounceCutOptions(exact, 3), exact);
+}
+
+TEST(SurfelBounce, OnlyDiffuseSurfelsReflectAndEachSideReflectsItsOwnLight) {
+  Surfel s;
+  s.radius = 0.5f;
+  s.albedo = Rgb(0.5f, 0.25f, 0.0f);
+  s.materialClass = MaterialClass::kDiffuse;
+  s.radiance = Rgb(1.0f);
+  const SurfelIrradiance e{.front = Rgb(kPi), .back = Rgb(2.0f * kPi)};
+  const Rgb p = reflectedPower(s, e);
+  EXPECT_FLOAT_EQ(p.x, 0.5f * 3.0f * s.area());
+  EXPECT_FLOAT_EQ(p.z, 0.0f);
+  Surfel lit = s;
+  addReflected(lit, e);
+  EXPECT_FLOAT_EQ(lit.radiance.x, 1.5f);
+  EXPECT_FLOAT_EQ(lit.backRadiance.x, 1.0f);
+  EXPECT_FLOAT_EQ(lit.backRadiance.y, 0.5f);
+  for (MaterialClass c : {MaterialClass::kGlossy, MaterialClass::kTransmissive,
+                          MaterialClass::kEmissive}) {
+    Surfel other = s;
+    other.materialClass = c;
+    EXPECT_TRUE(isBlack(reflectedPower(other, e)));
+    addReflected(other, e);
+    EXPECT_EQ(other.radiance, s.radiance);
+  }
+}
+
+TEST(SurfelBounce, TheTailIsAGeometricSeriesHeldBelowOne) {
+  // r = 0.5: the bounces past sum to the last one's power again.
+  const Rgb f = tailFactor({1.0, 2.0, 0.0}, {2.0, 2.0, 1.0});
+  EXPECT_FLOAT_EQ(f.x, 1.0f);
+  // r >= 1 (a bounce brighter than the last: noise, or a scene of white walls) is held.
+  EXPECT_FLOAT_EQ(f.y, kMaxBounceRatio / (1.0f - kMaxBounceRatio));
+  EXPECT_FLOAT_EQ(f.z, 0.0f);  // nothing reflected: no tail
+  EXPECT_FLOAT_EQ(tailFactor({1.0, 1.0, 1.0}, {0.0, -1.0, 1e300}).x, 0.0f);
+}
+
+}  // namespace
+}  // namespace pbgi
