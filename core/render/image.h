@@ -2,8 +2,13 @@
 // A float image with named channels, interleaved per pixel, plus typed metadata. This is what
 // the renderer produces and what formats/image writes to OpenEXR (channel names are EXR
 // names: "R", "G", "B", "A", "albedo.R", "normal.X", "depth.Z", ...).
+//
+// Its window: where its pixels lie in a larger frame (OpenEXR's data window inside the display
+// window). By default the image is the whole frame; a farm tile is its own pixels, placed at
+// the tile's corner of the frame.
 
 #include <array>
+#include <optional>
 #include <string>
 #include <variant>
 #include <vector>
@@ -19,6 +24,14 @@ struct MetadataEntry {
   MetadataValue value;
 };
 
+// The frame an image's pixels belong to: pixel (0, 0) is the frame's (x, y); the frame is
+// fullWidth x fullHeight.
+struct ImageWindow {
+  int x = 0, y = 0;
+  int fullWidth = 0, fullHeight = 0;
+  bool operator==(const ImageWindow&) const = default;
+};
+
 class Image {
  public:
   Image() = default;
@@ -31,6 +44,12 @@ class Image {
 
   int width() const { return width_; }
   int height() const { return height_; }
+  // Where the pixels lie in their frame (the image itself unless set).
+  ImageWindow window() const {
+    return window_ ? *window_ : ImageWindow{0, 0, width_, height_};
+  }
+  void setWindow(const ImageWindow& w) { window_ = w; }
+  bool wholeFrame() const { return window() == ImageWindow{0, 0, width_, height_}; }
   int channelCount() const { return static_cast<int>(channels_.size()); }
   const std::vector<std::string>& channels() const { return channels_; }
   // Index of a channel by name, or -1.
@@ -64,6 +83,7 @@ class Image {
 
   int width_ = 0;
   int height_ = 0;
+  std::optional<ImageWindow> window_;
   std::vector<std::string> channels_;
   std::vector<float> pixels_;
   std::vector<MetadataEntry> metadata_;

@@ -47,6 +47,44 @@ void put(Image& image, int x, int y, int c, const Vec3f& v) {
   image.at(x, y, c + 2) = v.z;
 }
 
+// Where the frame's pixels go in the image renderFrame returns: the whole frame, or only the
+// regions asked for, stacked top to bottom and left-aligned (a buffer of the tile's own size).
+class Raster {
+ public:
+  Raster(int width, int height, const std::vector<TileRect>& regions) : regions_(regions) {
+    int y = 0;
+    for (const TileRect& r : regions_) {
+      rowOffset_.push_back(y);
+      y += r.height();
+    }
+    const Vec2i size = regions_.empty() ? Vec2i(width, height) : stackedSize(regions_);
+    image_ = Image(size.x, size.y, frameChannels());
+    if (regions_.size() == 1) {
+      image_.setWindow({regions_[0].x0, regions_[0].y0, width, height});
+    }
+  }
+
+  bool wanted(int x, int y) const {
+    return regions_.empty() || std::any_of(regions_.begin(), regions_.end(),
+                                           [&](const TileRect& r) { return r.contains(x, y); });
+  }
+  // Calls f(ix, iy) for every place of the image that frame pixel (x, y) goes to.
+  template <class F>
+  void forEachPlace(int x, int y, F&& f) {
+    if (regions_.empty()) return f(x, y);
+    for (size_t i = 0; i < regions_.size(); ++i) {
+      const TileRect& r = regions_[i];
+      if (r.contains(x, y)) f(x - r.x0, y - r.y0 + rowOffset_[i]);
+    }
+  }
+  Image& image() { return image_; }
+
+ private:
+  std::vector<TileRect> regions_;
+  std::vector<int> rowOffset_;
+  Image image_;
+};
+
 TileRect intersect(const TileRect& a, const TileRect& b) {
   return {std::max(a.x0, b.x0), std::max(a.y0, b.y0), std::min(a.x1, b.x1),
           std::min(a.y1, b.y1)};
@@ -140,8 +178,8 @@ struct UnitBuffers {
 
 absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                         const RenderSettings& settings, int frame, const RenderUnit& unit,
-                        const std::vector<TileRect>& regions, UnitBuffers& buf, Image& image,
-                        RenderCounters* counters) {
+                        Raster& raster, UnitBuffers& buf, RenderCounters* counters) {
+  Image& image = raster.image();
   PBGI_CHECK_EQ(image.channelCount(), static_cast<int>(kChannelCount));
   buf.pixels.clear();
   buf.blocks.clear();
@@ -174,7 +212,7 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
   buf.samples.assign(n, PathSample{});
   for (size_t i = 0; i < buf.pixels.size(); ++i) {
     const Vec2i px = buf.pixels[i];
-    const uint64_t pixel = static_cast<uint64_t>(px.y) * image.width() + px.x;
+    const uint64_t pixel = static_cast<uint64_t>(px.y) * camera.imageWidth() + px.x;
     for (int s = 0; s < spp; ++s) {
       const size_t k = i * spp + s;
       Rng& rng = buf.rngs[k] = Rng::forKeys(settings.seed, frame, pixel, s);
@@ -197,11 +235,7 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
   for (size_t i = 0; i < buf.pixels.size(); ++i) {
     const int x = buf.pixels[i].x, y = buf.pixels[i].y;
     // A block renders whole, but writes only the pixels asked for.
-    if (unit.block && !regions.empty() &&
-        std::none_of(regions.begin(), regions.end(),
-                     [&](const TileRect& r) { return r.contains(x, y); })) {
-      continue;
-    }
+    if (!raster.wanted(x, y)) continue;
     Rgb sum(0.0f), direct(0.0f), indirect(0.0f), albedo(0.0f);
     Vec3f normal(0.0f);
     double depth = 0.0;
@@ -228,14 +262,16 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
     }
     if (hits == 0) ++counters->pixelsWithoutHit;
     const float inv = valid > 0 ? 1.0f / static_cast<float>(valid) : 0.0f;
-    put(image, x, y, kR, sum * inv);
-    image.at(x, y, kA) = valid > 0 ? static_cast<float>(hits) * inv : 0.0f;
-    put(image, x, y, kAlbedoR, albedo * inv);
     const float nlen = length(normal);
-    put(image, x, y, kNormalX, nlen > 0.0f ? normal / nlen : Vec3f(0.0f));
-    image.at(x, y, kDepth) = hits > 0 ? static_cast<float>(depth / hits) : 0.0f;
-    put(image, x, y, kDirectR, direct * inv);
-    put(image, x, y, kIndirectR, indirect * inv);
+    raster.forEachPlace(x, y, [&](int ix, int iy) {
+      put(image, ix, iy, kR, sum * inv);
+      image.at(ix, iy, kA) = valid > 0 ? static_cast<float>(hits) * inv : 0.0f;
+      put(image, ix, iy, kAlbedoR, albedo * inv);
+      put(image, ix, iy, kNormalX, nlen > 0.0f ? normal / nlen : Vec3f(0.0f));
+      image.at(ix, iy, kDepth) = hits > 0 ? static_cast<float>(depth / hits) : 0.0f;
+      put(image, ix, iy, kDirectR, direct * inv);
+      put(image, ix, iy, kIndirectR, indirect * inv);
+    });
   }
   return absl::OkStatus();
 }
@@ -251,6 +287,15 @@ const std::vector<std::string>& frameChannels() {
       "direct.R", "direct.G", "direct.B",
       "indirect.R", "indirect.G", "indirect.B"};
   return channels;
+}
+
+Vec2i stackedSize(const std::vector<TileRect>& regions) {
+  Vec2i size(0, 0);
+  for (const TileRect& r : regions) {
+    size.x = std::max(size.x, r.width());
+    size.y += r.height();
+  }
+  return size;
 }
 
 std::vector<Vec2i> mortonOrder(int nx, int ny) {
@@ -323,7 +368,15 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
                                   const RenderSettings& settings, int frame,
                                   const FrameRenderOptions& options,
                                   RenderCounters* countersOut) {
-  Image image(camera.imageWidth(), camera.imageHeight(), frameChannels());
+  for (const TileRect& r : options.regions) {
+    if (r.x0 < 0 || r.y0 < 0 || r.x1 > camera.imageWidth() || r.y1 > camera.imageHeight() ||
+        r.x0 >= r.x1 || r.y0 >= r.y1) {
+      return absl::OutOfRangeError(fmt::format("region [{}, {}) x [{}, {}) leaves the {}x{} image",
+                                               r.x0, r.x1, r.y0, r.y1, camera.imageWidth(),
+                                               camera.imageHeight()));
+    }
+  }
+  Raster raster(camera.imageWidth(), camera.imageHeight(), options.regions);
   const int tileSize = options.tileSize > 0 ? options.tileSize : settings.tileSize;
   const std::vector<RenderUnit> units = makeUnits(integrator, camera, options.regions, tileSize);
   const size_t counterCount = integrator.counterSpecs().size();
@@ -345,8 +398,8 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
         [&](const tbb::blocked_range<size_t>& range) {
           for (size_t i = range.begin(); i != range.end(); ++i) {
             if (failed.load(std::memory_order_relaxed)) return;
-            errors[i] = renderUnit(integrator, camera, settings, frame, units[i], options.regions,
-                                   buffers.local(), image, &perUnit[i]);
+            errors[i] = renderUnit(integrator, camera, settings, frame, units[i], raster,
+                                   buffers.local(), &perUnit[i]);
             if (!errors[i].ok()) failed = true;
             const int n = ++done;
             if (options.progress) options.progress(n, static_cast<int>(units.size()));
@@ -363,7 +416,7 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
     for (const auto& c : perUnit) total.add(c);
     *countersOut = total;
   }
-  return image;
+  return std::move(raster.image());
 }
 
 }  // namespace pbgi

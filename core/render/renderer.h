@@ -41,8 +41,10 @@ struct FrameRenderOptions {
   int threads = 0;  // 0: all cores
   int tileSize = 0; // 0: the shot's render.tile_size (pixel-independent integrators)
   std::function<void(int unitsDone, int unitsTotal)> progress;  // called from worker threads
-  // Render only these pixels (a farm tile: rectangles of the mosaic image); empty: every
-  // pixel. The rest of the image stays 0. Pixels come out as in a render of the whole frame.
+  // Render only these pixels (a farm tile: rectangles of the mosaic image, each inside it);
+  // empty: every pixel. The image returned then holds only them, stacked top to bottom and
+  // left-aligned (stackedSize); a single region's image has its window at the region's corner
+  // of the frame. Pixels come out as in a render of the whole frame.
   std::vector<TileRect> regions;
 };
 
@@ -54,6 +56,10 @@ std::vector<TileRect> makeTiles(int width, int height, int tileSize);
 // The same over `region` (pixel bounds of the image).
 std::vector<TileRect> makeTiles(const TileRect& region, int tileSize);
 
+// The size of rectangles stacked top to bottom, left-aligned: the image a render of those
+// regions returns (one region: its own size).
+Vec2i stackedSize(const std::vector<TileRect>& regions);
+
 // The cells of an nx x ny grid, in Morton (Z) order of their positions.
 std::vector<Vec2i> mortonOrder(int nx, int ny);
 
@@ -62,7 +68,8 @@ std::vector<Vec2i> mortonOrder(int nx, int ny);
 uint64_t blockKey(uint64_t seed, int frame, int bx, int by);
 
 // Every unit, in parallel. The first unit that fails (in unit order) fails the frame, its
-// error naming the unit; units not yet started are then skipped. `counters` may be null.
+// error naming the unit; units not yet started are then skipped. OutOfRange for a region that
+// leaves the image. `counters` may be null.
 absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& camera,
                                   const RenderSettings& settings, int frame,
                                   const FrameRenderOptions& options, RenderCounters* counters);

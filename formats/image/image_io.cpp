@@ -159,6 +159,10 @@ absl::StatusOr<ReadResult> readWithOiio(const std::string& path) {
     }
     ReadResult result{Image(spec.width, spec.height, std::move(names)),
                       spec.get_string_attribute("oiio:ColorSpace")};
+    // The data window in the display window (a farm tile's place in its frame).
+    const ImageWindow window{spec.x - spec.full_x, spec.y - spec.full_y, spec.full_width,
+                             spec.full_height};
+    if (window != ImageWindow{0, 0, spec.width, spec.height}) result.image.setWindow(window);
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT,
                         result.image.pixels().data())) {
       return absl::InvalidArgumentError(absl::StrCat(
@@ -211,6 +215,16 @@ absl::Status writeExr(const Image& image, const std::string& path) {
   }
 
   OIIO::ImageSpec spec(image.width(), image.height(), image.channelCount(), OIIO::TypeDesc::FLOAT);
+  if (!image.wholeFrame()) {
+    // A part of a frame (a farm tile): its data window inside the frame's display window.
+    const ImageWindow w = image.window();
+    spec.x = w.x;
+    spec.y = w.y;
+    spec.full_x = 0;
+    spec.full_y = 0;
+    spec.full_width = w.fullWidth;
+    spec.full_height = w.fullHeight;
+  }
   spec.channelnames = channels;
   spec.alpha_channel = image.channelIndex("A");
   for (const MetadataEntry& entry : image.metadata()) {

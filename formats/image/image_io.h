@@ -12,10 +12,12 @@
 namespace pbgi {
 
 // Writes every channel of `image` as 32-bit float into one OpenEXR part, with the image's
-// metadata as EXR attributes. Channel names are EXR layer names ("albedo.R").
+// metadata as EXR attributes and its window as the data window inside the display window.
+// Channel names are EXR layer names ("albedo.R").
 absl::Status writeExr(const Image& image, const std::string& path);
 
-// Reads any image OIIO can read (EXR, PNG, JPEG, ...) into float channels with its metadata.
+// Reads any image OIIO can read (EXR, PNG, JPEG, ...) into float channels with its metadata;
+// its pixels are the data window's, whose place in the display window is the image's window.
 absl::StatusOr<Image> readImage(const std::string& path);
 
 // Reads a lat-long environment map (RGB of the first three channels).

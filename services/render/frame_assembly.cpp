@@ -29,16 +29,6 @@ bool inside(const TileRect& r, int width, int height) {
   return r.x0 >= 0 && r.y0 >= 0 && r.x1 <= width && r.y1 <= height && r.x1 > r.x0 && r.y1 > r.y0;
 }
 
-// The size of rectangles stacked top to bottom, left-aligned.
-Vec2i stackedSize(const std::vector<TileRect>& regions) {
-  Vec2i size(0, 0);
-  for (const TileRect& r : regions) {
-    size.x = std::max(size.x, r.width());
-    size.y += r.height();
-  }
-  return size;
-}
-
 }  // namespace
 
 std::vector<FarmTile> farmTiles(int viewWidth, int viewHeight, Vec2i views, int tileSize) {
@@ -82,24 +72,6 @@ absl::StatusOr<TileRect> parseRegion(const std::string& text) {
   return r;
 }
 
-absl::StatusOr<Image> cropRegions(const Image& image, const std::vector<TileRect>& regions) {
-  for (const TileRect& r : regions) {
-    if (!inside(r, image.width(), image.height())) {
-      return absl::OutOfRangeError(fmt::format("region {} leaves the {}x{} image", regionText(r),
-                                               image.width(), image.height()));
-    }
-  }
-  const Vec2i size = stackedSize(regions);
-  Image out(size.x, size.y, image.channels());
-  int y = 0;
-  for (const TileRect& r : regions) {
-    copyBlock(image, r.x0, r.y0, out, 0, y, r.width(), r.height());
-    y += r.height();
-  }
-  out.metadata() = image.metadata();
-  return out;
-}
-
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
                                     const std::string& outPath) {
@@ -128,6 +100,20 @@ absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
       return absl::DataLossError(fmt::format("{}: {}x{} pixels, expected {}x{} for regions {}",
                                              where(), tile->width(), tile->height(), size.x,
                                              size.y, regionsText(tiles[i])));
+    }
+    // A tile of one rectangle lies at its place in the frame (or, as tiles were written
+    // before data windows, at the corner of its own image).
+    const ImageWindow w = tile->window();
+    const bool placed = tiles[i].size() == 1 &&
+                        w == ImageWindow{tiles[i][0].x0, tiles[i][0].y0, width, height};
+    if (!placed && !tile->wholeFrame()) {
+      return absl::DataLossError(fmt::format(
+          "{}: its data window starts at ({}, {}) of a {}x{} frame; expected {}", where(), w.x,
+          w.y, w.fullWidth, w.fullHeight,
+          tiles[i].size() == 1
+              ? fmt::format("({}, {}) of a {}x{} frame", tiles[i][0].x0, tiles[i][0].y0, width,
+                            height)
+              : fmt::format("the regions {} stacked from (0, 0)", regionsText(tiles[i]))));
     }
     if (i == 0) {
       frame = Image(width, height, tile->channels());

@@ -30,12 +30,10 @@ std::string regionText(const TileRect& region);
 absl::StatusOr<TileRect> parseRegion(const std::string& text);
 std::string regionsText(const std::vector<TileRect>& regions);
 
-// The pixels of `regions` as an image of their own: stacked top to bottom, left-aligned, as
-// wide as the widest (metadata kept). OutOfRange when a region leaves the image.
-absl::StatusOr<Image> cropRegions(const Image& image, const std::vector<TileRect>& regions);
-
 // Reads every tile EXR (tilePaths[i] holds tiles[i]), checks each is present, readable, of its
-// rectangles' stacked size and of the same channels, and writes the width x height frame to
+// rectangles' stacked size, where they lie (a tile of one rectangle is an EXR whose data
+// window is that rectangle of the frame's display window; one of several, the rectangles
+// stacked from the corner) and of the same channels, and writes the width x height frame to
 // `outPath` atomically (temporary then rename) with the first tile's metadata (less its
 // regions). A missing or wrong tile fails the frame naming the tile and its file; nothing is
 // written then. Returns the frame as written.

@@ -154,9 +154,6 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
     report.tree->pagesInFile = treeFile->container().directory().size();
     report.tree->fileBytes = treeFile->container().info().fileSize;
   }
-  if (!request.regions.empty()) {
-    PBGI_ASSIGN_OR_RETURN(image, cropRegions(*image, request.regions));
-  }
   clock.lap("render");
   const double renderSeconds = report.stages.back().seconds;
 

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include <OpenColorIO/OpenColorIO.h>
+#include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
 
 #include "formats/image/ocio_config.h"
@@ -149,6 +150,40 @@ TEST(ImageIoTest, ExrRoundTripKeepsAovChannelsMetadataAndExactBits) {
   EXPECT_EQ(header.attributes.at("pbgi:integrator").first, "string");
   EXPECT_EQ(header.attributes.at("pbgi:spp").first, "int");
   EXPECT_EQ(header.attributes.at("pbgi:exposure").first, "float");
+}
+
+// A farm tile is an EXR of its own pixels whose data window is its place in the frame's
+// display window; other readers (OIIO here) see it there.
+TEST(ImageIoTest, ExrKeepsAPartOfAFrameAsItsDataWindow) {
+  const fs::path dir = testing::makeTempDir("image-io");
+  Image tile(3, 2, {"R", "G", "B"});
+  for (size_t i = 0; i < tile.pixels().size(); ++i) tile.pixels()[i] = static_cast<float>(i);
+  EXPECT_TRUE(tile.wholeFrame());
+  tile.setWindow({32, 16, 64, 48});
+  EXPECT_FALSE(tile.wholeFrame());
+  const std::string path = (dir / "tile.exr").string();
+  ASSERT_TRUE(writeExr(tile, path).ok());
+  auto in = OIIO::ImageInput::open(path);
+  ASSERT_TRUE(in);
+  const OIIO::ImageSpec& spec = in->spec();
+  EXPECT_EQ(spec.x, 32);
+  EXPECT_EQ(spec.y, 16);
+  EXPECT_EQ(spec.width, 3);
+  EXPECT_EQ(spec.height, 2);
+  EXPECT_EQ(spec.full_width, 64);
+  EXPECT_EQ(spec.full_height, 48);
+  in->close();
+  auto back = readImage(path);
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(back->window(), (ImageWindow{32, 16, 64, 48}));
+  EXPECT_TRUE(back->pixels() == tile.pixels());
+  // A whole frame stays one: data window and display window the same.
+  Image whole(3, 2, {"R", "G", "B"});
+  ASSERT_TRUE(writeExr(whole, (dir / "whole.exr").string()).ok());
+  auto wholeBack = readImage((dir / "whole.exr").string());
+  ASSERT_TRUE(wholeBack.ok());
+  EXPECT_TRUE(wholeBack->wholeFrame());
+  fs::remove_all(dir);
 }
 
 TEST(ImageIoTest, ExrWriteIsAtomicAndCreatesTheFolder) {

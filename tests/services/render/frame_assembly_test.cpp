@@ -69,6 +69,15 @@ TEST_F(FrameAssembly, AssembledTilesAreTheWholeFrameBitForBit) {
   ASSERT_TRUE(tile0.ok()) << tile0.status();
   EXPECT_EQ(tile0->width(), 16);
   EXPECT_EQ(tile0->height(), 16);
+  // Each tile is an image of its own size whose data window is its place in the frame.
+  for (size_t i = 0; i < tiles.size(); ++i) {
+    auto tile = readImage(paths[i]);
+    ASSERT_TRUE(tile.ok()) << tile.status();
+    const TileRect& r = tiles[i][0];
+    EXPECT_EQ(tile->width(), r.width());
+    EXPECT_EQ(tile->height(), r.height());
+    EXPECT_EQ(tile->window(), (ImageWindow{r.x0, r.y0, shot_.width, shot_.height})) << i;
+  }
 
   const std::string out = (dir_ / "assembled.exr").string();
   ASSERT_TRUE(assembleFrame(paths, tiles, shot_.width, shot_.height, out).ok());
@@ -100,6 +109,19 @@ TEST_F(FrameAssembly, ATileOfTheWrongSizeFailsTheFrame) {
   const std::string out = (dir_ / "frame.exr").string();
   const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(FrameAssembly, ATileOfTheRightSizeInTheWrongPlaceFailsTheFrame) {
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 16);
+  std::vector<std::string> paths = renderTiles(tiles);
+  // Tiles 0 and 1 are both 16 x 16, at x 0 and x 16: only their data windows tell them apart.
+  std::swap(paths[0], paths[1]);
+  const std::string out = (dir_ / "frame.exr").string();
+  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
+  EXPECT_NE(s.message().find("tile 0"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("data window starts at (16, 0)"), std::string::npos) << s;
   EXPECT_FALSE(fs::exists(out));
 }
 

@@ -385,7 +385,9 @@ TEST_F(WorkerTest, AWorkerOnAFullDiskIsBlocklistedAndAGoodOneStreamsSinglePages)
   auto s = jobStatus(job);
   ASSERT_TRUE(s.ok());
   for (const auto& t : s->tasks()) {
-    if (t.kind() == "tile") EXPECT_EQ(t.worker(), "good");
+    if (t.kind() == "tile") {
+      EXPECT_EQ(t.worker(), "good");
+    }
   }
   auto events = coordinator_->store().events(job, std::nullopt, std::nullopt);
   ASSERT_TRUE(events.ok()) << events.status();
@@ -403,7 +405,9 @@ TEST_F(WorkerTest, AWorkerOnAFullDiskIsBlocklistedAndAGoodOneStreamsSinglePages)
     }
   }
   EXPECT_EQ(keptOpen, 3) << "the frame's tree is opened for its first tile and kept";
-  if (canMount) EXPECT_GE(fullDisk, 2) << workerLogs();
+  if (canMount) {
+    EXPECT_GE(fullDisk, 2) << workerLogs();
+  }
   // No whole-tree copy: single pages, each fetched once for the frame's four tiles (the disk
   // cache keeps them between tasks), every one held intact.
   auto tree = TreeFile::open(*jobTreePath(*loadShotFile(shotPath_.string()),
