@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <mutex>
+#include <system_error>
 #include <vector>
 #include <unistd.h>
 #include <filesystem>
@@ -27,11 +29,40 @@ inline std::optional<std::filesystem::path> sharedScenesDir() {
   return std::nullopt;
 }
 
-// A fresh, empty folder under the system's temporary folder, unique per call.
+// The folders makeTempDir made, removed when the test process exits (a failed test's too;
+// set PBGI_KEEP_TEST_DIRS to keep them for a look). A forked child leaves them to its parent.
+class TempDirs {
+ public:
+  static TempDirs& get() {
+    static TempDirs dirs;
+    return dirs;
+  }
+  void add(const std::filesystem::path& dir) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    dirs_.push_back(dir);
+  }
+  ~TempDirs() {
+    if (getpid() != owner_ || std::getenv("PBGI_KEEP_TEST_DIRS") != nullptr) return;
+    for (const auto& dir : dirs_) {
+      std::error_code ignored;
+      std::filesystem::remove_all(dir, ignored);
+    }
+  }
+
+ private:
+  TempDirs() = default;
+  const pid_t owner_ = getpid();
+  std::mutex mutex_;
+  std::vector<std::filesystem::path> dirs_;
+};
+
+// A fresh, empty folder under the system's temporary folder, unique per call, removed when
+// the test process exits.
 inline std::filesystem::path makeTempDir(const std::string& tag) {
   std::string templ = (std::filesystem::temp_directory_path() / ("pbgi-" + tag + "-XXXXXX")).string();
   char* made = mkdtemp(templ.data());
   if (made == nullptr) std::abort();
+  TempDirs::get().add(made);
   return std::filesystem::path(made);
 }
 
