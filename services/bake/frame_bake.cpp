@@ -12,6 +12,7 @@
 #include <tbb/task_arena.h>
 #include <xxhash.h>
 
+#include "core/bake/multi_bounce.h"
 #include "core/bake/surfel_bounce.h"
 #include "core/pbgi/morton.h"
 #include "core/pbgi/page_cache.h"
@@ -30,12 +31,9 @@ namespace {
 
 // Surfels shaded per batch: enough to keep every core busy, small next to any budget.
 constexpr size_t kChunkSurfels = 64 * 1024;
-static_assert(kChunkSurfels % kBounceChunkSurfels == 0);
 // How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail, 4
 // each bounce gathering only the light the last one added, later bounces coarser.
 constexpr int kBounceRevision = 4;
-// A surfel's spilled irradiance: front then back, 3 x f32 each, little-endian.
-constexpr size_t kIrradianceBytes = 24;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -89,68 +87,13 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
 
 namespace {
 
-absl::Status readSurfels(SpillFile& sorted, size_t n, std::vector<uint8_t>& bytes,
-                         std::vector<SortedSurfel>& batch) {
-  bytes.resize(n * kSurfelRecordBytes);
-  if (auto s = sorted.read(bytes); !s.ok()) return s;
-  batch.resize(n);
-  for (size_t i = 0; i < n; ++i) {
-    if (auto s = decodeSurfelRecord(bytes.data() + i * kSurfelRecordBytes, &batch[i]); !s.ok()) {
-      return absl::DataLossError(fmt::format("{}: {}", sorted.name(), s.message()));
-    }
-  }
-  return absl::OkStatus();
-}
-
-// n surfels' irradiance from `spill`, or black when there is none (before the first bounce).
-absl::Status readIrradiance(SpillFile* spill, size_t n, std::vector<uint8_t>& bytes,
-                            std::vector<SurfelIrradiance>& out) {
-  out.assign(n, SurfelIrradiance{});
-  if (spill == nullptr) return absl::OkStatus();
-  bytes.resize(n * kIrradianceBytes);
-  if (auto s = spill->read(bytes); !s.ok()) return s;
-  for (size_t i = 0; i < n; ++i) {
-    const uint8_t* p = bytes.data() + i * kIrradianceBytes;
-    for (int c = 0; c < 3; ++c) {
-      out[i].front[c] = loadF32(p + 4 * c);
-      out[i].back[c] = loadF32(p + 12 + 4 * c);
-    }
-  }
-  return absl::OkStatus();
-}
-
-absl::Status writeIrradiance(SpillFile& spill, std::span<const SurfelIrradiance> e,
-                             std::vector<uint8_t>& bytes) {
-  bytes.resize(e.size() * kIrradianceBytes);
-  for (size_t i = 0; i < e.size(); ++i) {
-    uint8_t* p = bytes.data() + i * kIrradianceBytes;
-    for (int c = 0; c < 3; ++c) {
-      storeF32(p + 4 * c, e[i].front[c]);
-      storeF32(p + 12 + 4 * c, e[i].back[c]);
-    }
-  }
-  return spill.write(bytes);
-}
-
-struct BounceSpills {
-  SpillFile* previous = nullptr;  // the last bounce's irradiance, null before the first
-  SpillFile* next = nullptr;      // this bounce's
-};
-
-// Lights every surfel of the sorted spill with bounce `bounce`: the irradiance the tree at
-// `fromPath` sends it (the light the last bounce added, or the direct light before the first),
-// gathered through a page cache with `cut`. Writes each surfel's irradiance so far (the last
-// bounce's plus this one's) to spills.next, adds this bounce's reflected power to `power`,
-// and, when `toPath` is given, writes the tree of the light this bounce adds (albedo / pi of
-// its irradiance; only diffuse surfels reflect it, as in the direct pass) for the next.
-absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
-                                           const std::string* toPath, SpillFile& sorted,
-                                           BounceSpills spills, const TreeFileWriteOptions& options,
-                                           const FrameBakeRequest& request, const CutOptions& cut,
-                                           uint64_t seed, uint64_t surfels, int bounce,
-                                           const Scene& scene, FrameBakeReport* report,
-                                           Rgb* power) {
-  CutStats* cutStats = &report->bounceCut;
+// Bounce `bounce` of the bake (multi_bounce.h): gathers from the tree at `fromPath` through a
+// page cache of a quarter of the budget and, when `toPath` is given, writes the tree of the
+// light the bounce adds there. Adds the bounce's reflected power to `power`.
+absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const std::string* toPath,
+                                           BounceRequest bounce, const TreeFileWriteOptions& options,
+                                           const FrameBakeRequest& request,
+                                           FrameBakeReport* report, Rgb* power) {
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
   // The bounce's cuts sweep the tree's pages (see bidirectional_cut.h).
@@ -161,103 +104,31 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath,
     auto created = TreeFileWriter::create(*toPath, options);
     if (!created.ok()) return created.status();
     writer = *std::move(created);
+    bounce.added = [w = writer.get()](const SortedSurfel& s) { return w->add(s); };
   }
-  if (auto s = sorted.rewind(); !s.ok()) return s;
-  if (spills.previous != nullptr) {
-    if (auto s = spills.previous->rewind(); !s.ok()) return s;
-  }
-  SurfelBouncer bouncer(cut);
+  bounce.from = &cache;
   // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
   // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
   // but hold their cuts' waiting pairs at once (about 6 MiB more per group there: 363 MB
   // against 277 MB peak RSS). A group per 8 MiB of a quarter of the budget, at least one per
   // thread.
-  const size_t groupsTogether =
+  bounce.groupsTogether =
       std::max<size_t>(static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency())),
                        request.memoryBudget / 4 / (size_t{8} << 20));
-  std::vector<SortedSurfel> batch;
-  std::vector<Surfel> chunk;
-  std::vector<SurfelIrradiance> previous, added, total;
-  std::vector<uint64_t> keys;
-  std::vector<uint8_t> bytes;
-  double sum[3] = {0.0, 0.0, 0.0};
-  for (uint64_t done = 0; done < surfels;) {
-    const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
-    if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
-    if (auto s = readIrradiance(spills.previous, n, bytes, previous); !s.ok()) return s;
-    chunk.resize(n);
-    for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
-    added.assign(n, SurfelIrradiance{});
-    // The cuts' groups start at multiples of kBounceChunkSurfels in the sorted order and key
-    // their random numbers by it, whatever the threads; the chunk's cuts sweep together.
-    keys.clear();
-    for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
-      keys.push_back(hashKeys(seed, request.frame, bounce, done + first));
-    }
-    if (auto s = bouncer.gather(cache, scene, chunk, kBounceChunkSurfels, keys,
-                                groupsTogether, added, cutStats);
-        !s.ok()) {
-      return s;
-    }
-    total.resize(n);
-    for (size_t i = 0; i < n; ++i) {
-      total[i] = {previous[i].front + added[i].front, previous[i].back + added[i].back};
-    }
-    if (auto s = writeIrradiance(*spills.next, total, bytes); !s.ok()) return s;
-    for (size_t i = 0; i < n; ++i) {
-      const Rgb p = reflectedPower(chunk[i], added[i]);
-      for (int c = 0; c < 3; ++c) sum[c] += p[c];
-      if (writer == nullptr) continue;
-      SortedSurfel lit = batch[i];
-      lit.surfel.radiance = Rgb(0.0f);
-      lit.surfel.backRadiance = Rgb(0.0f);
-      addReflected(lit.surfel, added[i]);
-      if (auto s = writer->add(lit); !s.ok()) return s;
-    }
-    done += n;
-    if (request.progress) request.progress(fmt::format("bounce {}", bounce), done, surfels);
+  if (request.progress) {
+    bounce.progress = [&](uint64_t done, uint64_t total) {
+      request.progress(fmt::format("bounce {}", bounce.bounce), done, total);
+    };
   }
-  *power = Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
+  auto reflected = bounceSurfels(bounce, &report->bounceCut);
+  if (!reflected.ok()) return reflected.status();
+  *power = *reflected;
   const PageCacheCounters c = cache.counters();
   report->bounceCacheHits += c.hits;
   report->bounceCacheLoads += c.misses;
   report->bounceTreePages += (*from)->container().directory().size();
   if (writer == nullptr) return TreeWriteResult{};
   return writer->finish();
-}
-
-// The tree of the last bounce with the light of the bounces past it: every reflecting surfel
-// reflects albedo / pi (E_K + (E_K - E_{K-1}) tail) on top of its direct light.
-absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& toPath, SpillFile& sorted,
-                                               SpillFile& last, SpillFile* previous,
-                                               const Rgb& tail,
-                                               const TreeFileWriteOptions& options,
-                                               uint64_t surfels) {
-  auto writer = TreeFileWriter::create(toPath, options);
-  if (!writer.ok()) return writer.status();
-  for (SpillFile* f : {&sorted, &last, previous}) {
-    if (f == nullptr) continue;
-    if (auto s = f->rewind(); !s.ok()) return s;
-  }
-  std::vector<SortedSurfel> batch;
-  std::vector<SurfelIrradiance> e, ePrevious;
-  std::vector<uint8_t> bytes;
-  for (uint64_t done = 0; done < surfels;) {
-    const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kChunkSurfels));
-    if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
-    if (auto s = readIrradiance(&last, n, bytes, e); !s.ok()) return s;
-    if (auto s = readIrradiance(previous, n, bytes, ePrevious); !s.ok()) return s;
-    for (size_t i = 0; i < n; ++i) {
-      const auto withTail = [&](const Rgb& last, const Rgb& before) {
-        return last + vmax(last - before, Rgb(0.0f)) * tail;
-      };
-      addReflected(batch[i].surfel, {withTail(e[i].front, ePrevious[i].front),
-                                     withTail(e[i].back, ePrevious[i].back)});
-      if (auto st = (*writer)->add(batch[i]); !st.ok()) return st;
-    }
-    done += n;
-  }
-  return (*writer)->finish();
 }
 
 }  // namespace
@@ -458,12 +329,17 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       const bool last = bounce == request.bounces;
       const std::string to = bounceTreePath(bounce);
       Rgb power(0.0f);
-      auto lit = bakeBounce(bounceTreePath(bounce - 1), last ? nullptr : &to, *sorted,
-                            {.previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
-                             .next = &irradiance.back()},
-                            treeOptions, request, bounceCutOptions(request.bounceCut, bounce),
-                            shot.render.seed, report.sampling.surfels,
-                            bounce, scene, &report, &power);
+      auto lit = bakeBounce(bounceTreePath(bounce - 1), last ? nullptr : &to,
+                            {.sorted = &*sorted,
+                             .previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
+                             .next = &irradiance.back(),
+                             .scene = &scene,
+                             .cut = bounceCutOptions(request.bounceCut, bounce),
+                             .seed = shot.render.seed,
+                             .frame = request.frame,
+                             .bounce = bounce,
+                             .surfels = report.sampling.surfels},
+                            treeOptions, request, &report, &power);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
       if (!lit.ok()) return result = lit.status(), void();
@@ -479,9 +355,15 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       report.tail = request.bounceTail
                         ? tailFactor(power(request.bounces), power(request.bounces - 1))
                         : Rgb(0.0f);
-      auto final = writeFinalTree(report.treePath, *sorted, irradiance.back(),
-                                  irradiance.size() == 2 ? &irradiance[0] : nullptr, report.tail,
-                                  treeOptions, report.sampling.surfels);
+      auto final = [&]() -> absl::StatusOr<TreeWriteResult> {
+        PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
+                              TreeFileWriter::create(report.treePath, treeOptions));
+        PBGI_RETURN_IF_ERROR(finalLight(
+            *sorted, irradiance.back(), irradiance.size() == 2 ? &irradiance[0] : nullptr,
+            report.tail, report.sampling.surfels,
+            [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
+        return writer->finish();
+      }();
       if (!final.ok()) return result = final.status(), void();
       report.tree = *final;
       clock.lap("final tree");

@@ -78,9 +78,6 @@ struct FrameBakeReport {
   double wallSeconds = 0.0;
 };
 
-// The cut's chunks: a bounce's receivers are this many consecutive sorted surfels.
-inline constexpr size_t kBounceChunkSurfels = 4096;
-
 // The bake a shot's [render] settings ask for (bake_points, bake_bounces, bake_quality) of
 // `frame`, as `pbgi bake` and the PBGI renderer both start from it, so that one reuses the
 // other's bake. InvalidArgument for an unknown bake_quality.

@@ -1,0 +1,143 @@
+#include "core/bake/multi_bounce.h"
+
+#include <algorithm>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "core/sampling/rng.h"
+#include "core/util/bytes.h"
+#include "core/util/status.h"
+
+namespace pbgi {
+
+namespace {
+
+// A surfel's spilled irradiance: front then back, 3 x f32 each, little-endian.
+constexpr size_t kIrradianceBytes = 24;
+
+absl::Status readSurfels(SpillFile& sorted, size_t n, std::vector<uint8_t>& bytes,
+                         std::vector<SortedSurfel>& batch) {
+  bytes.resize(n * kSurfelRecordBytes);
+  if (auto s = sorted.read(bytes); !s.ok()) return s;
+  batch.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    if (auto s = decodeSurfelRecord(bytes.data() + i * kSurfelRecordBytes, &batch[i]); !s.ok()) {
+      return absl::DataLossError(fmt::format("{}: {}", sorted.name(), s.message()));
+    }
+  }
+  return absl::OkStatus();
+}
+
+// n surfels' irradiance from `spill`, or black when there is none (before the first bounce).
+absl::Status readIrradiance(SpillFile* spill, size_t n, std::vector<uint8_t>& bytes,
+                            std::vector<SurfelIrradiance>& out) {
+  out.assign(n, SurfelIrradiance{});
+  if (spill == nullptr) return absl::OkStatus();
+  bytes.resize(n * kIrradianceBytes);
+  if (auto s = spill->read(bytes); !s.ok()) return s;
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* p = bytes.data() + i * kIrradianceBytes;
+    for (int c = 0; c < 3; ++c) {
+      out[i].front[c] = loadF32(p + 4 * c);
+      out[i].back[c] = loadF32(p + 12 + 4 * c);
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status writeIrradiance(SpillFile& spill, std::span<const SurfelIrradiance> e,
+                             std::vector<uint8_t>& bytes) {
+  bytes.resize(e.size() * kIrradianceBytes);
+  for (size_t i = 0; i < e.size(); ++i) {
+    uint8_t* p = bytes.data() + i * kIrradianceBytes;
+    for (int c = 0; c < 3; ++c) {
+      storeF32(p + 4 * c, e[i].front[c]);
+      storeF32(p + 12 + 4 * c, e[i].back[c]);
+    }
+  }
+  return spill.write(bytes);
+}
+
+}  // namespace
+
+absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats) {
+  if (auto s = request.sorted->rewind(); !s.ok()) return s;
+  if (request.previous != nullptr) {
+    if (auto s = request.previous->rewind(); !s.ok()) return s;
+  }
+  SurfelBouncer bouncer(request.cut);
+  std::vector<SortedSurfel> batch;
+  std::vector<Surfel> chunk;
+  std::vector<SurfelIrradiance> previous, added, total;
+  std::vector<uint64_t> keys;
+  std::vector<uint8_t> bytes;
+  double sum[3] = {0.0, 0.0, 0.0};
+  for (uint64_t done = 0; done < request.surfels;) {
+    const size_t n =
+        static_cast<size_t>(std::min<uint64_t>(request.surfels - done, kBounceBatchSurfels));
+    if (auto s = readSurfels(*request.sorted, n, bytes, batch); !s.ok()) return s;
+    if (auto s = readIrradiance(request.previous, n, bytes, previous); !s.ok()) return s;
+    chunk.resize(n);
+    for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
+    added.assign(n, SurfelIrradiance{});
+    // The cuts' groups start at multiples of kBounceChunkSurfels in the sorted order and key
+    // their random numbers by it, whatever the threads; the batch's cuts sweep together.
+    keys.clear();
+    for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
+      keys.push_back(hashKeys(request.seed, request.frame, request.bounce, done + first));
+    }
+    if (auto s = bouncer.gather(*request.from, *request.scene, chunk, kBounceChunkSurfels, keys,
+                                request.groupsTogether, added, stats);
+        !s.ok()) {
+      return s;
+    }
+    total.resize(n);
+    for (size_t i = 0; i < n; ++i) {
+      total[i] = {previous[i].front + added[i].front, previous[i].back + added[i].back};
+    }
+    if (auto s = writeIrradiance(*request.next, total, bytes); !s.ok()) return s;
+    for (size_t i = 0; i < n; ++i) {
+      const Rgb p = reflectedPower(chunk[i], added[i]);
+      for (int c = 0; c < 3; ++c) sum[c] += p[c];
+      if (!request.added) continue;
+      SortedSurfel lit = batch[i];
+      lit.surfel.radiance = Rgb(0.0f);
+      lit.surfel.backRadiance = Rgb(0.0f);
+      addReflected(lit.surfel, added[i]);
+      if (auto s = request.added(lit); !s.ok()) return s;
+    }
+    done += n;
+    if (request.progress) request.progress(done, request.surfels);
+  }
+  return Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
+}
+
+absl::Status finalLight(SpillFile& sorted, SpillFile& last, SpillFile* previous, const Rgb& tail,
+                        uint64_t surfels, const SurfelSink& out) {
+  for (SpillFile* f : {&sorted, &last, previous}) {
+    if (f == nullptr) continue;
+    if (auto s = f->rewind(); !s.ok()) return s;
+  }
+  std::vector<SortedSurfel> batch;
+  std::vector<SurfelIrradiance> e, ePrevious;
+  std::vector<uint8_t> bytes;
+  const auto withTail = [&](const Rgb& now, const Rgb& before) {
+    return now + vmax(now - before, Rgb(0.0f)) * tail;
+  };
+  for (uint64_t done = 0; done < surfels;) {
+    const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kBounceBatchSurfels));
+    if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
+    if (auto s = readIrradiance(&last, n, bytes, e); !s.ok()) return s;
+    if (auto s = readIrradiance(previous, n, bytes, ePrevious); !s.ok()) return s;
+    for (size_t i = 0; i < n; ++i) {
+      addReflected(batch[i].surfel, {withTail(e[i].front, ePrevious[i].front),
+                                     withTail(e[i].back, ePrevious[i].back)});
+      if (auto s = out(batch[i]); !s.ok()) return s;
+    }
+    done += n;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace pbgi
