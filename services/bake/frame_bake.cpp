@@ -273,8 +273,8 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         {"pbgi_version", request.pbgiVersion},
     };
     // Without bounces the sorted stream goes straight into the output tree. With K bounces it
-    // also goes to a spill (direct light only), tree k - 1 is gathered from for every surfel
-    // to light tree k, and only the last one is the output.
+    // goes to tree 0 and to a spill (direct light only), and the bounces below make the
+    // output from them.
     std::optional<SpillFile> sorted;
     if (request.bounces > 0) {
       auto spill = SpillFile::create(request.tempDir, "pbgi-bake-sorted");
@@ -315,8 +315,10 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     // The sorter merges its runs lazily, as the build pulls surfels: both are in this stage.
     clock.lap("merge+build");
 
-    // Bounce k gathers from tree k - 1 and writes tree k, except the last, which only gathers:
-    // the final tree is written after it, with the estimated tail (or without one).
+    // Bounce k gathers from tree k - 1 (the light bounce k - 1 added; the direct light's for
+    // k = 1) and writes tree k of the light it adds, except the last, which only gathers: the
+    // final tree (direct light and every bounce's, with the estimated tail or without one) is
+    // written after it (core/bake/multi_bounce.h).
     report.bouncePower.push_back(Rgb(static_cast<float>(directPower[0]),
                                      static_cast<float>(directPower[1]),
                                      static_cast<float>(directPower[2])));
