@@ -1,11 +1,11 @@
 #pragma once
 // One bounce of indirect light for the surfels of a bake (Christensen's multi-pass): every
-// surfel that reflects light (diffuse, non-black albedo) gathers the irradiance the previous
-// bounce's tree sends each of its two sides (surfaces are two-sided), and reflects albedo / pi
-// of each on top of that side's direct light. The
-// surfels of a chunk (neighbours along the Morton curve) gather together, through one
-// bidirectional cut whose receivers are the surfels themselves: the same machinery as a
-// frame's shading points, so that bounce light and the image agree on how light is gathered.
+// surfel that reflects light (diffuse, non-black albedo) gathers the irradiance a tree (the
+// light the previous bounce added) sends each of its two sides (surfaces are two-sided), and
+// reflects albedo / pi of each (multi_bounce.h runs the passes). The surfels of a chunk
+// (neighbours along the Morton curve) gather together, through one bidirectional cut whose
+// receivers are the surfels themselves: the same machinery as a frame's shading points, so
+// that bounce light and the image agree on how light is gathered.
 //
 // The light past the last bounce. K bounces leave out bounces K+1, K+2, ...: with power P_k in
 // bounce k, their sum is close to a geometric tail, P_K r / (1 - r) with r = P_K / P_{K-1},
