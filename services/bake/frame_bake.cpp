@@ -109,12 +109,13 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   bounce.from = &cache;
   // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
   // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
-  // but hold their cuts' waiting pairs at once (about 6 MiB more per group there: 363 MB
-  // against 277 MB peak RSS). A group per 8 MiB of a quarter of the budget, at least one per
-  // thread.
+  // but hold their cuts' waiting pairs, probes and receiver trees at once: about 30 MB a
+  // group (heaptrack, Cornell 250k: 36 MB; Sponza 1M: 803 MB peak with 16 groups against
+  // 518 MB with 8). A group per 32 MiB of a quarter of the budget, at least one per thread.
+  constexpr size_t kGroupBytes = size_t{32} << 20;
   bounce.groupsTogether =
       std::max<size_t>(static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency())),
-                       request.memoryBudget / 4 / (size_t{8} << 20));
+                       request.memoryBudget / 4 / kGroupBytes);
   if (request.progress) {
     bounce.progress = [&](uint64_t done, uint64_t total) {
       request.progress(fmt::format("bounce {}", bounce.bounce), done, total);
