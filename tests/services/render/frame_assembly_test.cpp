@@ -55,6 +55,18 @@ class FrameAssembly : public ::testing::Test {
     return paths;
   }
 
+  // Renders the farm tiles of `tileSize`, swaps the files of tiles a and b and assembles them;
+  // the frame must not be written. Returns the assembly's status.
+  absl::Status assembleSwapped(int tileSize, size_t a, size_t b) {
+    const std::vector<FarmTile> tiles = farmTiles(shot_, tileSize);
+    std::vector<std::string> paths = renderTiles(tiles);
+    std::swap(paths[a], paths[b]);
+    const std::string out = (dir_ / "frame.exr").string();
+    const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
+    EXPECT_FALSE(fs::exists(out));
+    return s;
+  }
+
   fs::path dir_;
   ShotDesc shot_;
 };
@@ -102,27 +114,17 @@ TEST_F(FrameAssembly, AMissingTileFailsTheFrameByName) {
 }
 
 TEST_F(FrameAssembly, ATileOfTheWrongSizeFailsTheFrame) {
-  const std::vector<FarmTile> tiles = farmTiles(shot_, 20);
-  std::vector<std::string> paths = renderTiles(tiles);
   // 2 x 2 tiles in Morton order: 0 and 1 are 20 x 20, 2 and 3 are 20 x 8 (the bottom row).
-  std::swap(paths[0], paths[2]);
-  const std::string out = (dir_ / "frame.exr").string();
-  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
+  const absl::Status s = assembleSwapped(20, 0, 2);
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
-  EXPECT_FALSE(fs::exists(out));
 }
 
 TEST_F(FrameAssembly, ATileOfTheRightSizeInTheWrongPlaceFailsTheFrame) {
-  const std::vector<FarmTile> tiles = farmTiles(shot_, 16);
-  std::vector<std::string> paths = renderTiles(tiles);
   // Tiles 0 and 1 are both 16 x 16, at x 0 and x 16: only their data windows tell them apart.
-  std::swap(paths[0], paths[1]);
-  const std::string out = (dir_ / "frame.exr").string();
-  const absl::Status s = assembleFrame(paths, tiles, shot_.width, shot_.height, out).status();
+  const absl::Status s = assembleSwapped(16, 0, 1);
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
   EXPECT_NE(s.message().find("tile 0"), std::string::npos) << s;
   EXPECT_NE(s.message().find("data window starts at (16, 0)"), std::string::npos) << s;
-  EXPECT_FALSE(fs::exists(out));
 }
 
 TEST(FarmRegion, TextRoundTripsAndBadTextIsRejected) {
