@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cerrno>
 #include <filesystem>
 #include <system_error>
@@ -30,25 +31,14 @@ std::optional<std::pair<uint64_t, uint32_t>> parsePageName(const std::string& na
       !name.ends_with(kPageSuffix)) {
     return std::nullopt;
   }
+  const auto hex = [&](size_t from, size_t n, auto& value) {
+    const char* end = name.data() + from + n;
+    const auto [ptr, ec] = std::from_chars(name.data() + from, end, value, 16);
+    return ec == std::errc() && ptr == end;
+  };
   uint64_t tree = 0;
   uint32_t page = 0;
-  for (size_t i = 0; i < 25; ++i) {
-    if (i == 16) continue;
-    const char c = name[i];
-    int v = 0;
-    if (c >= '0' && c <= '9') {
-      v = c - '0';
-    } else if (c >= 'a' && c <= 'f') {
-      v = c - 'a' + 10;
-    } else {
-      return std::nullopt;
-    }
-    if (i < 16) {
-      tree = (tree << 4) | static_cast<uint64_t>(v);
-    } else {
-      page = (page << 4) | static_cast<uint32_t>(v);
-    }
-  }
+  if (!hex(0, 16, tree) || !hex(17, 8, page)) return std::nullopt;
   return std::pair{tree, page};
 }
 
