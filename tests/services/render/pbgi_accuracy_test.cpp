@@ -97,20 +97,21 @@ void expectAccurate(const Case& c) {
   fs::remove_all(dir);
 }
 
-// Measured: mean indirect 0.962 / 0.964 / 0.976 of the path tracer's, relMSE 9.0e-4.
+// Measured: mean indirect 0.964 / 0.966 / 0.978 of the path tracer's, relMSE 8.8e-4.
 TEST(PbgiAccuracy, CornellBoxDefaultPresetMatchesThePathTracer) {
   expectAccurate({"cornell-box/cornell.shot.toml", 64, 64, 60000, 3, 0.04, 0.01});
 }
 
 // 100,000 surfels are coarse for Sponza (a radius of 15 cm): its mean indirect light measured
-// 0.86 / 0.88 / 0.90 of the path tracer's here. The light of one bounce is close (the image
-// with one bounce against the path tracer at max_depth 2: 0.986 of its mean), the light passed
-// surfel to surfel loses more (bounce 2 alone 0.82 of the path tracer's at any bake quality:
-// the surfels' discretization, not the cut); 250,000 surfels lose less (the image's mean 0.954
-// of the reference against 0.941 here). The bound holds this bake's
-// bias; accuracy_bench reports the product's.
+// 0.88 / 0.90 / 0.92 of the path tracer's here (0.86 / 0.88 / 0.90 before near disks were
+// folded at the receiver's horizon). The light of one bounce is close (the image with one
+// bounce against the path tracer at max_depth 2: 0.986 of its mean); each pass of light from
+// surfel to surfel loses a few percent to the surfels' discretization (transfer_bench: with
+// every surfel sending radiance 1, 0.974 of what rays measure at 100k surfels, more at fewer
+// surfels), and Sponza's light passes many times. The bound holds this bake's bias;
+// accuracy_bench reports the product's.
 TEST(PbgiAccuracy, SponzaDefaultPresetMatchesThePathTracer) {
-  expectAccurate({"sponza/sponza.shot.toml", 80, 45, 100000, 3, 0.16, 0.05});
+  expectAccurate({"sponza/sponza.shot.toml", 80, 45, 100000, 3, 0.14, 0.05});
 }
 
 }  // namespace
