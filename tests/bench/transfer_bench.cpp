@@ -8,6 +8,10 @@
 //     gathers pi times the cosine-weighted share of its hemisphere that geometry covers.
 //   --light direct: the surfels lit by the shot's lights, as a bake's first bounce sees them,
 //     against the direct light that the surfaces the rays meet reflect.
+//   --light bounce: the bake's own first bounce (SurfelBouncer) at surfels in runs along the
+//     Morton curve, both sides, against rays; sides shut in by geometry (every ray meets dark
+//     geometry: the insides of walls) apart, as they should gather nothing; with --brute, the
+//     brute force by the distance to the nearest other geometry.
 // Rays (--rays per receiver, cosine-weighted) measure the exact answer: the ratio is the
 // surfels' discretization and the cut's together. With --brute, the sum over every surfel at
 // every receiver (bruteForceIrradiance) splits the two: the cut against it is its clustering
@@ -15,7 +19,8 @@
 // Reports one line per quality preset; never fails on a number.
 //
 // Run: build/bin/transfer_bench --shot ../shared/scenes/sponza/sponza.shot.toml
-//        [--points 100000] [--receivers 1000] [--rays 1024] [--light unit|direct] [--brute]
+//        [--points 100000] [--receivers 1000] [--rays 1024] [--light unit|direct|bounce]
+//        [--brute]
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -23,9 +28,11 @@
 #include <string>
 #include <vector>
 
+#include "core/bake/surfel_bounce.h"
 #include "core/bake/surfel_sampler.h"
 #include "core/bake/surfel_shading.h"
 #include "core/pbgi/bidirectional_cut.h"
+#include "core/pbgi/morton.h"
 #include "core/render/path_tracer.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
@@ -41,7 +48,7 @@ struct Args {
   uint64_t points = 100000;
   int receivers = 1000;
   int rays = 1024;
-  bool unitLight = true;
+  std::string light = "unit";  // unit, direct, bounce
   bool brute = false;
 };
 
@@ -61,8 +68,8 @@ bool parse(int argc, char** argv, Args* args) {
       args->rays = std::atoi(argv[++i]);
     } else if (a == "--light" && hasValue) {
       const std::string v = argv[++i];
-      if (v != "unit" && v != "direct") return false;
-      args->unitLight = v == "unit";
+      if (v != "unit" && v != "direct" && v != "bounce") return false;
+      args->light = v;
     } else {
       return false;
     }
@@ -138,6 +145,109 @@ double sumLuminance(std::span<const Rgb> v) {
   return sum;
 }
 
+// The bake's own first bounce (SurfelBouncer: surfel receivers, a cut per side) at random
+// diffuse surfels, against rays from the same points: the irradiance on both sides, from the
+// direct light the surfaces the rays meet reflect.
+int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& surfels,
+              TreePageSource& tree) {
+  // Runs of surfels consecutive along the Morton curve, as a bake's groups are.
+  std::vector<std::pair<uint64_t, uint32_t>> order(surfels.size());
+  Bounds3f bounds;
+  for (const Surfel& s : surfels) bounds.extend(s.position);
+  for (uint32_t i = 0; i < surfels.size(); ++i) order[i] = {mortonKey(surfels[i].position, bounds), i};
+  std::sort(order.begin(), order.end());
+  constexpr size_t kRun = 256;
+  std::vector<Surfel> picked;
+  Rng rng(5);
+  while (static_cast<int>(picked.size()) < args.receivers) {
+    const size_t first = static_cast<size_t>(rng.uniform() * (surfels.size() - kRun));
+    for (size_t k = first; k < first + kRun; ++k) {
+      if (reflectsLight(surfels[order[k].second])) picked.push_back(surfels[order[k].second]);
+    }
+  }
+  std::vector<CutReceiver> sides;
+  for (const Surfel& s : picked) {
+    sides.push_back({s.position, s.normal, s.normal});
+    sides.push_back({s.position, -s.normal, -s.normal});
+  }
+  const std::vector<double> ref = raysGather(scene, sides, args.rays, false);
+  const std::vector<double> covered = raysGather(scene, sides, args.rays, true);
+  double exact = 0.0;
+  for (double e : ref) exact += e;
+  auto isShut = [&](size_t i) { return covered[i] > 0.999 * kPi && ref[i] == 0.0; };
+  if (args.brute) {
+    std::vector<Rgb> brute(sides.size());
+    if (absl::Status st = bruteForceIrradiance(tree, scene, sides, *cutPreset("default"), brute);
+        !st.ok()) {
+      return std::fprintf(stderr, "%s\n", st.ToString().c_str()), 1;
+    }
+    double open = 0, openRef = 0, shut = 0;
+    for (size_t i = 0; i < sides.size(); ++i) {
+      (isShut(i) ? shut : open) += luminance(brute[i]);
+      if (!isShut(i)) openRef += ref[i];
+    }
+    std::printf("  brute force: open sides / rays %.4f; shut-in sides gather %.4f of the total\n",
+                open / openRef, shut / exact);
+    {
+      // Open sides by the distance from their surfel to the nearest other geometry, in radii.
+      double bc[6] = {}, br[6] = {};
+      int bn[6] = {};
+      for (size_t i = 0; i < sides.size(); ++i) {
+        if (isShut(i)) continue;
+        const Frame f(sides[i].n);
+        float nearest = 1e30f;
+        Rng r2(i);
+        for (int k = 0; k < 64; ++k) {
+          const Vec3f d = f.toWorld(sampleCosineHemisphere({r2.uniform(), r2.uniform()}));
+          SurfaceHit hit;
+          if (scene.intersect(scene.spawnRay(sides[i].p, sides[i].ng, d), &hit)) nearest = std::min(nearest, hit.t);
+        }
+        const float radius = picked[i / 2].radius;
+        const int b = nearest < 0.5f * radius ? 0 : nearest < radius ? 1 : nearest < 2 * radius ? 2
+                    : nearest < 4 * radius ? 3 : nearest < 16 * radius ? 4 : 5;
+        bc[b] += luminance(brute[i]), br[b] += ref[i], ++bn[b];
+      }
+      const char* names[6] = {"<0.5r", "<1r", "<2r", "<4r", "<16r", "far"};
+      for (int b = 0; b < 6; ++b) {
+        std::printf("    nearest geometry %-5s: %5d sides, %.4f of the open light, brute / rays %.4f\n",
+                    names[b], bn[b], br[b] / openRef, br[b] > 0 ? bc[b] / br[b] : 0.0);
+      }
+    }
+  }
+  for (const char* preset : {"draft", "default", "high"}) {
+    SurfelBouncer bouncer(*cutPreset(preset));
+    std::vector<SurfelIrradiance> e(picked.size());
+    const size_t groupSize = kRun;
+    std::vector<uint64_t> keys((picked.size() + groupSize - 1) / groupSize);
+    for (size_t g = 0; g < keys.size(); ++g) keys[g] = hashKeys(uint64_t{7}, g);
+    CutStats stats;
+    if (absl::Status st = bouncer.gather(tree, scene, picked, groupSize, keys, 1, e, &stats);
+        !st.ok()) {
+      return std::fprintf(stderr, "%s\n", st.ToString().c_str()), 1;
+    }
+    double sum = 0.0;
+    for (const SurfelIrradiance& x : e) sum += luminance(x.front) + luminance(x.back);
+    // Split: sides that see the sky or open space, and sides shut in (rays meet geometry
+    // within every direction and nothing lit).
+    double openCut = 0, openRef = 0, shutCut = 0;
+    int shut = 0;
+    for (size_t i = 0; i < sides.size(); ++i) {
+      const double c = luminance(i % 2 == 0 ? e[i / 2].front : e[i / 2].back);
+      if (isShut(i)) {
+        shutCut += c, ++shut;
+      } else {
+        openCut += c, openRef += ref[i];
+      }
+    }
+    std::printf("  %-8s open sides: cut / rays %.4f; %d shut-in sides (rays meet only dark "
+                "geometry) gather %.4f of the total\n", preset, openCut / openRef, shut,
+                shutCut / exact);
+    std::printf("  %-8s bounce gather / rays %.4f  (%s)\n", preset, sum / exact,
+                stats.toString().c_str());
+  }
+  return 0;
+}
+
 int run(const Args& args) {
   auto shot = loadShotFile(args.shot);
   if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
@@ -148,23 +258,30 @@ int run(const Args& args) {
   sampling.targetCount = args.points;
   auto surfels = collectSurfels(scene, sampling);
   if (!surfels.ok()) return std::fprintf(stderr, "%s\n", surfels.status().ToString().c_str()), 1;
-  if (args.unitLight) {
+  const bool unitLight = args.light == "unit";
+  if (unitLight) {
     for (Surfel& s : *surfels) s.radiance = s.backRadiance = Rgb(1.0f);
   } else {
     shadeSurfelsDirect(scene, *surfels, 0, {});
-    for (Surfel& s : *surfels) facingBrighterSide(s);
   }
-  auto tree = testing::memoryTree(*surfels);
+  std::vector<Surfel> lights = *surfels;
+  for (Surfel& s : lights) facingBrighterSide(s);
+  auto tree = testing::memoryTree(lights);
   if (!tree.ok()) return std::fprintf(stderr, "%s\n", tree.status().ToString().c_str()), 1;
+  if (args.light == "bounce") {
+    std::printf("%s: %zu surfels of radius %.4g, the bake's first bounce at %d surfels\n",
+                args.shot.c_str(), surfels->size(), surfels->front().radius, args.receivers);
+    return runBounce(args, scene, *surfels, **tree);
+  }
   const std::vector<CutReceiver> receivers = imageReceivers(scene, frame->camera, args.receivers);
   if (receivers.empty()) return std::fprintf(stderr, "the camera sees no surface\n"), 1;
   std::printf("%s: %zu surfels of radius %.4g, %zu receivers, %s light\n", args.shot.c_str(),
               surfels->size(), surfels->front().radius, receivers.size(),
-              args.unitLight ? "unit" : "direct");
+              args.light.c_str());
 
   double exact = 0.0;
   const char* against = "rays";
-  for (double e : raysGather(scene, receivers, args.rays, args.unitLight)) exact += e;
+  for (double e : raysGather(scene, receivers, args.rays, unitLight)) exact += e;
   if (args.brute) {
     std::vector<Rgb> brute(receivers.size());
     auto options = cutPreset("default");
@@ -197,7 +314,7 @@ int main(int argc, char** argv) {
   if (!pbgi::parse(argc, argv, &args)) {
     std::fprintf(stderr,
                  "usage: transfer_bench --shot SHOT [--points N] [--receivers N] [--rays N] "
-                 "[--light unit|direct] [--brute]\n");
+                 "[--light unit|direct|bounce] [--brute]\n");
     return 2;
   }
   return pbgi::run(args);

@@ -53,6 +53,17 @@ BoxCase boxCase(uint64_t surfelCount, int receiverCount) {
   return c;
 }
 
+// A closed unit box from (x0, 0, 0) to (x0 + 1, 1, 1).
+void addClosedBox(SceneBuilder& b, float x0, uint32_t material) {
+  const float x1 = x0 + 1.0f;
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 0, 1}, {1, 0, 0}, material));  // floor
+  b.addMesh(testing::makeQuadMesh({x0, 1, 0}, {1, 0, 0}, {0, 0, 1}, material));  // ceiling
+  b.addMesh(testing::makeQuadMesh({x0, 0, 1}, {0, 1, 0}, {1, 0, 0}, material));  // back
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {1, 0, 0}, {0, 1, 0}, material));  // front
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 1, 0}, {0, 0, 1}, material));  // x0 wall
+  b.addMesh(testing::makeQuadMesh({x1, 0, 0}, {0, 0, 1}, {0, 1, 0}, material));  // x1 wall
+}
+
 CutOptions zeroThresholds() {
   CutOptions o;
   o.lightSolidAngle = 0.0f;
@@ -132,21 +143,18 @@ TEST(BidirectionalCut, OneLeafAgainstOneReceiverIsOneShadowConnection) {
 
 
 // A closed white box whose surfels all send radiance 1 from both sides: every point inside
-// sees radiance 1 over its whole hemisphere and gathers pi. Near the edges, where a wall's
-// disks hang past the floor they stand on, the part below a receiver's horizon is folded back
-// above it; dropped, as it was, the receivers within a surfel radius of an edge gathered 0.88
-// of pi at this density (0.94 folded).
+// sees radiance 1 over its whole hemisphere and gathers pi. Near the edges three things
+// matter (surfelLight): the part of a wall's disk hanging below a floor receiver's horizon is
+// folded back above it, a near disk's light is its polygon's exact projected solid angle, and
+// a wall's disk that reaches a floor receiver is gathered, not skipped as the receiver's own.
+// Measured within a surfel radius of an edge: 0.88 of pi with none of them, 0.94 with the
+// fold, 0.97 with all three (0.97 to 1.04 over five placements of the surfels: which disks
+// lie next to a receiver varies).
 TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
   SceneBuilder b;
   Material white;
   white.albedo = Rgb(0.5f);
-  const uint32_t w = b.addMaterial(white);
-  b.addMesh(testing::makeQuadMesh({0, 0, 0}, {0, 0, 1}, {1, 0, 0}, w));
-  b.addMesh(testing::makeQuadMesh({0, 1, 0}, {1, 0, 0}, {0, 0, 1}, w));
-  b.addMesh(testing::makeQuadMesh({0, 0, 1}, {0, 1, 0}, {1, 0, 0}, w));
-  b.addMesh(testing::makeQuadMesh({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, w));
-  b.addMesh(testing::makeQuadMesh({1, 0, 0}, {0, 0, 1}, {0, 1, 0}, w));
-  b.addMesh(testing::makeQuadMesh({0, 0, 0}, {0, 1, 0}, {0, 0, 1}, w));
+  addClosedBox(b, 0.0f, b.addMaterial(white));
   auto scene = b.build();
   ASSERT_TRUE(scene.ok()) << scene.status();
   SurfelSamplingOptions sampling;
@@ -188,9 +196,64 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
               surfels->size(), radius, all, nearEdge, nearCount, stats.toString().c_str());
   EXPECT_GT(nearCount, 100);
   EXPECT_NEAR(all, 1.0, 0.01);
-  EXPECT_GT(nearEdge, 0.92);
-  EXPECT_LT(nearEdge, 1.02);
+  EXPECT_GT(nearEdge, 0.95);
+  EXPECT_LT(nearEdge, 1.07);
   EXPECT_EQ(stats.occluded, 0u);  // nothing inside the box hides anything
+}
+
+// Two closed rooms either side of a wall 1 cm thick, a light in one: the other stays dark.
+// A cluster of the wall's two faces can send, by its SH, a little light towards the dark room
+// that none of its children does (its lit face looks the other way); that light used to be
+// deposited unseen, with no shadow ray ("nothing to hide"), into the dark room and into the
+// sides of surfels that face into the wall (surfels gather on both sides).
+TEST(BidirectionalCut, NoLightThroughAThinWall) {
+  SceneBuilder b;
+  Material white;
+  white.albedo = Rgb(0.8f);
+  const uint32_t w = b.addMaterial(white);
+  addClosedBox(b, 0.0f, w);    // dark
+  addClosedBox(b, 1.01f, w);   // lit
+  LightDesc light;
+  light.type = LightType::kQuad;
+  light.corner = {1.61f, 0.999f, 0.4f};
+  light.edgeU = {0.0f, 0.0f, 0.2f};
+  light.edgeV = {-0.2f, 0.0f, 0.0f};
+  light.radiance = Rgb(20.0f);
+  b.addLight(light);
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = 20000;
+  auto surfels = collectSurfels(**scene, sampling);
+  ASSERT_TRUE(surfels.ok()) << surfels.status();
+  shadeSurfelsDirect(**scene, *surfels, 0, {});
+  for (Surfel& s : *surfels) facingBrighterSide(s);
+  auto tree = memoryTree(*surfels);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  // Floor points of each room, and points on the wall's faces looking into the wall.
+  std::vector<CutReceiver> dark, lit, inside;
+  Rng rng(3);
+  for (int i = 0; i < 400; ++i) {
+    const float u = 0.05f + 0.9f * rng.uniform(), v = 0.05f + 0.9f * rng.uniform();
+    dark.push_back({{u, 0.0f, v}, {0, 1, 0}, {0, 1, 0}});
+    lit.push_back({{1.01f + u, 0.0f, v}, {0, 1, 0}, {0, 1, 0}});
+    inside.push_back({{1.0f, u, v}, {1, 0, 0}, {1, 0, 0}});
+  }
+  auto gathered = [&](const std::vector<CutReceiver>& receivers) {
+    std::vector<Rgb> out(receivers.size());
+    BidirectionalCut cut(CutOptions{});
+    CutStats stats;
+    EXPECT_TRUE(cut.irradiance(**tree, **scene, receivers, 9, out, &stats).ok());
+    return meanLuminance(out);
+  };
+  const double litFloor = gathered(lit), darkFloor = gathered(dark), inWall = gathered(inside);
+  std::printf("[ measured ] thin wall: lit room's floor %.5g, dark room's %.5g, inside the wall "
+              "%.5g\n", litFloor, darkFloor, inWall);
+  // Every path from the light to them crosses the wall: not a photon (deposited unseen, the
+  // dark floor got 1.7e-5 and the wall's inside 4.6e-6).
+  EXPECT_GT(litFloor, 0.1);
+  EXPECT_EQ(darkFloor, 0.0);
+  EXPECT_EQ(inWall, 0.0);
 }
 
 // A blocker between the surfel and the receiver: the shadow ray sees it.
