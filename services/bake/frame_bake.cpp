@@ -33,8 +33,9 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail, 4
 // each bounce gathering only the light the last one added, later bounces coarser, 5 near
 // surfels' disks folded at the receiver's horizon instead of cut there, 6 near disks as exact
-// polygons, walls reaching a receiver gathered, light no surfel sends dropped.
-constexpr int kBounceRevision = 6;
+// polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
+// spread to twice their radius.
+constexpr int kBounceRevision = 7;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
