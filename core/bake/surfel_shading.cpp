@@ -8,6 +8,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/render/path_tracer.h"
+#include "core/scene/material.h"
 #include "core/sampling/rng.h"
 #include "core/util/check.h"
 
@@ -90,6 +91,46 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
   stats.discardedSamples = discarded.load();
   stats.nonFiniteSurfels = nonFinite.load();
   return stats;
+}
+
+WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
+                                     const Material& material, const Rgb& albedo, int n,
+                                     float threshold, int lightSamples, Rng& rng) {
+  PBGI_CHECK_GT(lightSamples, 0);
+  // The light samples first, shared by every direction out.
+  struct Arrival {
+    Vec3f wiLocal;
+    Rgb value;  // radiance / (pdf * light selection pdf)
+  };
+  std::vector<Arrival> arrivals;
+  const Frame frame(surfel.normal);
+  for (int k = 0; k < lightSamples; ++k) {
+    const float uLight = rng.uniform();
+    const Vec2f u(rng.uniform(), rng.uniform());
+    float selectPdf = 0.0f;
+    const Light* light = scene.sampleLight(uLight, &selectPdf);
+    if (light == nullptr || selectPdf <= 0.0f) continue;
+    const std::optional<LightSample> ls = light->sample(surfel.position, u);
+    if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) continue;
+    if (dot(ls->wi, surfel.normal) == 0.0f) continue;
+    // spawnShadowRay leaves on the side the sample arrives from.
+    if (scene.occluded(scene.spawnShadowRay(surfel.position, surfel.normal, ls->wi, ls->distance))) {
+      continue;
+    }
+    arrivals.push_back({frame.toLocal(ls->wi), ls->radiance / (ls->pdf * selectPdf)});
+  }
+  const Bsdf bsdf(material, albedo);
+  const float invSamples = 1.0f / static_cast<float>(lightSamples);
+  return WaveletRadiance::project(
+      [&](const Vec3f& wo) {
+        const Vec3f woLocal = frame.toLocal(wo);
+        Rgb sum(0.0f);
+        for (const Arrival& a : arrivals) {
+          sum += bsdf.f(woLocal, a.wiLocal) * a.value * std::abs(a.wiLocal.z);
+        }
+        return sum * invSamples;
+      },
+      n, threshold);
 }
 
 }  // namespace pbgi

@@ -17,6 +17,8 @@
 #include <span>
 
 #include "core/pbgi/surfel.h"
+#include "core/pbgi/wavelet.h"
+#include "core/sampling/rng.h"
 #include "core/scene/scene.h"
 
 namespace pbgi {
@@ -41,5 +43,16 @@ struct SurfelShadingStats {
 SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surfels,
                                       uint64_t firstSurfelIndex,
                                       const SurfelShadingOptions& options);
+
+// The direct light a glossy or refractive surfel sends out, in every direction, as wavelets
+// (issue 14's first stage; wavelet.h): `lightSamples` samples of the scene's lights at its
+// centre (each lighting the side it arrives on, with its shadow ray), and the material's BSDF
+// (albedo looked up) from each towards every texel of an n x n cube map, in the frame of the
+// surfel's normal (its winding side: a dielectric's outside). Rough lobes only: a smooth
+// (delta) BSDF sends out nothing here, and its mirror images need rays, not light samples.
+// `rng` is the surfel's own stream (shadeSurfelsDirect's key).
+WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
+                                     const Material& material, const Rgb& albedo, int n,
+                                     float threshold, int lightSamples, Rng& rng);
 
 }  // namespace pbgi

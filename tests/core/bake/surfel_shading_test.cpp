@@ -214,5 +214,83 @@ TEST(SurfelShadingTest, IndependentOfChunkingAndThreads) {
   EXPECT_GT(differ, surfels.size() / 2);
 }
 
+// A rough conductor surfel under the sun: its wavelet radiance is the BSDF times the sun's
+// irradiance towards every texel (one direction of light: exact, without a threshold), brightest
+// near the mirror direction, and dark with the sun blocked.
+
+struct SunCase {
+  std::unique_ptr<Scene> scene;
+  Material metal;
+  Surfel surfel;
+  Vec3f toSun;
+  Rgb sun;
+};
+
+SunCase sunCase(bool blocked) {
+  SunCase c;
+  SceneBuilder b;
+  Material floor;
+  floor.albedo = Rgb(0.5f);
+  b.addMesh(makeQuadMesh({-1, 0, -1}, {0, 0, 2}, {2, 0, 0}, b.addMaterial(floor)));
+  if (blocked) b.addMesh(makeQuadMesh({-5, 1, -5}, {10, 0, 0}, {0, 0, 10}, b.addMaterial(floor)));
+  c.toSun = normalize(Vec3f(0.4f, 1.0f, 0.2f));
+  c.sun = Rgb(3.0f, 2.0f, 1.0f);
+  LightDesc light;
+  light.type = LightType::kDirectional;
+  light.direction = -c.toSun;
+  light.irradiance = c.sun;
+  b.addLight(light);
+  c.scene = buildScene(b);
+  c.metal.type = MaterialType::kConductor;
+  c.metal.roughness = 0.3f;
+  c.metal.specular = Rgb(0.9f, 0.8f, 0.7f);
+  c.surfel.position = {0.0f, 0.0f, 0.0f};
+  c.surfel.normal = {0.0f, 1.0f, 0.0f};
+  c.surfel.radius = 0.01f;
+  return c;
+}
+
+TEST(SurfelShadingTest, AGlossySurfelSendsTheSunOutAsItsBsdfDoes) {
+  SunCase c = sunCase(false);
+  ASSERT_NE(c.scene, nullptr);
+  Rng rng(4);
+  const int n = 16;
+  const WaveletRadiance w =
+      glossyDirectRadiance(*c.scene, c.surfel, c.metal, Rgb(1.0f), n, 0.0f, 4, rng);
+  const Frame frame(c.surfel.normal);
+  const Bsdf bsdf(c.metal, Rgb(1.0f));
+  const Vec3f wiLocal = frame.toLocal(c.toSun);
+  float brightest = -1.0f;
+  Vec3f brightestDir(0.0f);
+  for (int face = 0; face < 6; ++face) {
+    for (int y = 0; y < n; ++y) {
+      for (int x = 0; x < n; ++x) {
+        const Vec3f wo = cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n);
+        const Rgb expected = bsdf.f(frame.toLocal(wo), wiLocal) * c.sun * wiLocal.z;
+        const Rgb got = w.evaluate(wo);
+        for (int ch = 0; ch < 3; ++ch) {
+          ASSERT_NEAR(got[ch], expected[ch], 1e-4f + 1e-4f * expected[ch]) << face << " " << x << " " << y;
+        }
+        if (got.x > brightest) brightest = got.x, brightestDir = wo;
+      }
+    }
+  }
+  const Vec3f mirror = Vec3f(-c.toSun.x, c.toSun.y, -c.toSun.z);
+  EXPECT_GT(dot(brightestDir, mirror), 0.95f) << "brightest towards " << brightestDir;
+  EXPECT_GT(brightest, 0.0f);
+  // Below the surface nothing: a conductor reflects on the side the light arrives on.
+  EXPECT_NEAR(w.evaluate(Vec3f(0.1f, -1.0f, 0.0f)).x, 0.0f, 1e-5f);
+}
+
+TEST(SurfelShadingTest, AGlossySurfelInShadowSendsNothing) {
+  SunCase c = sunCase(true);
+  ASSERT_NE(c.scene, nullptr);
+  Rng rng(4);
+  const WaveletRadiance w =
+      glossyDirectRadiance(*c.scene, c.surfel, c.metal, Rgb(1.0f), 8, 0.0f, 4, rng);
+  EXPECT_TRUE(w.isConstantPerFace());
+  EXPECT_NEAR(w.evaluate(Vec3f(-0.4f, 1.0f, -0.2f)).x, 0.0f, 1e-6f);
+}
+
 }  // namespace
 }  // namespace pbgi

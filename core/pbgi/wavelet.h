@@ -1,0 +1,101 @@
+#pragma once
+// Directional radiance as Haar wavelets on a cube map (Wang, Meng and Boubekeur 2015, "Wavelet
+// Point-Based Global Illumination", section 3.1): the light a glossy or refractive surfel
+// sends out, sampled at the texel centres of a small cube map (six faces of n x n, n a power
+// of two), each face and channel Haar-transformed, and only the detail coefficients that
+// matter kept. Diffuse surfels keep spherical harmonics alone (sh.h).
+//
+// The transform is the non-standard 2D Haar decomposition, orthonormal: a face's pixels become
+// one scaling coefficient and, for each node of a quadtree over the face (level l = 0 at the
+// top, 2^l x 2^l nodes at level l, down to n / 2 x n / 2), three details (horizontal, vertical,
+// diagonal). Orthonormal, so the squared error of dropping coefficients is the sum of their
+// squares (the reconstruction error reported is exact, not estimated) and a threshold on a
+// node's detail norm bounds what each dropped node costs. A quadtree node is dropped when the
+// Euclidean norm of its nine numbers (three details x RGB) is at most the threshold; Sun and
+// Mukherjee's trees (which the paper follows) drop a node only with all its descendants, which
+// keeps the same coefficients whenever a node's details are no smaller than its children's;
+// here each node stands alone, so a sharp highlight's fine details survive under a smooth
+// coarse level.
+//
+// A direction's radiance is reconstructed point-wise, without decoding the face: the scaling
+// coefficient plus, per level, the node above the direction's texel's details times the sign
+// of the quadrant it falls in.
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <vector>
+
+#include "core/math/vec.h"
+
+namespace pbgi {
+
+// Cube faces: +x, -x, +y, -y, +z, -z. (u, v) in [0, 1)^2 across a face.
+struct CubeCoord {
+  int face = 0;
+  float u = 0.0f;
+  float v = 0.0f;
+};
+// The face a direction (not necessarily unit, not zero) points through, and where.
+CubeCoord cubeCoord(const Vec3f& dir);
+// The unit direction through (u, v) of a face: cubeCoord's inverse.
+Vec3f cubeDirection(int face, float u, float v);
+// The solid angle of texel (x, y) of an n x n face (exact: they sum to 4 pi over six faces).
+float cubeTexelSolidAngle(int n, int x, int y);
+
+// In place, on an n x n image in row-major order (n a power of two, at least 1): the
+// orthonormal non-standard Haar transform and its inverse. Layout after the forward transform:
+// [0] the scaling coefficient; the node (x, y) of level l (2^l nodes a side) keeps its
+// horizontal, vertical and diagonal details at (2^l + x, y), (x, 2^l + y) and
+// (2^l + x, 2^l + y) (the usual pyramid layout).
+void haarForward(std::span<float> image, int n);
+void haarInverse(std::span<float> image, int n);
+
+// One face's kept coefficients: its scaling coefficient and the quadtree nodes whose details
+// were kept, in the order of their pyramid index.
+struct WaveletFace {
+  Rgb scaling{0.0f};
+  struct Node {
+    uint16_t level = 0;
+    uint16_t x = 0, y = 0;
+    std::array<Rgb, 3> detail{};  // horizontal, vertical, diagonal
+  };
+  std::vector<Node> nodes;
+};
+
+class WaveletRadiance {
+ public:
+  WaveletRadiance() = default;
+
+  // Samples `radiance` (of a unit direction) at the texel centres of six n x n faces, Haar
+  // transforms each face and keeps each quadtree node whose nine detail values have a norm
+  // above `threshold` (0 keeps every nonzero node). n: a power of two in [1, 256]. Non-finite
+  // samples count as black (and in nonFiniteSamples()).
+  static WaveletRadiance project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
+                                 float threshold);
+
+  int resolution() const { return n_; }
+  const std::array<WaveletFace, 6>& faces() const { return faces_; }
+  // The radiance towards a direction (need not be unit): the texel it falls in, reconstructed.
+  Rgb evaluate(const Vec3f& dir) const;
+  // A whole face, reconstructed (n x n, row-major, RGB).
+  std::vector<Rgb> reconstructFace(int face) const;
+
+  size_t keptNodes() const;
+  // Coefficients kept: one scaling and three details per kept node, per channel.
+  size_t keptCoefficients() const { return 3 * (6 + 3 * keptNodes()); }
+  // The root-mean-square over all texels and channels of what thresholding dropped (exact).
+  float rmsError() const { return rmsError_; }
+  // Whether every kept detail is zero: the face is its average (a diffuse surfel's radiance,
+  // to the cube map's resolution, or black).
+  bool isConstantPerFace() const { return keptNodes() == 0; }
+  uint64_t nonFiniteSamples() const { return nonFinite_; }
+
+ private:
+  int n_ = 0;
+  std::array<WaveletFace, 6> faces_{};
+  float rmsError_ = 0.0f;
+  uint64_t nonFinite_ = 0;
+};
+
+}  // namespace pbgi
