@@ -372,18 +372,21 @@ float projectedSolidAngle(const ClippedPolygon& polygon, const Vec3f& n) {
 
 // The light one surfel sends one receiver (the side facing it: surfels are two-sided). Far, a
 // virtual spherical light: radiance times its disk area times both cosines over d^2 + r^2
-// (exact on the disk's axis). Near (within kNearDiskRadii radii), the disk itself, as a
-// polygon whose projected solid angle is exact (Lambert's formula): 16 points on the disk
-// with a softened 1/d^2 each, as before, lost the peak of the light of a wall a fraction of a
-// radius from a floor receiver (Sponza's surfels within half a radius of other geometry
-// gathered 0.76 of what rays measure, transfer_bench --light bounce). The part of a disk below
+// (exact on the disk's axis). Near (within kNearDiskRadii radii), the disk itself, spread
+// (kNearDiskSpread), as a polygon whose projected solid angle is exact (Lambert's formula): 16
+// points on the disk with a softened 1/d^2 each, as before, lost the peak of the light of a
+// wall a fraction of a radius from a floor receiver (Sponza's surfels within half a radius of
+// other geometry gathered 0.76 of what rays measure, transfer_bench --light bounce). (Softening
+// the far formula to the spread radius as well measured no better: indirect relMSE 7.90e-3
+// against 7.83e-3 on the dev shot.) The part of a disk below
 // the receiver's horizon is folded back above it, within the disk's own plane: only surfels
 // centred above the horizon are gathered, and near the horizon line their disks cover the
 // surface above it as much less as they hang below it (disks of one size spread evenly over
 // a surface cover half of it at the surface's edge), so dropping that part lost light in
 // every concave corner (the unit-radiance closed box gathered 0.86-0.88 of pi within a radius
 // of its edges). False for a surfel on or behind the receiver's tangent plane, on whose disk
-// the receiver lies (its own surface), or dark.
+// the receiver lies facing its way (its own surface: a wall whose disk reaches a floor
+// receiver is gathered), or dark.
 bool surfelLight(const Surfel& s, const CutReceiver& r, float selfSkipRadius, Rgb* light) {
   Vec3f v;
   float dist2;
