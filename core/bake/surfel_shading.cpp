@@ -93,6 +93,29 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
   return stats;
 }
 
+float shLobeError(const Material& material) {
+  if (material.type == MaterialType::kDiffuse || material.type == MaterialType::kEmissive) {
+    return 0.0f;
+  }
+  const Bsdf bsdf(material, Rgb(1.0f));
+  if (bsdf.isDelta()) return 1.0f;
+  float worst = 0.0f;
+  for (const float degrees : {0.0f, 40.0f, 70.0f, 85.0f}) {
+    const float theta = radians(degrees);
+    const Vec3f wi(std::sin(theta), 0.0f, std::cos(theta));  // local frame, z the normal
+    worst = std::max(worst, shProjectionError(
+                                [&](const Vec3f& wo) {
+                                  return luminance(bsdf.f(wo, wi)) * wi.z * std::abs(wo.z);
+                                },
+                                16));
+  }
+  return worst;
+}
+
+bool needsWavelets(const Material& material, float tolerance) {
+  return shLobeError(material) > tolerance;
+}
+
 WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
                                      const Material& material, const Rgb& albedo, int n,
                                      float threshold, int lightSamples, Rng& rng) {

@@ -44,6 +44,21 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
                                       uint64_t firstSurfelIndex,
                                       const SurfelShadingOptions& options);
 
+// Whether a material's surfels need wavelets: its light leaves in lobes that the tree's
+// spherical harmonics (bands 0-2) hold to within `tolerance` (shProjectionError of the
+// intensity a surfel sends out, BSDF times both cosines, for light arriving at 0, 40, 70 and
+// 85 degrees; the largest counts) or not. Diffuse and emissive materials never do; a smooth
+// (delta) conductor or dielectric always does; a rough one by its lobes, so that a glossy
+// material rough enough for SH is treated as diffuse and pays for no wavelets. The default
+// tolerance is about 3.4 times what SH miss of a diffuse surfel's own lobe (a clamped cosine:
+// 0.088); measured, GGX conductors of alpha 0.05 / 0.15 / 0.35 / 0.6 / 1.0 miss 0.97 / 0.91 /
+// 0.72 / 0.38 / 0.27 (the grazing lobes decide), so alpha 1 passes as diffuse and 0.6 does not.
+inline constexpr float kShLobeTolerance = 0.3f;
+bool needsWavelets(const Material& material, float tolerance = kShLobeTolerance);
+// The largest shProjectionError of the material's lobes, as needsWavelets measures it (0 for
+// diffuse and emissive materials, 1 for delta ones).
+float shLobeError(const Material& material);
+
 // The direct light a glossy or refractive surfel sends out, in every direction, as wavelets
 // (issue 14's first stage; wavelet.h): `lightSamples` samples of the scene's lights at its
 // centre (each lighting the side it arrives on, with its shadow ray), and the material's BSDF

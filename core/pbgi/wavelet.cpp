@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 
+#include "core/pbgi/sh.h"
 #include "core/util/check.h"
 
 namespace pbgi {
@@ -117,6 +118,44 @@ void haarInverse(std::span<float> image, int n) {
     for (int x = 0; x < size; ++x) synthesise(&image[x], size, n, scratch);
     for (int y = 0; y < size; ++y) synthesise(&image[static_cast<size_t>(y) * n], size, 1, scratch);
   }
+}
+
+float shProjectionError(const std::function<float(const Vec3f&)>& f, int n) {
+  PBGI_CHECK(n > 0);
+  struct Texel {
+    Vec3f dir;
+    float solidAngle;
+    float value;
+  };
+  std::vector<Texel> texels;
+  texels.reserve(6 * static_cast<size_t>(n) * n);
+  std::array<double, kShCoefficients> projection{};
+  float basis[kShCoefficients];
+  for (int face = 0; face < 6; ++face) {
+    for (int y = 0; y < n; ++y) {
+      for (int x = 0; x < n; ++x) {
+        Texel t;
+        t.dir = cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n);
+        t.solidAngle = cubeTexelSolidAngle(n, x, y);
+        t.value = f(t.dir);
+        if (!std::isfinite(t.value)) t.value = 0.0f;
+        evalShBasis(t.dir, basis);
+        for (int i = 0; i < kShCoefficients; ++i) {
+          projection[i] += double{t.value} * basis[i] * t.solidAngle;
+        }
+        texels.push_back(t);
+      }
+    }
+  }
+  double error = 0.0, norm = 0.0;
+  for (const Texel& t : texels) {
+    evalShBasis(t.dir, basis);
+    double approx = 0.0;
+    for (int i = 0; i < kShCoefficients; ++i) approx += projection[i] * basis[i];
+    error += (t.value - approx) * (t.value - approx) * t.solidAngle;
+    norm += double{t.value} * t.value * t.solidAngle;
+  }
+  return norm > 0.0 ? static_cast<float>(std::sqrt(error / norm)) : 0.0f;
 }
 
 WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>& radiance, int n,

@@ -63,6 +63,12 @@ struct WaveletFace {
   std::vector<Node> nodes;
 };
 
+// How far a spherical function is from its projection onto the tree's spherical harmonics
+// (bands 0-2, sh.h): the L2 norm of the difference over the sphere relative to the
+// function's own, by quadrature over the texels of six n x n faces (0 for a function that is
+// 0 everywhere). What decides whether a surfel's light needs wavelets at all.
+float shProjectionError(const std::function<float(const Vec3f&)>& f, int n);
+
 class WaveletRadiance {
  public:
   WaveletRadiance() = default;

@@ -292,5 +292,55 @@ TEST(SurfelShadingTest, AGlossySurfelInShadowSendsNothing) {
   EXPECT_NEAR(w.evaluate(Vec3f(-0.4f, 1.0f, -0.2f)).x, 0.0f, 1e-6f);
 }
 
+// Which materials pay for wavelets: lobes the tree's SH cannot hold. A diffuse surfel's clamped
+// cosine is what SH are for; a mirror never fits; rough metal falls on one side or the other
+// by its roughness.
+TEST(SurfelShadingTest, OnlyLobesTheShCannotHoldNeedWavelets) {
+  Material diffuse;
+  EXPECT_EQ(shLobeError(diffuse), 0.0f);
+  EXPECT_FALSE(needsWavelets(diffuse));
+  Material mirror;
+  mirror.type = MaterialType::kConductor;
+  mirror.roughness = 0.0f;
+  EXPECT_TRUE(needsWavelets(mirror));
+  Material glass;
+  glass.type = MaterialType::kDielectric;
+  glass.roughness = 0.0f;
+  EXPECT_TRUE(needsWavelets(glass));
+  float last = 2.0f;
+  for (float roughness : {0.05f, 0.15f, 0.35f, 0.6f, 1.0f}) {
+    Material metal;
+    metal.type = MaterialType::kConductor;
+    metal.roughness = roughness;
+    const float error = shLobeError(metal);
+    std::printf("[ measured ] GGX conductor alpha %.2f: SH (bands 0-2) error of its lobes %.3f\n",
+                roughness, error);
+    EXPECT_LT(error, last) << "rougher lobes are smoother";
+    last = error;
+  }
+  Material glossy;
+  glossy.type = MaterialType::kConductor;
+  glossy.roughness = 0.6f;
+  EXPECT_TRUE(needsWavelets(glossy));
+  Material rough;
+  rough.type = MaterialType::kConductor;
+  rough.roughness = 1.0f;
+  EXPECT_FALSE(needsWavelets(rough));
+  EXPECT_TRUE(needsWavelets(rough, 0.2f));  // the tolerance is the user's
+}
+
+// The quadrature itself: a function in the SH's span has no error, a clamped cosine the
+// analytic 0.0884 (sqrt(1 - (pi/4 + pi/3 + 5 pi/64) / (2 pi/3))), a narrow lobe a large one.
+TEST(SurfelShadingTest, ShProjectionErrorIsZeroInsideTheShSpan) {
+  EXPECT_LT(shProjectionError([](const Vec3f& d) { return 1.0f + 0.5f * d.z + 0.25f * d.x * d.y; }, 32),
+            0.01f);
+  EXPECT_GT(shProjectionError(
+                [](const Vec3f& d) { return std::exp(100.0f * (normalize(d).z - 1.0f)); }, 32),
+            0.5f);
+  EXPECT_NEAR(shProjectionError([](const Vec3f& d) { return std::max(0.0f, normalize(d).z); }, 64),
+              0.0884f, 0.002f);
+  EXPECT_EQ(shProjectionError([](const Vec3f&) { return 0.0f; }, 8), 0.0f);
+}
+
 }  // namespace
 }  // namespace pbgi
