@@ -13,6 +13,7 @@
 #include <xxhash.h>
 
 #include "core/bake/multi_bounce.h"
+#include "core/bake/surfel_shading.h"
 #include "core/bake/surfel_bounce.h"
 #include "core/pbgi/morton.h"
 #include "core/pbgi/page_cache.h"
@@ -38,6 +39,25 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 constexpr int kBounceRevision = 7;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
+
+// What the tree cannot carry yet: the glossy and refractive materials whose light SH cannot
+// hold (needsWavelets), named with what SH miss of their lobes, so that a user knows why
+// their reflections are missing from the indirect light. Empty for a scene without them.
+std::string glossyMaterialsWithoutWavelets(const Scene& scene) {
+  std::string names;
+  int count = 0;
+  for (const Material& m : scene.materials()) {
+    if (!needsWavelets(m)) continue;
+    names += fmt::format("{}{} ({:.2f})", count++ == 0 ? "" : ", ", m.name, shLobeError(m));
+  }
+  if (count == 0) return {};
+  return fmt::format(
+      "{} material{} whose light the tree's spherical harmonics cannot hold (what they miss of "
+      "its lobes): {}. Until the wavelet stage, their surfels send no light into the tree (they "
+      "occlude, and emit if they emit): the light they reflect onto other surfaces is missing "
+      "from PBGI's indirect light (how they look themselves is not affected)",
+      count, count == 1 ? "" : "s", names);
+}
 
 std::filesystem::path framePathStem(const ShotDesc& shot, const FrameBakeRequest& request) {
   const std::filesystem::path image(
@@ -188,6 +208,9 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     }
     const Scene& scene = *loadedScene;
     clock.lap("load");
+    if (std::string glossy = glossyMaterialsWithoutWavelets(scene); !glossy.empty()) {
+      report.warnings.push_back(std::move(glossy));
+    }
 
     SurfelSamplingOptions sampling;
     sampling.targetCount = request.points > 0 ? request.points : kDefaultBakePoints;

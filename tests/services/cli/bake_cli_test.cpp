@@ -51,6 +51,28 @@ TEST(BakeCli, WritesATreeAndAPointCloudThatInspectAccepts) {
   EXPECT_NE(vdb.out.find("points: 30000"), std::string::npos) << vdb.out;
 }
 
+// A scene whose glossy light the tree cannot carry yet says so, naming each material and what
+// SH miss of its lobes; a diffuse scene says nothing of it.
+TEST(BakeCli, NamesTheGlossyMaterialsWhoseLightTheTreeCannotHoldYet) {
+  const fs::path dir = testing::makeTempDir("bake-cli-glossy");
+  const fs::path plates = testing::sourceDir() / "config/scenes/glossy-plates/plates.shot.toml";
+  const testing::RunResult glossy = runPbgi("bake " + shellQuote(plates.string()) + " --out " +
+                                            shellQuote((dir / "plates").string()) +
+                                            " --points 5000 --bounces 1");
+  EXPECT_EQ(glossy.exitCode, 0) << glossy.output();
+  EXPECT_NE(glossy.err.find("4 materials whose light the tree's spherical harmonics cannot hold"),
+            std::string::npos)
+      << glossy.err;
+  for (const char* name : {"plate_smooth (", "plate_glossy (", "plate_rough (", "plate_rougher ("}) {
+    EXPECT_NE(glossy.err.find(name), std::string::npos) << name << "\n" << glossy.err;
+  }
+  const testing::RunResult diffuse = runPbgi("bake " + shellQuote(kShot.string()) + " --out " +
+                                             shellQuote((dir / "cornell").string()) +
+                                             " --points 5000 --bounces 1");
+  EXPECT_EQ(diffuse.exitCode, 0) << diffuse.output();
+  EXPECT_EQ(diffuse.err.find("cannot hold"), std::string::npos) << diffuse.err;
+}
+
 TEST(BakeCli, InCoreOutOfCoreAndThreadCountsGiveTheSameBytes) {
   const fs::path dir = testing::makeTempDir("bake-cli-same");
   const std::string inCore = bake(dir / "a", "--mem-budget 1G --threads 2");
