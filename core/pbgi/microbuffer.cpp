@@ -159,19 +159,21 @@ void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
   }
 }
 
-int Microbuffer::pixelIndex(const Vec3f& dir) const {
+int cubePixelIndex(const Vec3f& dir, int n) {
   const float ax = std::abs(dir.x), ay = std::abs(dir.y), az = std::abs(dir.z);
   const int a = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);
   const int f = 2 * a + (dir[a] < 0.0f ? 1 : 0);
   const FaceAxes axes = faceAxes(f);
   const float inv = 1.0f / std::abs(dir[a]);
-  const float half = 0.5f * static_cast<float>(n_);
+  const float half = 0.5f * static_cast<float>(n);
   const int i =
-      std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0, n_ - 1);
+      std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0, n - 1);
   const int j =
-      std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0, n_ - 1);
-  return (f * n_ + j) * n_ + i;
+      std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0, n - 1);
+  return (f * n + j) * n + i;
 }
+
+int Microbuffer::pixelIndex(const Vec3f& dir) const { return cubePixelIndex(dir, n_); }
 
 bool Microbuffer::coneRect(int f, const Vec3f& dir, float sinAngle, float cosAngle,
                            PixelRect* rect) const {

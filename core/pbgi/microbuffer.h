@@ -61,6 +61,10 @@ struct MicrobufferTables {
 // once per N per process and shared; thread-safe.
 std::shared_ptr<const MicrobufferTables> microbufferTables(int resolution);
 
+// The pixel of an N x N cube whose square holds direction `dir` (any length but 0), in the
+// layout above: (f N + j) N + i.
+int cubePixelIndex(const Vec3f& dir, int resolution);
+
 class Microbuffer {
  public:
   explicit Microbuffer(int resolution);

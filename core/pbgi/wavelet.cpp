@@ -11,27 +11,6 @@ namespace pbgi {
 
 namespace {
 
-// Each face: its main axis and the two axes u and v run along (u along s, v along t).
-struct FaceAxes {
-  int main;
-  float sign;
-  int s, t;
-};
-constexpr std::array<FaceAxes, 6> kFaces = {{
-    {0, 1.0f, 1, 2},
-    {0, -1.0f, 1, 2},
-    {1, 1.0f, 2, 0},
-    {1, -1.0f, 2, 0},
-    {2, 1.0f, 0, 1},
-    {2, -1.0f, 0, 1},
-}};
-
-// The solid angle of the part of a face, at distance 1 from the centre, between the origin
-// of its plane and (a, b) (signed): the standard closed form.
-double cornerSolidAngle(double a, double b) {
-  return std::atan2(a * b, std::sqrt(a * a + b * b + 1.0));
-}
-
 bool isPowerOfTwo(int n) { return n > 0 && (n & (n - 1)) == 0; }
 
 int log2Of(int n) { return std::countr_zero(static_cast<unsigned>(n)); }
@@ -69,37 +48,6 @@ void synthesise(float* line, int count, int stride, std::vector<float>& scratch)
 
 }  // namespace
 
-CubeCoord cubeCoord(const Vec3f& dir) {
-  const float ax = std::abs(dir.x), ay = std::abs(dir.y), az = std::abs(dir.z);
-  const int axis = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);
-  const int face = 2 * axis + (dir[axis] < 0.0f ? 1 : 0);
-  const FaceAxes& f = kFaces[face];
-  const float m = std::abs(dir[axis]);
-  constexpr float kBelowOne = 0.99999994f;  // the largest float below 1
-  CubeCoord c;
-  c.face = face;
-  c.u = std::clamp(0.5f * (dir[f.s] / m + 1.0f), 0.0f, kBelowOne);
-  c.v = std::clamp(0.5f * (dir[f.t] / m + 1.0f), 0.0f, kBelowOne);
-  return c;
-}
-
-Vec3f cubeDirection(int face, float u, float v) {
-  PBGI_CHECK(face >= 0 && face < 6);
-  const FaceAxes& f = kFaces[face];
-  Vec3f d(0.0f);
-  d[f.main] = f.sign;
-  d[f.s] = 2.0f * u - 1.0f;
-  d[f.t] = 2.0f * v - 1.0f;
-  return normalize(d);
-}
-
-float cubeTexelSolidAngle(int n, int x, int y) {
-  const double a0 = 2.0 * x / n - 1.0, a1 = 2.0 * (x + 1) / n - 1.0;
-  const double b0 = 2.0 * y / n - 1.0, b1 = 2.0 * (y + 1) / n - 1.0;
-  return static_cast<float>(cornerSolidAngle(a1, b1) - cornerSolidAngle(a0, b1) -
-                            cornerSolidAngle(a1, b0) + cornerSolidAngle(a0, b0));
-}
-
 void haarForward(std::span<float> image, int n) {
   PBGI_CHECK(isPowerOfTwo(n));
   PBGI_CHECK_EQ(image.size(), static_cast<size_t>(n) * n);
@@ -121,64 +69,50 @@ void haarInverse(std::span<float> image, int n) {
 }
 
 float shProjectionError(const std::function<float(const Vec3f&)>& f, int n) {
-  PBGI_CHECK(n > 0);
-  struct Texel {
-    Vec3f dir;
-    float solidAngle;
-    float value;
-  };
-  std::vector<Texel> texels;
-  texels.reserve(6 * static_cast<size_t>(n) * n);
+  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(n);
+  const size_t count = cube->directions.size();
+  std::vector<float> values(count);
   std::array<double, kShCoefficients> projection{};
   float basis[kShCoefficients];
-  for (int face = 0; face < 6; ++face) {
-    for (int y = 0; y < n; ++y) {
-      for (int x = 0; x < n; ++x) {
-        Texel t;
-        t.dir = cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n);
-        t.solidAngle = cubeTexelSolidAngle(n, x, y);
-        t.value = f(t.dir);
-        if (!std::isfinite(t.value)) t.value = 0.0f;
-        evalShBasis(t.dir, basis);
-        for (int i = 0; i < kShCoefficients; ++i) {
-          projection[i] += double{t.value} * basis[i] * t.solidAngle;
-        }
-        texels.push_back(t);
-      }
+  for (size_t k = 0; k < count; ++k) {
+    values[k] = f(cube->directions[k]);
+    if (!std::isfinite(values[k])) values[k] = 0.0f;
+    evalShBasis(cube->directions[k], basis);
+    for (int i = 0; i < kShCoefficients; ++i) {
+      projection[i] += double{values[k]} * basis[i] * cube->solidAngles[k];
     }
   }
   double error = 0.0, norm = 0.0;
-  for (const Texel& t : texels) {
-    evalShBasis(t.dir, basis);
+  for (size_t k = 0; k < count; ++k) {
+    evalShBasis(cube->directions[k], basis);
     double approx = 0.0;
     for (int i = 0; i < kShCoefficients; ++i) approx += projection[i] * basis[i];
-    error += (t.value - approx) * (t.value - approx) * t.solidAngle;
-    norm += double{t.value} * t.value * t.solidAngle;
+    error += (values[k] - approx) * (values[k] - approx) * cube->solidAngles[k];
+    norm += double{values[k]} * values[k] * cube->solidAngles[k];
   }
   return norm > 0.0 ? static_cast<float>(std::sqrt(error / norm)) : 0.0f;
 }
 
 WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
                                          float threshold) {
-  PBGI_CHECK(isPowerOfTwo(n) && n <= 256);
+  PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
   PBGI_CHECK(threshold >= 0.0f);
   WaveletRadiance w;
   w.n_ = n;
+  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(n);
   const size_t texels = static_cast<size_t>(n) * n;
   std::array<std::vector<float>, 3> channel;
   for (auto& c : channel) c.resize(texels);
   double dropped = 0.0;
   const float threshold2 = threshold * threshold;
   for (int face = 0; face < 6; ++face) {
-    for (int y = 0; y < n; ++y) {
-      for (int x = 0; x < n; ++x) {
-        Rgb value = radiance(cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n));
-        if (!isFinite(value)) {
-          value = Rgb(0.0f);
-          ++w.nonFinite_;
-        }
-        for (int c = 0; c < 3; ++c) channel[c][static_cast<size_t>(y) * n + x] = value[c];
+    for (size_t k = 0; k < texels; ++k) {
+      Rgb value = radiance(cube->directions[face * texels + k]);
+      if (!isFinite(value)) {
+        value = Rgb(0.0f);
+        ++w.nonFinite_;
       }
+      for (int c = 0; c < 3; ++c) channel[c][k] = value[c];
     }
     for (auto& c : channel) haarForward(c, n);
     WaveletFace& out = w.faces_[face];
@@ -214,10 +148,10 @@ WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>&
 
 Rgb WaveletRadiance::evaluate(const Vec3f& dir) const {
   if (n_ == 0) return Rgb(0.0f);
-  const CubeCoord c = cubeCoord(dir);
-  const WaveletFace& face = faces_[c.face];
-  const int px = std::min(n_ - 1, static_cast<int>(c.u * n_));
-  const int py = std::min(n_ - 1, static_cast<int>(c.v * n_));
+  const int texel = cubePixelIndex(dir, n_);
+  const int texels = n_ * n_;
+  const WaveletFace& face = faces_[texel / texels];
+  const int px = texel % n_, py = (texel % texels) / n_;
   Rgb value = face.scaling / static_cast<float>(n_);
   const int levels = log2Of(n_);
   auto next = face.nodes.begin();

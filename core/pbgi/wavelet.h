@@ -20,6 +20,9 @@
 // A direction's radiance is reconstructed point-wise, without decoding the face: the scaling
 // coefficient plus, per level, the node above the direction's texel's details times the sign
 // of the quadrant it falls in.
+//
+// The cube is the microbuffer's (microbuffer.h): its faces, texel layout ((f n + y) n + x),
+// centre directions, exact solid angles and direction-to-texel lookup.
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -27,21 +30,9 @@
 #include <vector>
 
 #include "core/math/vec.h"
+#include "core/pbgi/microbuffer.h"
 
 namespace pbgi {
-
-// Cube faces: +x, -x, +y, -y, +z, -z. (u, v) in [0, 1)^2 across a face.
-struct CubeCoord {
-  int face = 0;
-  float u = 0.0f;
-  float v = 0.0f;
-};
-// The face a direction (not necessarily unit, not zero) points through, and where.
-CubeCoord cubeCoord(const Vec3f& dir);
-// The unit direction through (u, v) of a face: cubeCoord's inverse.
-Vec3f cubeDirection(int face, float u, float v);
-// The solid angle of texel (x, y) of an n x n face (exact: they sum to 4 pi over six faces).
-float cubeTexelSolidAngle(int n, int x, int y);
 
 // In place, on an n x n image in row-major order (n a power of two, at least 1): the
 // orthonormal non-standard Haar transform and its inverse. Layout after the forward transform:
@@ -65,8 +56,9 @@ struct WaveletFace {
 
 // How far a spherical function is from its projection onto the tree's spherical harmonics
 // (bands 0-2, sh.h): the L2 norm of the difference over the sphere relative to the
-// function's own, by quadrature over the texels of six n x n faces (0 for a function that is
-// 0 everywhere). What decides whether a surfel's light needs wavelets at all.
+// function's own, by quadrature over the texels of six n x n faces (n up to
+// kMaxMicrobufferResolution; 0 for a function that is 0 everywhere). What decides whether a
+// surfel's light needs wavelets at all.
 float shProjectionError(const std::function<float(const Vec3f&)>& f, int n);
 
 class WaveletRadiance {
@@ -75,8 +67,9 @@ class WaveletRadiance {
 
   // Samples `radiance` (of a unit direction) at the texel centres of six n x n faces, Haar
   // transforms each face and keeps each quadtree node whose nine detail values have a norm
-  // above `threshold` (0 keeps every nonzero node). n: a power of two in [1, 256]. Non-finite
-  // samples count as black (and in nonFiniteSamples()).
+  // above `threshold` (0 keeps every nonzero node). n: a power of two up to
+  // kMaxMicrobufferResolution (64; the paper uses 32). Non-finite samples count as black (and
+  // in nonFiniteSamples()).
   static WaveletRadiance project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
                                  float threshold);
 

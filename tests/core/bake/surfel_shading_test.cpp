@@ -265,7 +265,7 @@ TEST(SurfelShadingTest, AGlossySurfelSendsTheSunOutAsItsBsdfDoes) {
   for (int face = 0; face < 6; ++face) {
     for (int y = 0; y < n; ++y) {
       for (int x = 0; x < n; ++x) {
-        const Vec3f wo = cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n);
+        const Vec3f wo = microbufferTables(n)->directions[(face * n + y) * n + x];
         const Rgb expected = bsdf.f(frame.toLocal(wo), wiLocal) * c.sun * wiLocal.z;
         const Rgb got = w.evaluate(wo);
         for (int ch = 0; ch < 3; ++ch) {

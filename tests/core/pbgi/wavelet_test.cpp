@@ -18,24 +18,32 @@ Rgb lobe(const Vec3f& dir, const Vec3f& axis, float sharpness) {
   return Rgb(v, 0.5f * v, 0.25f * v);
 }
 
-TEST(Wavelet, CubeCoordinatesRoundTripAndTexelsCoverTheSphere) {
+// The texel centre of an n x n cube map (the microbuffer's layout).
+Vec3f texelDirection(int n, int face, int x, int y) {
+  return microbufferTables(n)->directions[(static_cast<size_t>(face) * n + y) * n + x];
+}
+
+// The wavelets' cube is the microbuffer's: every texel centre looks up its own texel, a random
+// direction lands in the texel whose centre is nearest in angle to within a texel, and the
+// texels cover the sphere.
+TEST(Wavelet, CubeTexelsRoundTripAndCoverTheSphere) {
   Rng rng(1);
-  for (int i = 0; i < 1000; ++i) {
-    const Vec3f d = normalize(Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f));
-    const CubeCoord c = cubeCoord(d);
-    ASSERT_GE(c.u, 0.0f);
-    ASSERT_LT(c.u, 1.0f);
-    ASSERT_GE(c.v, 0.0f);
-    ASSERT_LT(c.v, 1.0f);
-    const Vec3f back = cubeDirection(c.face, c.u, c.v);
-    EXPECT_NEAR(dot(back, d), 1.0f, 1e-5f) << "direction " << i;
-  }
   for (int n : {1, 4, 32}) {
+    const auto cube = microbufferTables(n);
     double sum = 0.0;
-    for (int y = 0; y < n; ++y) {
-      for (int x = 0; x < n; ++x) sum += 6.0 * cubeTexelSolidAngle(n, x, y);
+    for (size_t k = 0; k < cube->directions.size(); ++k) {
+      ASSERT_EQ(cubePixelIndex(cube->directions[k], n), static_cast<int>(k)) << "n = " << n;
+      sum += cube->solidAngles[k];
     }
     EXPECT_NEAR(sum, 4.0 * kPi, 1e-4) << "n = " << n;
+    for (int i = 0; i < 1000; ++i) {
+      const Vec3f d =
+          normalize(Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f));
+      const int k = cubePixelIndex(d, n);
+      ASSERT_GE(k, 0);
+      ASSERT_LT(k, static_cast<int>(cube->directions.size()));
+      EXPECT_GT(dot(cube->directions[k], d), std::cos(cube->maxWidth)) << "direction " << i;
+    }
   }
 }
 
@@ -87,7 +95,7 @@ TEST(Wavelet, KeepingEveryNodeReconstructsEveryTexel) {
     const std::vector<Rgb> decoded = w.reconstructFace(face);
     for (int y = 0; y < n; ++y) {
       for (int x = 0; x < n; ++x) {
-        const Vec3f d = cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n);
+        const Vec3f d = texelDirection(n, face, x, y);
         const Rgb expected = lobe(d, axis, 20.0f);
         const Rgb got = w.evaluate(d);
         for (int c = 0; c < 3; ++c) {
@@ -115,7 +123,7 @@ TEST(Wavelet, AThresholdKeepsAHighlightInFewCoefficientsAndReportsItsErrorExactl
       const std::vector<Rgb> decoded = w.reconstructFace(face);
       for (int y = 0; y < n; ++y) {
         for (int x = 0; x < n; ++x) {
-          const Rgb e = lobe(cubeDirection(face, (x + 0.5f) / n, (y + 0.5f) / n), axis, 200.0f);
+          const Rgb e = lobe(texelDirection(n, face, x, y), axis, 200.0f);
           sq += (decoded[y * n + x] - e).length2();
         }
       }
