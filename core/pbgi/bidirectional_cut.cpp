@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <optional>
 #include <queue>
 #include <unordered_map>
@@ -13,6 +14,7 @@
 
 #include <fmt/format.h>
 
+#include "core/math/solid_angle.h"
 #include "core/pbgi/gather_internal.h"
 #include "core/sampling/rng.h"
 #include "core/scene/scene.h"
@@ -323,8 +325,23 @@ constexpr int kDiskEdges = 16;
 // 7.53e-3 at 3, and the mean indirect light 0.946, 0.938, 0.931 of the path tracer's (larger
 // disks lose more past the edges of what they lie on).
 constexpr float kNearDiskSpread = 2.0f;
-const float kDiskPolygonScale =
-    1.0f / std::sqrt(kDiskEdges / (2.0f * kPi) * std::sin(2.0f * kPi / kDiskEdges));
+
+// The near disk's polygon in its own plane: kDiskEdges points on a circle of the disk's area
+// (circumradius 1 / sqrt(n / (2 pi) sin(2 pi / n)) for a unit disk), spread; computed once.
+const std::array<Vec2f, kDiskEdges>& diskPolygon() {
+  static const std::array<Vec2f, kDiskEdges> points = [] {
+    std::array<Vec2f, kDiskEdges> p;
+    const double scale =
+        kNearDiskSpread / std::sqrt(kDiskEdges / (2.0 * std::numbers::pi) *
+                                    std::sin(2.0 * std::numbers::pi / kDiskEdges));
+    for (int k = 0; k < kDiskEdges; ++k) {
+      const double phi = k * (2.0 * std::numbers::pi / kDiskEdges);
+      p[k] = Vec2f(static_cast<float>(scale * std::cos(phi)), static_cast<float>(scale * std::sin(phi)));
+    }
+    return p;
+  }();
+  return points;
+}
 
 // A convex polygon clipped by a plane through the receiver: at most one vertex more.
 struct ClippedPolygon {
@@ -353,21 +370,16 @@ void clipAtPlane(std::span<const Vec3f> polygon, const Vec3f& n, ClippedPolygon*
 }
 
 // The projected solid angle of a planar polygon on or above the horizon of a receiver with
-// unit normal n (vertices relative to it): Lambert's formula, 1/2 |sum over the edges of the
-// angle each subtends times n . the unit normal of the plane through it and the receiver|.
-// Exact however near the polygon is, where a point's 1/d^2 is not.
+// unit normal n (vertices relative to it): its vector solid angle's component along n
+// (solid_angle.h, Lambert's formula). Exact however near the polygon is, where a point's
+// 1/d^2 is not.
 float projectedSolidAngle(const ClippedPolygon& polygon, const Vec3f& n) {
   if (polygon.count < 3) return 0.0f;
-  float sum = 0.0f;
-  for (int i = 0; i < polygon.count; ++i) {
-    const Vec3f& a = polygon.v[i];
-    const Vec3f& b = polygon.v[(i + 1) % polygon.count];
-    const Vec3f c = cross(a, b);
-    const float lengthC = length(c);
-    if (!(lengthC > 0.0f)) continue;  // an edge through the receiver or seen end-on
-    sum += std::atan2(lengthC, dot(a, b)) * dot(n, c) / lengthC;
-  }
-  return 0.5f * std::abs(sum);
+  std::array<Vec3d, kDiskEdges + 1> v;
+  for (int i = 0; i < polygon.count; ++i) v[i] = {polygon.v[i].x, polygon.v[i].y, polygon.v[i].z};
+  const Vec3d towards{n.x, n.y, n.z};
+  const Vec3d vsa = vectorSolidAngle(std::span(v.data(), polygon.count), towards);
+  return static_cast<float>(vsa[0] * towards[0] + vsa[1] * towards[1] + vsa[2] * towards[2]);
 }
 
 // The light one surfel sends one receiver (the side facing it: surfels are two-sided). Far, a
@@ -408,11 +420,10 @@ bool surfelLight(const Surfel& s, const CutReceiver& r, float selfSkipRadius, Rg
   // The disk as a polygon of kDiskEdges edges (of the disk's area, spread), relative to the
   // receiver; the part above the horizon and the part below, folded, each integrated exactly.
   const Frame disk(side.normal);
-  const float rim = s.radius * kDiskPolygonScale * kNearDiskSpread;
   std::array<Vec3f, kDiskEdges> polygon;
   for (int k = 0; k < kDiskEdges; ++k) {
-    const float phi = static_cast<float>(k) * (2.0f * kPi / kDiskEdges);
-    polygon[k] = v + disk.toWorld(Vec3f(rim * std::cos(phi), rim * std::sin(phi), 0.0f));
+    const Vec2f& p = diskPolygon()[k];
+    polygon[k] = v + disk.toWorld(Vec3f(s.radius * p.x, s.radius * p.y, 0.0f));
   }
   // Within the disk's plane the height above the receiver's tangent plane grows along `up`
   // (the receiver's normal projected on the disk) at rate |up|.

@@ -6,6 +6,7 @@
 #include <mutex>
 #include <numbers>
 
+#include "core/math/solid_angle.h"
 #include "core/util/check.h"
 
 namespace pbgi {
@@ -29,25 +30,6 @@ double cornerSolidAngle(double x, double y) {
   return std::atan2(x * y, std::sqrt(1.0 + x * x + y * y));
 }
 
-// The integral of the direction over the spherical polygon with unit vertices v (in order):
-// half the sum over edges of the edge's angle times the unit normal of its great circle
-// (Arvo 1995), turned to point into the polygon.
-Vec3f vectorSolidAngle(const double (*v)[3], int count, const double center[3]) {
-  double sum[3] = {0.0, 0.0, 0.0};
-  for (int e = 0; e < count; ++e) {
-    const double* a = v[e];
-    const double* b = v[(e + 1) % count];
-    double c[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-    const double len = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-    const double angle = std::atan2(len, a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
-    for (int i = 0; i < 3; ++i) sum[i] += 0.5 * angle * c[i] / len;
-  }
-  const double side = sum[0] * center[0] + sum[1] * center[1] + sum[2] * center[2];
-  const double sign = side < 0.0 ? -1.0 : 1.0;
-  return Vec3f(static_cast<float>(sign * sum[0]), static_cast<float>(sign * sum[1]),
-               static_cast<float>(sign * sum[2]));
-}
-
 std::shared_ptr<const MicrobufferTables> computeTables(int n) {
   auto tables = std::make_shared<MicrobufferTables>();
   tables->resolution = n;
@@ -61,7 +43,7 @@ std::shared_ptr<const MicrobufferTables> computeTables(int n) {
   for (int f = 0; f < kCubeFaces; ++f) {
     const FaceAxes axes = faceAxes(f);
     // The unit direction through face coordinates (u, v).
-    auto unit = [&](double u, double v, double* out) {
+    auto unit = [&](double u, double v, Vec3d& out) {
       double p[3];
       p[axes.a] = axes.sign;
       p[axes.b] = u;
@@ -79,16 +61,20 @@ std::shared_ptr<const MicrobufferTables> computeTables(int n) {
         tables->solidAngles[k] = static_cast<float>(omega);
         tables->widths[k] = static_cast<float>(std::sqrt(omega));
         tables->inverseWidths[k] = static_cast<float>(1.0 / std::sqrt(omega));
-        double center[3];
+        Vec3d center;
         unit(0.5 * (u0 + u1), 0.5 * (v0 + v1), center);
         tables->directions[k] = Vec3f(static_cast<float>(center[0]), static_cast<float>(center[1]),
                                       static_cast<float>(center[2]));
-        double corners[4][3];
+        // The integral of the direction over the pixel, pointing into it.
+        std::array<Vec3d, 4> corners;
         unit(u0, v0, corners[0]);
         unit(u1, v0, corners[1]);
         unit(u1, v1, corners[2]);
         unit(u0, v1, corners[3]);
-        tables->vectorSolidAngles[k] = vectorSolidAngle(corners, 4, center);
+        const Vec3d vsa = vectorSolidAngle(corners, center);
+        tables->vectorSolidAngles[k] = Vec3f(static_cast<float>(vsa[0]),
+                                             static_cast<float>(vsa[1]),
+                                             static_cast<float>(vsa[2]));
         tables->maxWidth = std::max(tables->maxWidth, tables->widths[k]);
       }
     }
