@@ -128,19 +128,11 @@ WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
   std::vector<Arrival> arrivals;
   const Frame frame(surfel.normal);
   for (int k = 0; k < lightSamples; ++k) {
-    const float uLight = rng.uniform();
-    const Vec2f u(rng.uniform(), rng.uniform());
+    // Its shadow ray leaves on the side the sample arrives from.
     float selectPdf = 0.0f;
-    const Light* light = scene.sampleLight(uLight, &selectPdf);
-    if (light == nullptr || selectPdf <= 0.0f) continue;
-    const std::optional<LightSample> ls = light->sample(surfel.position, u);
-    if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) continue;
-    if (dot(ls->wi, surfel.normal) == 0.0f) continue;
-    // spawnShadowRay leaves on the side the sample arrives from.
-    if (scene.occluded(scene.spawnShadowRay(surfel.position, surfel.normal, ls->wi, ls->distance))) {
-      continue;
-    }
-    arrivals.push_back({frame.toLocal(ls->wi), ls->radiance / (ls->pdf * selectPdf)});
+    const std::optional<LightSample> ls =
+        sampleUnoccludedLight(scene, surfel.position, surfel.normal, rng, &selectPdf);
+    if (ls) arrivals.push_back({frame.toLocal(ls->wi), ls->radiance / (ls->pdf * selectPdf)});
   }
   const Bsdf bsdf(material, albedo);
   const float invSamples = 1.0f / static_cast<float>(lightSamples);

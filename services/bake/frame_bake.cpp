@@ -47,8 +47,9 @@ std::string glossyMaterialsWithoutWavelets(const Scene& scene) {
   std::string names;
   int count = 0;
   for (const Material& m : scene.materials()) {
-    if (!needsWavelets(m)) continue;
-    names += fmt::format("{}{} ({:.2f})", count++ == 0 ? "" : ", ", m.name, shLobeError(m));
+    const float error = shLobeError(m);
+    if (error <= kShLobeTolerance) continue;  // needsWavelets
+    names += fmt::format("{}{} ({:.2f})", count++ == 0 ? "" : ", ", m.name, error);
   }
   if (count == 0) return {};
   return fmt::format(
