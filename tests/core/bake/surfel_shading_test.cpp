@@ -295,36 +295,29 @@ TEST(SurfelShadingTest, AGlossySurfelInShadowSendsNothing) {
 // Which materials pay for wavelets: lobes the tree's SH cannot hold. A diffuse surfel's clamped
 // cosine is what SH are for; a mirror never fits; rough metal falls on one side or the other
 // by its roughness.
+Material microfacet(MaterialType type, float roughness) {
+  Material m;
+  m.type = type;
+  m.roughness = roughness;
+  return m;
+}
+
 TEST(SurfelShadingTest, OnlyLobesTheShCannotHoldNeedWavelets) {
   Material diffuse;
   EXPECT_EQ(shLobeError(diffuse), 0.0f);
   EXPECT_FALSE(needsWavelets(diffuse));
-  Material mirror;
-  mirror.type = MaterialType::kConductor;
-  mirror.roughness = 0.0f;
-  EXPECT_TRUE(needsWavelets(mirror));
-  Material glass;
-  glass.type = MaterialType::kDielectric;
-  glass.roughness = 0.0f;
-  EXPECT_TRUE(needsWavelets(glass));
+  EXPECT_TRUE(needsWavelets(microfacet(MaterialType::kConductor, 0.0f)));   // a mirror
+  EXPECT_TRUE(needsWavelets(microfacet(MaterialType::kDielectric, 0.0f)));  // glass
   float last = 2.0f;
   for (float roughness : {0.05f, 0.15f, 0.35f, 0.6f, 1.0f}) {
-    Material metal;
-    metal.type = MaterialType::kConductor;
-    metal.roughness = roughness;
-    const float error = shLobeError(metal);
+    const float error = shLobeError(microfacet(MaterialType::kConductor, roughness));
     std::printf("[ measured ] GGX conductor alpha %.2f: SH (bands 0-2) error of its lobes %.3f\n",
                 roughness, error);
     EXPECT_LT(error, last) << "rougher lobes are smoother";
     last = error;
   }
-  Material glossy;
-  glossy.type = MaterialType::kConductor;
-  glossy.roughness = 0.6f;
-  EXPECT_TRUE(needsWavelets(glossy));
-  Material rough;
-  rough.type = MaterialType::kConductor;
-  rough.roughness = 1.0f;
+  EXPECT_TRUE(needsWavelets(microfacet(MaterialType::kConductor, 0.6f)));
+  const Material rough = microfacet(MaterialType::kConductor, 1.0f);
   EXPECT_FALSE(needsWavelets(rough));
   EXPECT_TRUE(needsWavelets(rough, 0.2f));  // the tolerance is the user's
 }

@@ -29,13 +29,18 @@ struct BoxCase {
   std::vector<CutReceiver> receivers;
 };
 
+// `count` surfels of a scene, sampled as a bake does.
+absl::StatusOr<std::vector<Surfel>> surfelsOf(const Scene& scene, uint64_t count) {
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = count;
+  return collectSurfels(scene, sampling);
+}
+
 BoxCase boxCase(uint64_t surfelCount, int receiverCount) {
   BoxCase c;
   c.scene = testing::makeBoxScene();
   PBGI_CHECK(c.scene != nullptr);
-  SurfelSamplingOptions sampling;
-  sampling.targetCount = surfelCount;
-  auto surfels = collectSurfels(*c.scene, sampling);
+  auto surfels = surfelsOf(*c.scene, surfelCount);
   PBGI_CHECK(surfels.ok());
   c.surfels = *std::move(surfels);
   shadeSurfelsDirect(*c.scene, c.surfels, 0, {});
@@ -157,9 +162,7 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
   addClosedBox(b, 0.0f, b.addMaterial(white));
   auto scene = b.build();
   ASSERT_TRUE(scene.ok()) << scene.status();
-  SurfelSamplingOptions sampling;
-  sampling.targetCount = 24000;
-  auto surfels = collectSurfels(**scene, sampling);
+  auto surfels = surfelsOf(**scene, 24000);
   ASSERT_TRUE(surfels.ok()) << surfels.status();
   for (Surfel& s : *surfels) s.radiance = s.backRadiance = Rgb(1.0f);
   auto tree = memoryTree(*surfels);
@@ -222,9 +225,7 @@ TEST(BidirectionalCut, NoLightThroughAThinWall) {
   b.addLight(light);
   auto scene = b.build();
   ASSERT_TRUE(scene.ok()) << scene.status();
-  SurfelSamplingOptions sampling;
-  sampling.targetCount = 20000;
-  auto surfels = collectSurfels(**scene, sampling);
+  auto surfels = surfelsOf(**scene, 20000);
   ASSERT_TRUE(surfels.ok()) << surfels.status();
   shadeSurfelsDirect(**scene, *surfels, 0, {});
   for (Surfel& s : *surfels) facingBrighterSide(s);
