@@ -25,6 +25,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -103,40 +104,42 @@ std::vector<CutReceiver> imageReceivers(const Scene& scene, const Camera& camera
   return receivers;
 }
 
-// What each receiver gathers, by rays (cosine-weighted: pi times the mean radiance they
-// meet): of unit radiance on every surface, or of the direct light the surfaces reflect
-// (diffuse, both sides, the surfel baker's estimator at the hit with as many light samples).
-std::vector<double> raysGather(const Scene& scene, std::span<const CutReceiver> receivers,
-                               int rays, bool unitLight) {
-  std::vector<double> gathered(receivers.size());
+// What each receiver gathers by rays (cosine-weighted: pi times the mean radiance they meet),
+// from one set of rays: of unit radiance on every surface (`covered`), and of the direct light
+// the surfaces they meet reflect (`reflected`: diffuse, both sides, the surfel baker's
+// estimator at the hit with as many light samples); and the nearest hit.
+struct RayGather {
+  double covered = 0.0;
+  double reflected = 0.0;
+  float nearest = std::numeric_limits<float>::infinity();
+};
+std::vector<RayGather> raysGather(const Scene& scene, std::span<const CutReceiver> receivers,
+                                  int rays, bool withLight) {
+  std::vector<RayGather> out(receivers.size());
   const SurfelShadingOptions shading;
   Rng rng(9);
   for (size_t i = 0; i < receivers.size(); ++i) {
     const Frame f(receivers[i].n);
-    double sum = 0.0;
+    RayGather& g = out[i];
     for (int k = 0; k < rays; ++k) {
       const Vec3f d = f.toWorld(sampleCosineHemisphere({rng.uniform(), rng.uniform()}));
       SurfaceHit hit;
-      if (!scene.intersect(scene.spawnRay(receivers[i].p, receivers[i].ng, d), &hit) ||
-          hit.material == kNoMaterial) {
-        continue;
-      }
-      if (unitLight) {
-        sum += 1.0;
-        continue;
-      }
-      const Material& m = scene.material(hit.material);
-      if (m.type != MaterialType::kDiffuse) continue;
+      if (!scene.intersect(scene.spawnRay(receivers[i].p, receivers[i].ng, d), &hit)) continue;
+      g.nearest = std::min(g.nearest, hit.t);
+      if (hit.material == kNoMaterial) continue;
+      g.covered += 1.0;
+      if (!withLight || scene.material(hit.material).type != MaterialType::kDiffuse) continue;
       Rgb e(0.0f);
       for (int l = 0; l < shading.lightSamples; ++l) {
         const TwoSidedIrradiance two = sampleIrradianceBothSides(scene, hit.p, hit.ng, rng);
         e += dot(hit.ng, d) < 0.0f ? two.front : two.back;
       }
-      sum += luminance(scene.albedoAt(hit) * e) / (kPi * shading.lightSamples);
+      g.reflected += luminance(scene.albedoAt(hit) * e) / (kPi * shading.lightSamples);
     }
-    gathered[i] = kPi * sum / rays;
+    g.covered *= kPi / rays;
+    g.reflected *= kPi / rays;
   }
-  return gathered;
+  return out;
 }
 
 double sumLuminance(std::span<const Rgb> v) {
@@ -156,25 +159,25 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
   for (const Surfel& s : surfels) bounds.extend(s.position);
   for (uint32_t i = 0; i < surfels.size(); ++i) order[i] = {mortonKey(surfels[i].position, bounds), i};
   std::sort(order.begin(), order.end());
-  constexpr size_t kRun = 256;
+  const size_t run = std::min<size_t>(256, surfels.size());
   std::vector<Surfel> picked;
   Rng rng(5);
-  while (static_cast<int>(picked.size()) < args.receivers) {
-    const size_t first = static_cast<size_t>(rng.uniform() * (surfels.size() - kRun));
-    for (size_t k = first; k < first + kRun; ++k) {
+  for (int tries = 0; static_cast<int>(picked.size()) < args.receivers && tries < 1000; ++tries) {
+    const size_t first = static_cast<size_t>(rng.uniform() * (surfels.size() - run));
+    for (size_t k = first; k < first + run; ++k) {
       if (reflectsLight(surfels[order[k].second])) picked.push_back(surfels[order[k].second]);
     }
   }
+  if (picked.empty()) return std::fprintf(stderr, "no surfel of the scene reflects light\n"), 1;
   std::vector<CutReceiver> sides;
   for (const Surfel& s : picked) {
     sides.push_back({s.position, s.normal, s.normal});
     sides.push_back({s.position, -s.normal, -s.normal});
   }
-  const std::vector<double> ref = raysGather(scene, sides, args.rays, false);
-  const std::vector<double> covered = raysGather(scene, sides, args.rays, true);
+  const std::vector<RayGather> rays = raysGather(scene, sides, args.rays, true);
   double exact = 0.0;
-  for (double e : ref) exact += e;
-  auto isShut = [&](size_t i) { return covered[i] > 0.999 * kPi && ref[i] == 0.0; };
+  for (const RayGather& g : rays) exact += g.reflected;
+  auto isShut = [&](size_t i) { return rays[i].covered > 0.999 * kPi && rays[i].reflected == 0.0; };
   if (args.brute) {
     std::vector<Rgb> brute(sides.size());
     if (absl::Status st = bruteForceIrradiance(tree, scene, sides, *cutPreset("default"), brute);
@@ -184,40 +187,30 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
     double open = 0, openRef = 0, shut = 0;
     for (size_t i = 0; i < sides.size(); ++i) {
       (isShut(i) ? shut : open) += luminance(brute[i]);
-      if (!isShut(i)) openRef += ref[i];
+      if (!isShut(i)) openRef += rays[i].reflected;
     }
     std::printf("  brute force: open sides / rays %.4f; shut-in sides gather %.4f of the total\n",
                 open / openRef, shut / exact);
-    {
-      // Open sides by the distance from their surfel to the nearest other geometry, in radii.
-      double bc[6] = {}, br[6] = {};
-      int bn[6] = {};
-      for (size_t i = 0; i < sides.size(); ++i) {
-        if (isShut(i)) continue;
-        const Frame f(sides[i].n);
-        float nearest = 1e30f;
-        Rng r2(i);
-        for (int k = 0; k < 64; ++k) {
-          const Vec3f d = f.toWorld(sampleCosineHemisphere({r2.uniform(), r2.uniform()}));
-          SurfaceHit hit;
-          if (scene.intersect(scene.spawnRay(sides[i].p, sides[i].ng, d), &hit)) nearest = std::min(nearest, hit.t);
-        }
-        const float radius = picked[i / 2].radius;
-        const int b = nearest < 0.5f * radius ? 0 : nearest < radius ? 1 : nearest < 2 * radius ? 2
-                    : nearest < 4 * radius ? 3 : nearest < 16 * radius ? 4 : 5;
-        bc[b] += luminance(brute[i]), br[b] += ref[i], ++bn[b];
-      }
-      const char* names[6] = {"<0.5r", "<1r", "<2r", "<4r", "<16r", "far"};
-      for (int b = 0; b < 6; ++b) {
-        std::printf("    nearest geometry %-5s: %5d sides, %.4f of the open light, brute / rays %.4f\n",
-                    names[b], bn[b], br[b] / openRef, br[b] > 0 ? bc[b] / br[b] : 0.0);
-      }
+    // Open sides by the distance from their surfel to the nearest geometry the rays met.
+    double bc[6] = {}, br[6] = {};
+    int bn[6] = {};
+    for (size_t i = 0; i < sides.size(); ++i) {
+      if (isShut(i)) continue;
+      const float nearest = rays[i].nearest / picked[i / 2].radius;
+      const int b = nearest < 0.5f ? 0 : nearest < 1.0f ? 1 : nearest < 2.0f ? 2
+                  : nearest < 4.0f ? 3 : nearest < 16.0f ? 4 : 5;
+      bc[b] += luminance(brute[i]), br[b] += rays[i].reflected, ++bn[b];
+    }
+    const char* names[6] = {"<0.5r", "<1r", "<2r", "<4r", "<16r", "far"};
+    for (int b = 0; b < 6; ++b) {
+      std::printf("    nearest geometry %-5s: %5d sides, %.4f of the open light, brute / rays %.4f\n",
+                  names[b], bn[b], br[b] / openRef, br[b] > 0 ? bc[b] / br[b] : 0.0);
     }
   }
   for (const char* preset : {"draft", "default", "high"}) {
     SurfelBouncer bouncer(*cutPreset(preset));
     std::vector<SurfelIrradiance> e(picked.size());
-    const size_t groupSize = kRun;
+    const size_t groupSize = run;
     std::vector<uint64_t> keys((picked.size() + groupSize - 1) / groupSize);
     for (size_t g = 0; g < keys.size(); ++g) keys[g] = hashKeys(uint64_t{7}, g);
     CutStats stats;
@@ -236,7 +229,7 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
       if (isShut(i)) {
         shutCut += c, ++shut;
       } else {
-        openCut += c, openRef += ref[i];
+        openCut += c, openRef += rays[i].reflected;
       }
     }
     std::printf("  %-8s open sides: cut / rays %.4f; %d shut-in sides (rays meet only dark "
@@ -281,7 +274,9 @@ int run(const Args& args) {
 
   double exact = 0.0;
   const char* against = "rays";
-  for (double e : raysGather(scene, receivers, args.rays, unitLight)) exact += e;
+  for (const RayGather& g : raysGather(scene, receivers, args.rays, !unitLight)) {
+    exact += unitLight ? g.covered : g.reflected;
+  }
   if (args.brute) {
     std::vector<Rgb> brute(receivers.size());
     auto options = cutPreset("default");
