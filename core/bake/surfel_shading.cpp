@@ -116,6 +116,93 @@ bool needsWavelets(const Material& material, float tolerance) {
   return shLobeError(material) > tolerance;
 }
 
+GlossyLeafBaker::GlossyLeafBaker(const Scene& scene, const GlossyBakeOptions& options)
+    : scene_(&scene), options_(options) {
+  PBGI_CHECK_GT(options.lightSamples, 0);
+  const std::vector<MeshData>& meshes = scene.meshes();
+  bases_.resize(meshes.size());
+  for (size_t m = 0; m < meshes.size(); ++m) bases_[m] = scene.triangleIdBase(m);
+  needs_.resize(scene.materials().size());
+  for (size_t i = 0; i < needs_.size(); ++i) {
+    needs_[i] = needsWavelets(scene.material(static_cast<uint32_t>(i)), options.tolerance);
+    any_ = any_ || needs_[i];
+  }
+}
+
+namespace {
+
+// Keeps the glossy surfels' light samples apart from every other stream.
+constexpr uint64_t kGlossyLeafDomain = 0x474c4f5353594c46ull;
+
+}  // namespace
+
+WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t leafKey) const {
+  const std::vector<MeshData>& meshes = scene_->meshes();
+  struct Arrival {
+    Vec3f wiLocal;
+    Rgb value;  // radiance / (pdf * light selection pdf) / samples
+  };
+  struct Glossy {
+    Surfel* surfel;
+    Frame frame;
+    Bsdf bsdf;
+    std::vector<Arrival> arrivals;
+    Rgb front{0.0f}, back{0.0f};  // cosine-weighted sums of outgoing radiance per side
+  };
+  std::vector<Glossy> glossy;
+  const float invSamples = 1.0f / static_cast<float>(options_.lightSamples);
+  for (size_t j = 0; j < surfels.size(); ++j) {
+    Surfel& s = surfels[j];
+    if (s.materialClass != MaterialClass::kGlossy &&
+        s.materialClass != MaterialClass::kTransmissive) {
+      continue;
+    }
+    const auto it = std::upper_bound(bases_.begin(), bases_.end(), uint64_t{s.triangle});
+    if (it == bases_.begin()) continue;
+    const size_t m = static_cast<size_t>(it - bases_.begin()) - 1;
+    const uint64_t local = s.triangle - bases_[m];
+    if (local >= meshes[m].triangleCount()) continue;
+    const uint32_t id = meshes[m].materials[local];
+    if (!needs_[id]) continue;
+    const Material& material = scene_->material(id);
+    Glossy g{&s, Frame(s.normal), Bsdf(material, s.albedo), {}};
+    if (g.bsdf.isDelta()) continue;  // mirror images need rays, not light samples
+    Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
+    for (int k = 0; k < options_.lightSamples; ++k) {
+      float selectPdf = 0.0f;
+      const std::optional<LightSample> ls =
+          sampleUnoccludedLight(*scene_, s.position, s.normal, rng, &selectPdf);
+      if (!ls) continue;
+      const Rgb value = ls->radiance * (invSamples / (ls->pdf * selectPdf));
+      if (isFinite(value)) g.arrivals.push_back({g.frame.toLocal(ls->wi), value});
+    }
+    if (!g.arrivals.empty()) glossy.push_back(std::move(g));
+  }
+  if (glossy.empty()) return WaveletRadiance();
+  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options_.resolution);
+  std::vector<Rgb> intensity(cube->directions.size(), Rgb(0.0f));
+  for (Glossy& g : glossy) {
+    const float area = g.surfel->area();
+    for (size_t t = 0; t < cube->directions.size(); ++t) {
+      const Vec3f wo = g.frame.toLocal(cube->directions[t]);
+      Rgb radiance(0.0f);
+      for (const Arrival& a : g.arrivals) {
+        radiance += g.bsdf.f(wo, a.wiLocal) * a.value * std::abs(a.wiLocal.z);
+      }
+      if (!isFinite(radiance)) continue;
+      const float cosine = std::abs(wo.z);
+      intensity[t] += radiance * (area * cosine);
+      (wo.z > 0.0f ? g.front : g.back) += radiance * (cosine * cube->solidAngles[t]);
+    }
+    // The texels' cosine-weighted solid angles sum to pi over each side.
+    g.surfel->radiance = g.front * kInvPi;
+    g.surfel->backRadiance = g.back * kInvPi;
+  }
+  return WaveletRadiance::project(
+      [&](const Vec3f& dir) { return intensity[static_cast<size_t>(cubePixelIndex(dir, options_.resolution))]; },
+      options_.resolution, 0.0f);
+}
+
 WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
                                      const Material& material, const Rgb& albedo, int n,
                                      float threshold, int lightSamples, Rng& rng) {

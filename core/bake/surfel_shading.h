@@ -70,4 +70,35 @@ WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
                                      const Material& material, const Rgb& albedo, int n,
                                      float threshold, int lightSamples, Rng& rng);
 
+struct GlossyBakeOptions {
+  int resolution = 16;   // n: the cube map's faces are n x n (the paper uses 32)
+  int lightSamples = 4;  // per glossy surfel; a leaf of m surfels takes m times as many
+  float tolerance = kShLobeTolerance;  // needsWavelets'
+  uint64_t seed = 0;
+  int frame = 0;
+};
+
+// What the tree writer asks of the bake for each leaf holding glossy or refractive surfels
+// (TreeWaveletOptions::leaf): the leaf's direct glossy light as wavelet intensity, the sum over
+// its surfels whose material needsWavelets of area x |cos| x outgoing radiance towards every
+// texel of the cube map (light samples and BSDF as glossyDirectRadiance), and each such
+// surfel's radiance and back radiance set to its mean outgoing radiance over that side (the
+// cosine-weighted average: what a gather that sees it as a disk uses). Materials of one scene
+// are measured once, here. Thread-safe; the same leaf and key give the same bits.
+class GlossyLeafBaker {
+ public:
+  GlossyLeafBaker(const Scene& scene, const GlossyBakeOptions& options);
+
+  // Whether any material of the scene needs wavelets: a scene without one bakes none.
+  bool anyWavelets() const { return any_; }
+  WaveletRadiance operator()(std::span<Surfel> surfels, uint64_t leafKey) const;
+
+ private:
+  const Scene* scene_;
+  GlossyBakeOptions options_;
+  std::vector<uint64_t> bases_;     // first global triangle id of each mesh
+  std::vector<uint8_t> needs_;      // per scene material: needsWavelets
+  bool any_ = false;
+};
+
 }  // namespace pbgi

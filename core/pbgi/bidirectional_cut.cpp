@@ -159,7 +159,8 @@ bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s,
 
 // What a node sends a receiver at p facing n, as the cut would evaluate it alone: its SH
 // intensity towards p times the cosine at p over the squared distance (0 behind p).
-float nodeContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) {
+float nodeContribution(const NodeAttributes& a, const WaveletRadiance* wavelet, const Vec3f& p,
+                       const Vec3f& n) {
   const Vec3f v = a.centroid - p;
   const float d2 = v.length2();
   if (!(d2 > 0.0f)) return 0.0f;
@@ -168,7 +169,8 @@ float nodeContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) 
   if (!(cosR > 0.0f)) return 0.0f;
   ClusterView view;
   viewCluster(a, dir, &view);
-  return std::max(0.0f, luminance(clusterRadiance(a, view))) * view.coverage() * cosR / d2;
+  return std::max(0.0f, luminance(clusterRadiance(a, view, wavelet))) * view.coverage() * cosR /
+         d2;
 }
 
 // Where a shadow ray towards a cluster goes: one of its surfels, picked by descending from the
@@ -242,7 +244,7 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
             "older payload, or damaged)",
             ref.page, ref.index, c, page.children[node.first + c].page));
       }
-      weights[c] = nodeContribution(*child, to.p, to.n);
+      weights[c] = nodeContribution(*child, page.childWavelet(node, c), to.p, to.n);
       total += weights[c];
     }
     if (!(total > 0.0f)) return Descent{};
@@ -280,10 +282,11 @@ bool surfelSource(const Surfel& s, const Vec3f& w, PointSource* src) {
 // A cluster as a point source at its centroid towards w (unit, from it to the receivers): its
 // intensity (radiance times the area it shows, both sides, as the gathers see it), and the
 // front sides' SH power's gradient scaling their part.
-PointSource clusterSource(const NodeAttributes& a, const ClusterView& view, const Vec3f& w) {
+PointSource clusterSource(const NodeAttributes& a, const WaveletRadiance* wavelet,
+                          const ClusterView& view, const Vec3f& w) {
   PointSource src;
   src.position = a.centroid;
-  src.intensity = clusterRadiance(a, view) * view.coverage();
+  src.intensity = clusterRadiance(a, view, wavelet) * view.coverage();
   if (!(view.shArea > 0.0f)) return src;
   // The front's I = P(w) area / shArea: the SH power's gradient, scaled alike, and held to
   // 4 I per radian (a Lambertian patch changes by at most its whole intensity per radian; the
@@ -780,7 +783,8 @@ struct BidirectionalCut::State {
     }
     // Nothing to send (the insides of closed objects, unlit rooms): the power's constant term
     // is the integral of a non-negative intensity.
-    if (!(luminance(a.powerSh.c[0]) > 0.0f) && !(luminance(a.backPower) > 0.0f)) {
+    if (!(luminance(a.powerSh.c[0]) > 0.0f) && !(luminance(a.backPower) > 0.0f) &&
+        page.waveletOf(node) == nullptr) {
       ++stats.culled;
       return absl::OkStatus();
     }
@@ -818,7 +822,7 @@ struct BidirectionalCut::State {
       if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
         ++stats.clusterPairs;
         stats.receiversServed += served(pair.receiver);
-        const PointSource src = clusterSource(a, view, -dir);
+        const PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
         if (isBlack(src.intensity)) return absl::OkStatus();
         Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
         const uint32_t origin = originOf(pair.receiver, rng);

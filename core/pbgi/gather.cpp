@@ -136,7 +136,8 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
   }
 }
 
-bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds, const Vec3f& p,
+bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds,
+                         const WaveletRadiance* wavelet, const Vec3f& p,
                          GatherStats* stats) {
   const float maxSolidAngle = options_.maxSolidAngle;
   const Vec3f toCentroid = a.centroid - p;
@@ -156,7 +157,7 @@ bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds, cons
     ++stats->clustersInvisible;
     return true;
   }
-  buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view),
+  buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view, wavelet),
                          clusterDepthExtent(a, dir));
   ++stats->clustersSplatted;
   return true;
@@ -166,7 +167,9 @@ absl::Status Gatherer::traverse(TreePageSource& tree, const Vec3f& p, const Vec3
                                 GatherStats* stats) {
   return walk_.run(
       tree, p, n, stats,
-      [&](const NodeAttributes& a, const NodeBounds& bounds) { return splatNode(a, bounds, p, stats); },
+      [&](const NodeAttributes& a, const NodeBounds& bounds, const WaveletRadiance* w) {
+        return splatNode(a, bounds, w, p, stats);
+      },
       [&](const TreePage& page, const TreeNode& leaf) { gatherSurfels(page, leaf, p, n, stats); });
 }
 
@@ -204,7 +207,9 @@ absl::Status gatherTogether(TreePageSource& tree, std::span<Gatherer> gatherers,
       GatherStats* s = &local[i];
       if (absl::Status status = g.swept_.sweep(
               tree, *high, s,
-              [&](const NodeAttributes& a, const NodeBounds& b) { return g.splatNode(a, b, p, s); },
+              [&](const NodeAttributes& a, const NodeBounds& b, const WaveletRadiance* w) {
+                return g.splatNode(a, b, w, p, s);
+              },
               [&](const TreePage& page, const TreeNode& leaf) { g.gatherSurfels(page, leaf, p, n, s); });
           !status.ok()) {
         return status;

@@ -113,7 +113,7 @@ class Gatherer {
   absl::Status traverse(TreePageSource& tree, const Vec3f& p, const Vec3f& n, GatherStats* stats);
   // A node seen from p: splatted whole (true) or to be refined (false).
   bool splatNode(const NodeAttributes& a, const gather_internal::NodeBounds& bounds,
-                 const Vec3f& p, GatherStats* stats);
+                 const WaveletRadiance* wavelet, const Vec3f& p, GatherStats* stats);
   void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
                      GatherStats* stats);
 

@@ -149,6 +149,7 @@ inline float clusterDepthExtent(const NodeAttributes& a, const Vec3f& dir) {
 // receiver its back when its front faces away), and all it covers.
 struct ClusterView {
   float basis[kShCoefficients];
+  Vec3f toReceiver{0.0f};  // unit, from the node towards the receiver
   float shArea = 0.0f;
   float area = 0.0f;      // front sides
   float backArea = 0.0f;  // back sides
@@ -156,6 +157,7 @@ struct ClusterView {
 };
 
 inline void viewCluster(const NodeAttributes& a, const Vec3f& dir, ClusterView* view) {
+  view->toReceiver = -dir;
   evalShBasis(-dir, view->basis);  // towards the receiver, as the node's functions expect
   float shArea = 0.0f, shBack = 0.0f;
   for (int i = 0; i < kShCoefficients; ++i) {
@@ -171,8 +173,10 @@ inline void viewCluster(const NodeAttributes& a, const Vec3f& dir, ClusterView* 
 
 // The mean radiance the cluster sends the receiver over all it covers: its front sides' from
 // the SH ratio (in which their common ringing cancels), its back sides' the mean back
-// radiance, weighted by the areas each side shows.
-inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view) {
+// radiance, weighted by the areas each side shows, and its glossy surfels' intensity towards
+// the receiver (`wavelet`, when it has one: tree_page.h) over all it covers.
+inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view,
+                           const WaveletRadiance* wavelet) {
   Rgb front(0.0f);
   if (view.shArea > 0.0f) {
     for (int i = 0; i < kShCoefficients; ++i) front += a.powerSh.c[i] * view.basis[i];
@@ -181,7 +185,9 @@ inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view) {
   const float covered = view.coverage();
   if (!(covered > 0.0f)) return Rgb(0.0f);
   const Rgb back = a.area > 0.0f ? vmax(a.backPower, Rgb(0.0f)) / a.area : Rgb(0.0f);
-  return (front * view.area + back * view.backArea) / covered;
+  const Rgb glossy =
+      wavelet != nullptr ? vmax(wavelet->evaluate(view.toReceiver), Rgb(0.0f)) : Rgb(0.0f);
+  return (front * view.area + back * view.backArea + glossy) / covered;
 }
 
 // The node a reference names, DataLoss when the page has no such node.
@@ -283,7 +289,7 @@ namespace pbgi {
 namespace gather_internal {
 
 // One node of a walk (TreeWalk's and SweptWalk's): culled behind the receiver's tangent plane,
-// taken whole by splat(attributes, bounds), handed to leaf(page, node), or refined, each child
+// taken whole by splat(attributes, bounds, wavelet), handed to leaf(page, node), or refined, each child
 // going to push(child, depth) last child first, so that they come off a stack in Morton order.
 template <typename Splat, typename Leaf, typename Push>
 absl::Status visitNode(const TreePage& page, NodeRef ref, uint32_t depth, const Vec3f& p,
@@ -298,7 +304,9 @@ absl::Status visitNode(const TreePage& page, NodeRef ref, uint32_t depth, const 
     ++stats->nodesCulledPlane;
     return absl::OkStatus();
   }
-  if (bounds.outside() && splat(node.attributes, bounds)) return absl::OkStatus();
+  if (bounds.outside() && splat(node.attributes, bounds, page.waveletOf(node))) {
+    return absl::OkStatus();
+  }
   if (node.leaf()) {
     if (absl::Status s = checkLeaf(page, node, ref); !s.ok()) return s;
     leaf(page, node);

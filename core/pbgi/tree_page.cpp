@@ -1,6 +1,7 @@
 #include "core/pbgi/tree_page.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 #include <Imath/half.h>
@@ -289,10 +290,138 @@ absl::StatusOr<Codebook> decodeCodebook(std::span<const uint8_t> bytes, int expe
 // ---- Pages -------------------------------------------------------------------------------------
 
 size_t TreePage::memoryBytes() const {
-  return sizeof(TreePage) + nodes.capacity() * sizeof(TreeNode) +
-         children.capacity() * sizeof(NodeRef) + surfels.capacity() * sizeof(Surfel) +
-         ghostOf.capacity() * sizeof(uint32_t);
+  size_t bytes = sizeof(TreePage) + nodes.capacity() * sizeof(TreeNode) +
+                 children.capacity() * sizeof(NodeRef) + surfels.capacity() * sizeof(Surfel) +
+                 ghostOf.capacity() * sizeof(uint32_t) +
+                 wavelets.capacity() * sizeof(WaveletRadiance);
+  for (const WaveletRadiance& w : wavelets) {
+    for (const WaveletFace& f : w.faces()) bytes += f.nodes.capacity() * sizeof(WaveletFace::Node);
+  }
+  return bytes;
 }
+
+size_t waveletEntryBytes(const WaveletRadiance& w) {
+  return 4 + 1 + 6 * (16 + 2) + w.keptNodes() * (3 + 18);
+}
+
+namespace {
+
+struct WaveletEntry {
+  uint32_t node;
+  const WaveletRadiance* wavelet;
+};
+
+void writeWaveletSection(ByteWriter& w, std::span<const WaveletEntry> entries) {
+  if (entries.empty()) return;
+  w.u32(kWaveletMagic);
+  w.u16(kWaveletSectionVersion);
+  w.u32(static_cast<uint32_t>(entries.size()));
+  for (const WaveletEntry& entry : entries) {
+    const WaveletRadiance& wr = *entry.wavelet;
+    w.u32(entry.node);
+    w.u8(static_cast<uint8_t>(std::countr_zero(static_cast<unsigned>(wr.resolution()))));
+    for (const WaveletFace& f : wr.faces()) {
+      writeVec3(w, f.scaling);
+      float scale = 0.0f;
+      for (const WaveletFace::Node& node : f.nodes) {
+        for (const Rgb& d : node.detail) scale = std::max(scale, maxComponent(vmax(d, -d)));
+      }
+      w.f32(scale);
+      PBGI_CHECK_LE(f.nodes.size(), size_t{UINT16_MAX});
+      w.u16(static_cast<uint16_t>(f.nodes.size()));
+      const float inv = scale > 0.0f ? 1.0f / scale : 0.0f;
+      for (const WaveletFace::Node& node : f.nodes) {
+        w.u8(static_cast<uint8_t>(node.level));
+        w.u8(static_cast<uint8_t>(node.x));
+        w.u8(static_cast<uint8_t>(node.y));
+        for (const Rgb& d : node.detail) {
+          for (int c = 0; c < 3; ++c) w.u16(toHalf(d[c] * inv).bits());
+        }
+      }
+    }
+  }
+}
+
+// Reads the section that follows a page's base payload into `page` (nodes already decoded).
+absl::Status readWaveletSection(std::span<const uint8_t> bytes, TreePage* page) {
+  auto fail = [&](const std::string& what) {
+    return absl::DataLossError(fmt::format("page {}: wavelet section: {}", page->id, what));
+  };
+  ByteReader r(bytes.data());
+  size_t left = bytes.size();
+  auto take = [&](size_t n) {
+    if (n > left) return false;
+    left -= n;
+    return true;
+  };
+  if (!take(kWaveletSectionHeaderBytes)) {
+    return fail(fmt::format("{} bytes after the page's records, shorter than the {}-byte header",
+                            bytes.size(), kWaveletSectionHeaderBytes));
+  }
+  const uint32_t magic = r.u32();
+  if (magic != kWaveletMagic) {
+    return fail(fmt::format("{} bytes after the page's records, not a wavelet section (magic "
+                            "{:#010x}, expected {:#010x})",
+                            bytes.size(), magic, kWaveletMagic));
+  }
+  const uint16_t version = r.u16();
+  if (version != kWaveletSectionVersion) {
+    return fail(fmt::format("version {}, this build reads version {}", version,
+                            kWaveletSectionVersion));
+  }
+  const uint32_t entries = r.u32();
+  if (entries == 0 || entries > page->nodes.size()) {
+    return fail(fmt::format("{} entries for {} nodes", entries, page->nodes.size()));
+  }
+  page->wavelets.reserve(entries);
+  int64_t lastNode = -1;
+  for (uint32_t e = 0; e < entries; ++e) {
+    if (!take(5)) return fail(fmt::format("entry {} cut short", e));
+    const uint32_t node = r.u32();
+    const uint8_t log2n = r.u8();
+    if (node >= page->nodes.size() || static_cast<int64_t>(node) <= lastNode) {
+      return fail(fmt::format("entry {} names node {} (the page has {}; entries in node order, "
+                              "one a node)",
+                              e, node, page->nodes.size()));
+    }
+    lastNode = node;
+    if ((1 << std::min<int>(log2n, 30)) > kMaxMicrobufferResolution) {
+      return fail(fmt::format("entry {}: resolution 2^{}, at most {}", e, log2n,
+                              kMaxMicrobufferResolution));
+    }
+    std::array<WaveletFace, 6> faces;
+    for (int f = 0; f < 6; ++f) {
+      if (!take(18)) return fail(fmt::format("entry {} face {} cut short", e, f));
+      faces[f].scaling = readVec3(r);
+      const float scale = r.f32();
+      const uint16_t count = r.u16();
+      if (!std::isfinite(scale) || scale < 0.0f) {
+        return fail(fmt::format("entry {} face {}: detail scale {}", e, f, scale));
+      }
+      if (!take(size_t{count} * 21)) {
+        return fail(fmt::format("entry {} face {}: {} nodes, more than the bytes left", e, f,
+                                count));
+      }
+      faces[f].nodes.resize(count);
+      for (WaveletFace::Node& q : faces[f].nodes) {
+        q.level = r.u8();
+        q.x = r.u8();
+        q.y = r.u8();
+        for (Rgb& d : q.detail) {
+          for (int c = 0; c < 3; ++c) d[c] = halfBits(r.u16()) * scale;
+        }
+      }
+    }
+    auto w = WaveletRadiance::fromFaces(1 << log2n, std::move(faces));
+    if (!w.ok()) return fail(fmt::format("entry {} (node {}): {}", e, node, w.status().message()));
+    page->nodes[node].wavelet = static_cast<uint32_t>(page->wavelets.size());
+    page->wavelets.push_back(std::move(*w));
+  }
+  if (left != 0) return fail(fmt::format("{} bytes left over after {} entries", left, entries));
+  return absl::OkStatus();
+}
+
+}  // namespace
 
 size_t treePageBytes(TreeEncoding encoding, size_t nodes, size_t refs, size_t surfels,
                      size_t exact) {
@@ -458,6 +587,19 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
   }
   PBGI_CHECK_EQ(out.size(),
                 treePageBytes(encoding, counts.nodes, counts.refs, counts.surfels, counts.exact));
+  std::vector<WaveletEntry> entries;
+  size_t entryBytes = 0;
+  auto entry = [&](size_t node, const std::shared_ptr<const WaveletRadiance>& wavelet) {
+    if (!wavelet || wavelet->empty()) return;
+    entries.push_back({static_cast<uint32_t>(node), wavelet.get()});
+    entryBytes += waveletEntryBytes(*wavelet);
+  };
+  for (size_t i = 0; i < nodes.size(); ++i) entry(i, nodes[i].wavelet);
+  for (size_t g = 0; g < ghosts.size(); ++g) entry(nodes.size() + g, ghosts[g].node->wavelet);
+  writeWaveletSection(w, entries);
+  PBGI_CHECK_EQ(out.size(),
+                treePageBytes(encoding, counts.nodes, counts.refs, counts.surfels, counts.exact) +
+                    (entries.empty() ? 0 : kWaveletSectionHeaderBytes + entryBytes));
   return out;
 }
 
@@ -488,7 +630,8 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
                             uint64_t{counts.refs} * kChildRefBytes +
                             uint64_t{counts.surfels} * surfelRecordBytes(encoding) +
                             uint64_t{counts.exact} * kExactShBytes;
-  if (expected != bytes.size() || counts.nodes == 0 || counts.exact > counts.nodes) {
+  // Bytes past the records are the optional wavelet section, read last.
+  if (expected > bytes.size() || counts.nodes == 0 || counts.exact > counts.nodes) {
     return fail(fmt::format(
         "{} nodes ({} exact), {} references and {} surfels need {} bytes, found {}",
         counts.nodes, counts.exact, counts.refs, counts.surfels, expected, bytes.size()));
@@ -578,7 +721,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
   // Attributes, parents before children: a quantized node's bounds are relative to its
   // in-page parent's, or to the page's.
   std::vector<Bounds3f> reference(counts.nodes, page->bounds);
-  const uint8_t* exact = bytes.data() + bytes.size() - size_t{counts.exact} * kExactShBytes;
+  const uint8_t* exact = bytes.data() + expected - size_t{counts.exact} * kExactShBytes;
   uint32_t exactSeen = 0;
   for (uint32_t i = 0; i < counts.nodes; ++i) {
     TreeNode& n = page->nodes[i];
@@ -674,6 +817,9 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
       return fail(fmt::format("surfel {}: material class {}, expected 0..3", si, material));
     }
     s.materialClass = static_cast<MaterialClass>(material);
+  }
+  if (expected < bytes.size()) {
+    if (auto s = readWaveletSection(bytes.subspan(expected), page.get()); !s.ok()) return s;
   }
   return std::shared_ptr<const TreePage>(std::move(page));
 }

@@ -30,6 +30,14 @@
 //   then the node records, the child references (u32 page, u32 index each), the surfel
 //   records, and the float SH of exact nodes (area 9 x f32, power 27 x f32 each, in node
 //   order). Record sizes below.
+// Wavelet section (optional, its own version; issue 14): when the payload runs on past the
+//   exact SH, the rest is u32 magic 0x56574250 ("PBWV"), u16 section version (1), u32 entry
+//   count, then per node that has a wavelet vector, in node order:
+//   u32 node index (ghosts too, whose vectors keep only the faces' averages), u8 log2 of
+//   the cube's resolution n, and per face (6): scaling 3 x f32,
+//   detail scale f32, u16 kept-node count, then per kept quadtree node (pyramid order):
+//   u8 level, u8 x, u8 y, details 9 x f16 (horizontal, vertical, diagonal x RGB, each over
+//   the face's detail scale). A page without wavelets has no section and reads as before.
 // Node record: u8 child count (0 for a leaf), u8 surfel count (leaves), u32 first child
 //   reference or first surfel, u32 point count, then
 //   float:     bounds 6 x f32, centroid 3 x f32, cone axis 3 x f32, cone cos f32, area f32,
@@ -58,6 +66,7 @@
 
 #include "core/pbgi/quantize.h"
 #include "core/pbgi/tree.h"
+#include "core/pbgi/wavelet.h"
 #include "core/util/bytes.h"
 
 namespace pbgi {
@@ -66,6 +75,16 @@ inline constexpr uint32_t kTreePageHeaderBytes = 4 + 4 + 4 + 4 + 1 + 24;
 // The float spherical functions of an exact node: area SH 9 x f32, power SH 27 x f32.
 inline constexpr uint32_t kExactShBytes = 36 * 4;
 inline constexpr uint32_t kChildRefBytes = 8;
+inline constexpr uint32_t kWaveletMagic = 0x56574250;  // "PBWV"
+inline constexpr uint16_t kWaveletSectionVersion = 1;
+inline constexpr uint32_t kWaveletSectionHeaderBytes = 4 + 2 + 4;
+inline constexpr uint32_t kNoWavelet = UINT32_MAX;
+// Bytes of one node's entry in the wavelet section.
+size_t waveletEntryBytes(const WaveletRadiance& w);
+// The most an entry of at most `maxNodes` kept quadtree nodes takes.
+inline constexpr size_t maxWaveletEntryBytes(size_t maxNodes) {
+  return 4 + 1 + 6 * (16 + 2) + maxNodes * (3 + 18);
+}
 
 // kQuantized stores 16-bit codebook indices, kQuantized8 8-bit ones (codebooks of at most
 // 256 entries, 2 bytes less per node).
@@ -96,6 +115,7 @@ struct TreeNode {
   uint32_t childCount = 0;  // 0 for a leaf
   uint32_t first = 0;       // first child in TreePage::children, or first surfel
   uint32_t surfelCount = 0;
+  uint32_t wavelet = kNoWavelet;  // index into TreePage::wavelets: glossy light, if any
   bool leaf() const { return childCount == 0; }
   // A copy of a child in another page (see Ghosts above): `first` is its child reference.
   bool ghost() const { return childCount == 0 && surfelCount == 0; }
@@ -113,6 +133,13 @@ struct TreePage {
   std::vector<Surfel> surfels;  // triangle and barycentric are not stored: left 0
   // Per child reference: the node index of its ghost, kNoGhost for a child in this page.
   std::vector<uint32_t> ghostOf;
+  // The wavelet intensity (W/sr as a function of direction) of the nodes that have one: the
+  // light their glossy and refractive surfels send out, beside the SH's diffuse light.
+  std::vector<WaveletRadiance> wavelets;
+
+  const WaveletRadiance* waveletOf(const TreeNode& n) const {
+    return n.wavelet == kNoWavelet ? nullptr : &wavelets[n.wavelet];
+  }
 
   // `first` indexes children for interior nodes and surfels for leaves; each accessor is
   // empty for the other kind (the index would be out of its range).
@@ -132,6 +159,14 @@ struct TreePage {
     if (ref.page == id) return ref.index < nodes.size() ? &nodes[ref.index].attributes : nullptr;
     const uint32_t g = n.first + c < ghostOf.size() ? ghostOf[n.first + c] : kNoGhost;
     return g == kNoGhost ? nullptr : &nodes[g].attributes;
+  }
+  // The wavelet vector of child `c` of interior node `n`, as childAttributes finds it (a
+  // ghost's keeps only its faces' averages); null when it has none.
+  const WaveletRadiance* childWavelet(const TreeNode& n, uint32_t c) const {
+    const NodeRef ref = children[n.first + c];
+    if (ref.page == id) return ref.index < nodes.size() ? waveletOf(nodes[ref.index]) : nullptr;
+    const uint32_t g = n.first + c < ghostOf.size() ? ghostOf[n.first + c] : kNoGhost;
+    return g == kNoGhost ? nullptr : waveletOf(nodes[g]);
   }
   // Memory the decoded page holds, what a page cache budgets.
   size_t memoryBytes() const;
@@ -177,6 +212,9 @@ struct GhostNode {
   uint32_t powerIndex = 0;
   uint32_t areaIndex = 0;
   bool exact = false;
+  // The child's wavelet vector's face averages alone (no details): enough to weigh it
+  // against its siblings (empty: none).
+  std::shared_ptr<const WaveletRadiance> wavelet;
 };
 
 // A node on its way into a page: its float attributes, its surfels for a leaf, and its
@@ -192,6 +230,8 @@ struct PageNode {
   // Copies of children in other pages. The encoder writes those whose reference leads out
   // of the page and drops the others.
   std::vector<GhostNode> ghosts;
+  // The node's glossy light as wavelet intensity (empty: none; see TreePage::wavelets).
+  std::shared_ptr<const WaveletRadiance> wavelet;
 };
 
 // The float fields of a node record after its point count (bounds, centroid, cone, area,

@@ -1,5 +1,7 @@
 #include "core/pbgi/tree_pager.h"
 
+#include <limits>
+
 #include <fmt/format.h>
 
 #include "core/pbgi/tree_build.h"
@@ -26,22 +28,36 @@ size_t TreePager::nodeBytes(const PageNode& node, size_t childCount) const {
                  node.surfels.size() * surfelRecordBytes(options_.encoding) +
                  (quantized(options_.encoding) && node.exact ? kExactShBytes : 0);
   for (const GhostNode& g : node.ghosts) bytes += ghostBytes(g);
+  // Each wavelet entry counts the section's header too: a page holds at most that much more.
+  if (node.wavelet && !node.wavelet->empty()) {
+    bytes += kWaveletSectionHeaderBytes + waveletEntryBytes(*node.wavelet);
+  }
   return bytes;
 }
 
 size_t TreePager::ghostBytes(const GhostNode& ghost) const {
   return nodeRecordBytes(options_.encoding) +
-         (quantized(options_.encoding) && ghost.exact ? kExactShBytes : 0);
+         (quantized(options_.encoding) && ghost.exact ? kExactShBytes : 0) +
+         (ghost.wavelet && !ghost.wavelet->empty()
+              ? kWaveletSectionHeaderBytes + waveletEntryBytes(*ghost.wavelet)
+              : 0);
 }
 
 namespace {
 
 // The record of a subtree's root, as a ghost in its parent's page.
 GhostNode ghostOf(const PageNode& root) {
+  std::shared_ptr<const WaveletRadiance> averages;
+  if (root.wavelet && !root.wavelet->empty()) {
+    const WaveletRadiance* own = root.wavelet.get();
+    averages = std::make_shared<const WaveletRadiance>(
+        WaveletRadiance::sum(std::span(&own, 1), std::numeric_limits<float>::infinity()));  // every detail dropped
+  }
   return {.attributes = root.attributes,
           .powerIndex = root.powerIndex,
           .areaIndex = root.areaIndex,
-          .exact = root.exact};
+          .exact = root.exact,
+          .wavelet = std::move(averages)};
 }
 
 // `child` placed in another page becomes `parent`'s next child, with its ghost.

@@ -24,7 +24,8 @@ class TreeWalk {
  public:
   // Walks the tree from its root for a receiver at p facing n (unit). Nodes entirely behind
   // the tangent plane or facing away are culled (counted). For a node whose bounding sphere
-  // does not hold the receiver, `splat(attributes, bounds)` returns true when it took the node
+  // does not hold the receiver, `splat(attributes, bounds, wavelet)` (the node's glossy light, or
+  // null) returns true when it took the node
   // whole, false to refine it. Leaves that are refined go to `leaf(page, node)`. Children are
   // visited in Morton order. Errors: the source's; DataLoss for damaged references.
   template <typename Splat, typename Leaf>

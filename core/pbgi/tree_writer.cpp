@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <optional>
 
@@ -25,6 +26,15 @@ constexpr size_t kFloatAttributeBytes = 212;  // nodeRecordBytes(kFloat) less it
 constexpr size_t kFloatSurfelBytes = 65;
 static_assert(nodeRecordBytes(TreeEncoding::kFloat) == 10 + kFloatAttributeBytes);
 static_assert(surfelRecordBytes(TreeEncoding::kFloat) == kFloatSurfelBytes);
+constexpr size_t kSpillSurfelBytes = kFloatSurfelBytes + 4;  // and its triangle
+
+// Whether a leaf's surfels send light the SH cannot hold: glossy or transmissive ones.
+bool hasDirectionalSurfels(std::span<const Surfel> surfels) {
+  return std::any_of(surfels.begin(), surfels.end(), [](const Surfel& s) {
+    return s.materialClass == MaterialClass::kGlossy ||
+           s.materialClass == MaterialClass::kTransmissive;
+  });
+}
 
 // Nodes quantized per parallel batch in the second pass.
 constexpr size_t kBatchNodes = 4096;
@@ -121,6 +131,7 @@ class TreeWriter::Impl {
       if (!root.ok()) return root.status();
       result.root = *root;
       result.pages = pager_->stats();
+      result.wavelets = waveletReport();
       return result;
     }
     trainCodebooks(&result.codebooks);
@@ -132,7 +143,14 @@ class TreeWriter::Impl {
     result.root = *root;
     result.pages = pager_->stats();
     result.spillBytes = spill_->bytesWritten();
+    result.wavelets = waveletReport();
     return result;
+  }
+
+  TreeWaveletReport waveletReport() const {
+    TreeWaveletReport r = waveletReport_;
+    r.leaves = leafWavelets_.load();
+    return r;
   }
 
  private:
@@ -146,6 +164,11 @@ class TreeWriter::Impl {
       PageNode node;
       node.attributes = n.attributes;
       node.surfels.assign(n.surfels.begin(), n.surfels.end());
+      if (n.leaf() && options_.wavelets.leaf && hasDirectionalSurfels(node.surfels)) {
+        node.wavelet = leafWavelet(node.surfels, waveletNodes_);
+      }
+      ++waveletNodes_;
+      attachWavelet(node, n.childCount);
       return pager_->add(std::move(node), n.childCount);
     }
     record_.clear();
@@ -154,7 +177,10 @@ class TreeWriter::Impl {
     w.u32(static_cast<uint32_t>(n.surfels.size()));
     w.u64(n.attributes.pointCount);
     writeFloatAttributes(w, n.attributes);
-    for (const Surfel& s : n.surfels) writeFloatSurfel(w, s);
+    for (const Surfel& s : n.surfels) {
+      writeFloatSurfel(w, s);
+      w.u32(s.triangle);  // the wavelet stage looks materials up by triangle
+    }
     sample(n.attributes);
     ++spilledNodes_;
     return spill_->write(record_);
@@ -213,7 +239,7 @@ class TreeWriter::Impl {
     const uint32_t surfels = r.u32();
     node->attributes.pointCount = r.u64();
     readFloatAttributes(r, &node->attributes);
-    record_.resize(size_t{surfels} * kFloatSurfelBytes);
+    record_.resize(size_t{surfels} * kSpillSurfelBytes);
     if (auto s = spill_->read(record_); !s.ok()) return s;
     ByteReader sr(record_.data());
     node->surfels.resize(surfels);
@@ -221,6 +247,7 @@ class TreeWriter::Impl {
       if (auto s = readFloatSurfel(sr, &surfel); !s.ok()) {
         return absl::DataLossError(fmt::format("spill file {}: {}", spill_->name(), s.message()));
       }
+      surfel.triangle = sr.u32();
     }
     return absl::OkStatus();
   }
@@ -249,9 +276,13 @@ class TreeWriter::Impl {
       for (size_t i = 0; i < n; ++i) {
         if (auto s = readSpilled(&batch[i], &childCounts[i]); !s.ok()) return s;
       }
-      // Codebook lookups are the cost; each node's is independent of the others'.
+      const uint64_t firstKey = spilledNodes_ - remaining;
+      // Codebook lookups (and leaves' wavelets) are the cost; each node's is independent.
       tbb::parallel_for(size_t{0}, n, [&](size_t i) {
         PageNode& node = batch[i];
+        if (childCounts[i] == 0 && options_.wavelets.leaf && hasDirectionalSurfels(node.surfels)) {
+          node.wavelet = leafWavelet(node.surfels, firstKey + i);
+        }
         const NodeAttributes& a = node.attributes;
         node.exact = exactFrom > 0 && a.pointCount >= exactFrom;
         if (node.exact) {
@@ -294,6 +325,7 @@ class TreeWriter::Impl {
             ++result->quantization.clampedSurfelRadiance;
           }
         }
+        attachWavelet(batch[i], childCounts[i]);
         if (auto s = pager_->add(std::move(batch[i]), childCounts[i]); !s.ok()) return s;
       }
       remaining -= n;
@@ -301,6 +333,46 @@ class TreeWriter::Impl {
     result->quantization.power = powerSums.report();
     result->quantization.area = areaSums.report();
     return absl::OkStatus();
+  }
+
+  std::shared_ptr<const WaveletRadiance> leafWavelet(std::span<Surfel> surfels, uint64_t key) {
+    const WaveletRadiance w = options_.wavelets.leaf(surfels, key);
+    if (w.empty()) return nullptr;
+    leafWavelets_.fetch_add(1, std::memory_order_relaxed);
+    // Thresholded as every node's vector is.
+    const WaveletRadiance* own = &w;
+    return std::make_shared<const WaveletRadiance>(
+        WaveletRadiance::sum(std::span(&own, 1), 0.0f, options_.wavelets.relativeThreshold,
+                             options_.wavelets.maxNodes));
+  }
+
+  // In post-order: a leaf's vector (computed already, or none) waits for its parent; an
+  // interior node's is the sum of its children's, which it takes off the stack.
+  void attachWavelet(PageNode& node, uint32_t childCount) {
+    if (!options_.wavelets.leaf) return;
+    if (childCount > 0) {
+      PBGI_CHECK_LE(childCount, waveletStack_.size());
+      std::vector<const WaveletRadiance*> parts;
+      for (size_t c = waveletStack_.size() - childCount; c < waveletStack_.size(); ++c) {
+        if (waveletStack_[c]) parts.push_back(waveletStack_[c].get());
+      }
+      if (!parts.empty()) {
+        node.wavelet = std::make_shared<const WaveletRadiance>(
+            WaveletRadiance::sum(parts, 0.0f, options_.wavelets.relativeThreshold,
+                                 options_.wavelets.maxNodes));
+      }
+      waveletStack_.resize(waveletStack_.size() - childCount);
+    }
+    waveletStack_.push_back(node.wavelet);
+    if (node.wavelet) {
+      const WaveletRadiance& w = *node.wavelet;
+      ++waveletReport_.nodes;
+      waveletReport_.keptNodes += w.keptNodes();
+      waveletReport_.coefficients += w.keptCoefficients();
+      waveletReport_.bytes += waveletEntryBytes(w);
+      waveletReport_.maxRelativeError =
+          std::max(waveletReport_.maxRelativeError, double{w.relativeError()});
+    }
   }
 
   TreeWriteOptions options_;
@@ -313,6 +385,10 @@ class TreeWriter::Impl {
   std::vector<ShapeSample> samples_;
   uint64_t sampleThreshold_ = 0;
   uint64_t spilledNodes_ = 0;
+  uint64_t waveletNodes_ = 0;  // nodes seen by the float path, its leaves' keys
+  std::atomic<uint64_t> leafWavelets_{0};
+  std::vector<std::shared_ptr<const WaveletRadiance>> waveletStack_;
+  TreeWaveletReport waveletReport_;
   NodeAttributes root_;
   absl::Status failure_;
 };
@@ -333,6 +409,20 @@ absl::Status TreeWriter::validateOptions(const TreeWriteOptions& o) {
     if (quantized(o.encoding) && (centres < 1 || centres > maxCentres)) {
       return absl::InvalidArgumentError(fmt::format(
           "{} codebook centres: expected 1..{} for this index width", centres, maxCentres));
+    }
+  }
+  if (o.wavelets.leaf) {
+    if (!(o.wavelets.relativeThreshold >= 0.0f && o.wavelets.relativeThreshold < 1.0f)) {
+      return absl::InvalidArgumentError(fmt::format(
+          "wavelet threshold {}: expected a fraction in [0, 1)", o.wavelets.relativeThreshold));
+    }
+    const size_t needed = size_t{minPage} + kWaveletSectionHeaderBytes +
+                          maxWaveletEntryBytes(o.wavelets.maxNodes);
+    if (o.wavelets.maxNodes < 1 || o.pageSize < needed) {
+      return absl::InvalidArgumentError(fmt::format(
+          "wavelets of at most {} quadtree nodes a vector need pages of at least {} bytes, and "
+          "at least 1 node; page size {}",
+          o.wavelets.maxNodes, needed, o.pageSize));
     }
   }
   if (o.kmeansIterations < 0) {

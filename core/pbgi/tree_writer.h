@@ -12,7 +12,9 @@
 // post-order index and the seed, keeping the lowest hashes (a bottom-k sketch): it holds at
 // most maxSample vectors and is the same whatever the thread count.
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -23,6 +25,21 @@
 #include "core/pbgi/tree_pager.h"
 
 namespace pbgi {
+
+// Glossy light as wavelets (issue 14; Wang et al. 2015, section 3.1). `leaf` is called for
+// each leaf holding a glossy or transmissive surfel (by MaterialClass), with the leaf's
+// surfels (triangles as sampled) and a key unique to the leaf within the tree (its post-order
+// index, the same whatever the threads); it returns the leaf's wavelet intensity (W/sr by
+// direction; empty for none) and may set those surfels' radiance and back radiance to their
+// mean over each side, which gathers that see them as disks use. It runs in parallel and must
+// be thread-safe. An interior node's vector is the sum of its children's (the Haar transform
+// is linear), kept to relativeThreshold of its norm and at most maxNodes quadtree nodes. Null
+// (every scene without such materials): no wavelets, and the tree is byte for byte what it was.
+struct TreeWaveletOptions {
+  std::function<WaveletRadiance(std::span<Surfel> surfels, uint64_t leafKey)> leaf;
+  float relativeThreshold = 0.01f;
+  size_t maxNodes = 256;
+};
 
 struct TreeWriteOptions {
   TreeBuildOptions build;
@@ -39,6 +56,17 @@ struct TreeWriteOptions {
   size_t maxSample = 50000;
   uint64_t seed = 0;
   std::string tempDir;  // for the spill; empty: the system's temporary folder
+  TreeWaveletOptions wavelets;
+};
+
+// What the tree's wavelets hold (all 0 without them).
+struct TreeWaveletReport {
+  uint64_t leaves = 0;        // leaves whose vector `leaf` computed
+  uint64_t nodes = 0;         // nodes with a vector, leaves included
+  uint64_t keptNodes = 0;     // quadtree nodes kept, over all vectors
+  uint64_t coefficients = 0;  // scaling and detail coefficients kept, per channel counted
+  uint64_t bytes = 0;         // their entries in the pages
+  double maxRelativeError = 0.0;  // of a node's vector, thresholding against the exact sum
 };
 
 // How far the quantized spherical functions are from the float ones, over every node.
@@ -59,6 +87,7 @@ struct TreeWriteResult {
   TreePagerStats pages;
   TreeCodebooks codebooks;  // empty for float trees
   TreeQuantizationReport quantization;
+  TreeWaveletReport wavelets;
   uint64_t spillBytes = 0;
   std::string toString() const;
 };

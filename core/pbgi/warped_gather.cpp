@@ -442,7 +442,8 @@ void WarpedGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, c
 }
 
 absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, GatherStats* stats) {
-  auto splat = [&](const NodeAttributes& a, const NodeBounds& bounds) {
+  auto splat = [&](const NodeAttributes& a, const NodeBounds& bounds,
+                   const WaveletRadiance* wavelet) {
     const Vec3f toCentroid = a.centroid - p;
     const float distance2 = toCentroid.length2();
     const float distance = std::sqrt(distance2);
@@ -463,7 +464,7 @@ absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, Gath
     }
     const float coverage = nodeOmega / omega;
     compose(k, distance, clusterDepthExtent(a, toCentroid / distance), coverage,
-            clusterRadiance(a, view) * coverage);
+            clusterRadiance(a, view, wavelet) * coverage);
     ++stats->clustersSplatted;
     return true;
   };

@@ -4,6 +4,8 @@
 #include <bit>
 #include <cmath>
 
+#include <fmt/format.h>
+
 #include "core/pbgi/sh.h"
 #include "core/util/check.h"
 
@@ -97,26 +99,49 @@ WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>&
                                          float threshold) {
   PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
   PBGI_CHECK(threshold >= 0.0f);
-  WaveletRadiance w;
-  w.n_ = n;
   const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(n);
   const size_t texels = static_cast<size_t>(n) * n;
-  std::array<std::vector<float>, 3> channel;
-  for (auto& c : channel) c.resize(texels);
-  double dropped = 0.0;
-  const float threshold2 = threshold * threshold;
+  std::vector<float> coefficients(6 * 3 * texels);
+  uint64_t nonFinite = 0;
   for (int face = 0; face < 6; ++face) {
+    float* channel = &coefficients[face * 3 * texels];
     for (size_t k = 0; k < texels; ++k) {
       Rgb value = radiance(cube->directions[face * texels + k]);
       if (!isFinite(value)) {
         value = Rgb(0.0f);
-        ++w.nonFinite_;
+        ++nonFinite;
       }
-      for (int c = 0; c < 3; ++c) channel[c][k] = value[c];
+      for (int c = 0; c < 3; ++c) channel[c * texels + k] = value[c];
     }
-    for (auto& c : channel) haarForward(c, n);
+    for (int c = 0; c < 3; ++c) haarForward(std::span(channel + c * texels, texels), n);
+  }
+  WaveletRadiance w = fromDense(coefficients, n, threshold);
+  w.nonFinite_ = nonFinite;
+  return w;
+}
+
+WaveletRadiance WaveletRadiance::fromDense(std::span<const float> dense, int n, float threshold,
+                                           float relativeThreshold, size_t maxNodes) {
+  PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
+  const size_t texels = static_cast<size_t>(n) * n;
+  PBGI_CHECK_EQ(dense.size(), 6 * 3 * texels);
+  double total = 0.0;
+  for (const float v : dense) total += double{v} * v;
+  const float bound = std::max(threshold, relativeThreshold * static_cast<float>(std::sqrt(total)));
+  const float bound2 = bound * bound;
+  WaveletRadiance w;
+  w.n_ = n;
+  double dropped = 0.0;
+  struct Candidate {
+    float norm2;
+    int face;
+    size_t node;
+  };
+  std::vector<Candidate> kept;
+  for (int face = 0; face < 6; ++face) {
+    const float* channel = &dense[face * 3 * texels];
     WaveletFace& out = w.faces_[face];
-    out.scaling = Rgb(channel[0][0], channel[1][0], channel[2][0]);
+    out.scaling = Rgb(channel[0], channel[texels], channel[2 * texels]);
     for (int level = 0; (1 << level) < n; ++level) {
       const int side = 1 << level;
       for (int y = 0; y < side; ++y) {
@@ -130,10 +155,11 @@ WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>&
           node.y = static_cast<uint16_t>(y);
           float norm2 = 0.0f;
           for (int k = 0; k < 3; ++k) {
-            node.detail[k] = Rgb(channel[0][at[k]], channel[1][at[k]], channel[2][at[k]]);
+            node.detail[k] = Rgb(channel[at[k]], channel[texels + at[k]], channel[2 * texels + at[k]]);
             norm2 += node.detail[k].length2();
           }
-          if (norm2 > threshold2 && norm2 > 0.0f) {
+          if (norm2 > bound2 && norm2 > 0.0f) {
+            kept.push_back({norm2, face, out.nodes.size()});
             out.nodes.push_back(node);
           } else {
             dropped += norm2;
@@ -142,7 +168,110 @@ WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>&
       }
     }
   }
+  if (maxNodes > 0 && kept.size() > maxNodes) {
+    // The largest survive; ties go to the earlier node, so the result is deterministic.
+    std::stable_sort(kept.begin(), kept.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.norm2 > b.norm2; });
+    std::array<std::vector<bool>, 6> keep;
+    for (int f = 0; f < 6; ++f) keep[f].assign(w.faces_[f].nodes.size(), false);
+    for (size_t i = 0; i < kept.size(); ++i) {
+      if (i < maxNodes) {
+        keep[kept[i].face][kept[i].node] = true;
+      } else {
+        dropped += kept[i].norm2;
+      }
+    }
+    for (int f = 0; f < 6; ++f) {
+      std::vector<WaveletFace::Node>& nodes = w.faces_[f].nodes;
+      size_t to = 0;
+      for (size_t i = 0; i < nodes.size(); ++i) {
+        if (keep[f][i]) nodes[to++] = nodes[i];
+      }
+      nodes.resize(to);
+    }
+  }
   w.rmsError_ = static_cast<float>(std::sqrt(dropped / (6.0 * 3.0 * static_cast<double>(texels))));
+  w.relativeError_ = total > 0.0 ? static_cast<float>(std::sqrt(dropped / total)) : 0.0f;
+  return w;
+}
+
+std::vector<float> WaveletRadiance::dense() const {
+  const size_t texels = static_cast<size_t>(n_) * n_;
+  std::vector<float> out(6 * 3 * texels, 0.0f);
+  for (int face = 0; face < 6; ++face) {
+    float* channel = &out[face * 3 * texels];
+    const WaveletFace& f = faces_[face];
+    for (int c = 0; c < 3; ++c) channel[c * texels] = f.scaling[c];
+    for (const WaveletFace::Node& node : f.nodes) {
+      const size_t side = size_t{1} << node.level;
+      const std::array<size_t, 3> at = {node.y * n_ + side + node.x,
+                                        (side + node.y) * n_ + node.x,
+                                        (side + node.y) * n_ + side + node.x};
+      for (int k = 0; k < 3; ++k) {
+        for (int c = 0; c < 3; ++c) channel[c * texels + at[k]] = node.detail[k][c];
+      }
+    }
+  }
+  return out;
+}
+
+WaveletRadiance WaveletRadiance::sum(std::span<const WaveletRadiance* const> parts,
+                                     float threshold, float relativeThreshold, size_t maxNodes) {
+  int n = 0;
+  for (const WaveletRadiance* p : parts) {
+    if (p == nullptr || p->empty()) continue;
+    PBGI_CHECK(n == 0 || p->n_ == n);
+    n = p->n_;
+  }
+  if (n == 0) return WaveletRadiance();
+  const size_t texels = static_cast<size_t>(n) * n;
+  std::vector<float> total(6 * 3 * texels, 0.0f);
+  for (const WaveletRadiance* p : parts) {
+    if (p == nullptr || p->empty()) continue;
+    const std::vector<float> d = p->dense();
+    for (size_t i = 0; i < total.size(); ++i) total[i] += d[i];
+  }
+  return fromDense(total, n, threshold, relativeThreshold, maxNodes);
+}
+
+absl::StatusOr<WaveletRadiance> WaveletRadiance::fromFaces(int n,
+                                                           std::array<WaveletFace, 6> faces) {
+  if (!isPowerOfTwo(n) || n > kMaxMicrobufferResolution) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet resolution {}: expected a power of two up to {}", n,
+                    kMaxMicrobufferResolution));
+  }
+  const int levels = log2Of(n);
+  for (int f = 0; f < 6; ++f) {
+    if (!isFinite(faces[f].scaling)) {
+      return absl::InvalidArgumentError(fmt::format("wavelet face {}: scaling not finite", f));
+    }
+    int64_t last = -1;
+    for (const WaveletFace::Node& node : faces[f].nodes) {
+      if (node.level >= levels || node.x >= (1u << node.level) || node.y >= (1u << node.level)) {
+        return absl::InvalidArgumentError(fmt::format(
+            "wavelet face {}: node (level {}, {}, {}) outside the {} levels of a {}-texel face",
+            f, node.level, node.x, node.y, levels, n));
+      }
+      const int64_t key = nodeKey(node.level, node.x, node.y);
+      if (key <= last) {
+        return absl::InvalidArgumentError(fmt::format(
+            "wavelet face {}: node (level {}, {}, {}) out of pyramid order or repeated", f,
+            node.level, node.x, node.y));
+      }
+      last = key;
+      for (const Rgb& d : node.detail) {
+        if (!isFinite(d)) {
+          return absl::InvalidArgumentError(fmt::format(
+              "wavelet face {}: node (level {}, {}, {}) has a detail that is not finite", f,
+              node.level, node.x, node.y));
+        }
+      }
+    }
+  }
+  WaveletRadiance w;
+  w.n_ = n;
+  w.faces_ = std::move(faces);
   return w;
 }
 

@@ -29,6 +29,8 @@
 #include <span>
 #include <vector>
 
+#include <absl/status/statusor.h>
+
 #include "core/math/vec.h"
 #include "core/pbgi/microbuffer.h"
 
@@ -73,7 +75,25 @@ class WaveletRadiance {
   static WaveletRadiance project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
                                  float threshold);
 
+  // The coefficients of every face, dense: face-major, then channel, then the n x n pyramid
+  // layout of haarForward (6 x 3 x n x n floats), dropped ones 0.
+  std::vector<float> dense() const;
+  // Keeps, of dense coefficients, each quadtree node whose nine detail values have a norm
+  // above max(threshold, relativeThreshold x the norm of all the coefficients), and of those
+  // at most `maxNodes`, the largest (0: no limit); what is dropped counts in rmsError().
+  static WaveletRadiance fromDense(std::span<const float> dense, int n, float threshold,
+                                   float relativeThreshold = 0.0f, size_t maxNodes = 0);
+  // The sum of vectors of one resolution (a tree node's, from its children's: the Haar
+  // transform is linear), kept as fromDense keeps it. Empty input: an empty vector.
+  static WaveletRadiance sum(std::span<const WaveletRadiance* const> parts, float threshold,
+                             float relativeThreshold = 0.0f, size_t maxNodes = 0);
+  // A vector read back from storage: faces as kept, checked (n a power of two up to
+  // kMaxMicrobufferResolution, every node inside its level and in pyramid order, no node
+  // twice, every value finite); the error names what is wrong.
+  static absl::StatusOr<WaveletRadiance> fromFaces(int n, std::array<WaveletFace, 6> faces);
+
   int resolution() const { return n_; }
+  bool empty() const { return n_ == 0; }
   const std::array<WaveletFace, 6>& faces() const { return faces_; }
   // The radiance towards a direction (need not be unit): the texel it falls in, reconstructed.
   Rgb evaluate(const Vec3f& dir) const;
@@ -85,6 +105,9 @@ class WaveletRadiance {
   size_t keptCoefficients() const { return 3 * (6 + 3 * keptNodes()); }
   // The root-mean-square over all texels and channels of what thresholding dropped (exact).
   float rmsError() const { return rmsError_; }
+  // What thresholding dropped over the norm of every coefficient before it (exact; 0 when
+  // nothing was dropped or the function is black).
+  float relativeError() const { return relativeError_; }
   // Whether every kept detail is zero: the face is its average (a diffuse surfel's radiance,
   // to the cube map's resolution, or black).
   bool isConstantPerFace() const { return keptNodes() == 0; }
@@ -94,6 +117,7 @@ class WaveletRadiance {
   int n_ = 0;
   std::array<WaveletFace, 6> faces_{};
   float rmsError_ = 0.0f;
+  float relativeError_ = 0.0f;
   uint64_t nonFinite_ = 0;
 };
 

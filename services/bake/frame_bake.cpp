@@ -40,26 +40,6 @@ constexpr int kBounceRevision = 7;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
-// What the tree cannot carry yet: the glossy and refractive materials whose light SH cannot
-// hold (needsWavelets), named with what SH miss of their lobes, so that a user knows why
-// their reflections are missing from the indirect light. Empty for a scene without them.
-std::string glossyMaterialsWithoutWavelets(const Scene& scene) {
-  std::string names;
-  int count = 0;
-  for (const Material& m : scene.materials()) {
-    const float error = shLobeError(m);
-    if (error <= kShLobeTolerance) continue;  // needsWavelets
-    names += fmt::format("{}{} ({:.2f})", count++ == 0 ? "" : ", ", m.name, error);
-  }
-  if (count == 0) return {};
-  return fmt::format(
-      "{} material{} whose light the tree's spherical harmonics cannot hold (what they miss of "
-      "its lobes): {}. Until the wavelet stage, their surfels send no light into the tree (they "
-      "occlude, and emit if they emit): the light they reflect onto other surfaces is missing "
-      "from PBGI's indirect light (how they look themselves is not affected)",
-      count, count == 1 ? "" : "s", names);
-}
-
 std::filesystem::path framePathStem(const ShotDesc& shot, const FrameBakeRequest& request) {
   const std::filesystem::path image(
       outputPathForFrame(shot.output, request.frame, shot.lastFrame > shot.firstFrame));
@@ -209,8 +189,16 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     }
     const Scene& scene = *loadedScene;
     clock.lap("load");
-    if (std::string glossy = glossyMaterialsWithoutWavelets(scene); !glossy.empty()) {
-      report.warnings.push_back(std::move(glossy));
+    // Glossy and refractive light the SH cannot hold goes into the direct-light tree and the
+    // final one as wavelets (GlossyLeafBaker); a scene without such materials bakes none.
+    GlossyBakeOptions glossyOptions;
+    glossyOptions.seed = shot.render.seed;
+    glossyOptions.frame = request.frame;
+    const GlossyLeafBaker glossyBaker(scene, glossyOptions);
+    if (glossyBaker.anyWavelets()) {
+      TreeWriteOptions withWavelets = treeOptions.tree;
+      withWavelets.wavelets.leaf = [](std::span<Surfel>, uint64_t) { return WaveletRadiance(); };
+      if (auto s = TreeWriter::validateOptions(withWavelets); !s.ok()) return result = s, void();
     }
 
     SurfelSamplingOptions sampling;
@@ -312,7 +300,13 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       return bounce == request.bounces ? report.treePath
                                        : fmt::format("{}.bounce{}.tmp.pbgi", stem, bounce);
     };
-    auto writer = TreeFileWriter::create(bounceTreePath(0), treeOptions);
+    TreeFileWriteOptions glossyTreeOptions = treeOptions;
+    if (glossyBaker.anyWavelets()) {
+      glossyTreeOptions.tree.wavelets.leaf = [&glossyBaker](std::span<Surfel> s, uint64_t key) {
+        return glossyBaker(s, key);
+      };
+    }
+    auto writer = TreeFileWriter::create(bounceTreePath(0), glossyTreeOptions);
     if (!writer.ok()) return result = writer.status(), void();
     SortedSurfel next;
     uint8_t record[kSurfelRecordBytes];
@@ -386,7 +380,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                         : Rgb(0.0f);
       auto final = [&]() -> absl::StatusOr<TreeWriteResult> {
         PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
-                              TreeFileWriter::create(report.treePath, treeOptions));
+                              TreeFileWriter::create(report.treePath, glossyTreeOptions));
         PBGI_RETURN_IF_ERROR(finalLight(
             *sorted, irradiance.back(), irradiance.size() == 2 ? &irradiance[0] : nullptr,
             report.tail, report.sampling.surfels,

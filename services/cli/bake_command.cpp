@@ -102,6 +102,20 @@ int runBake(const BakeOptions& o) {
         t.codebooks.power.size(), t.codebooks.area.size(), t.quantization.power.relativeRms,
         t.quantization.area.relativeRms, t.quantization.power.maxRelative);
   }
+  if (t.wavelets.nodes > 0) {
+    std::printf(
+        "  wavelets (glossy light): %llu leaves baked, %llu nodes, %llu coefficients kept, %llu "
+        "bytes (%.1f%% of the file), worst node's thresholding error %.3g (relative)\n",
+        static_cast<unsigned long long>(t.wavelets.leaves),
+        static_cast<unsigned long long>(t.wavelets.nodes),
+        static_cast<unsigned long long>(t.wavelets.coefficients),
+        static_cast<unsigned long long>(t.wavelets.bytes),
+        report->treeFileBytes > 0 ? 100.0 * double(t.wavelets.bytes) / double(report->treeFileBytes)
+                                  : 0.0,
+        t.wavelets.maxRelativeError);
+  } else {
+    std::printf("  wavelets: none (no glossy or refractive material needs them)\n");
+  }
   std::printf("  sort: %s\n", report->sort.toString().c_str());
   if (request.bounces > 0) {
     std::printf("  bounces: %s\n    cuts: %s\n", request.bounceCut.toString().c_str(),
