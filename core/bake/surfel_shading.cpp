@@ -2,11 +2,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <optional>
 #include <vector>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "core/pbgi/gather.h"
 #include "core/render/path_tracer.h"
 #include "core/scene/material.h"
 #include "core/sampling/rng.h"
@@ -144,6 +146,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
   };
   struct Glossy {
     Surfel* surfel;
+    uint32_t material;
     Frame frame;
     Bsdf bsdf;
     std::vector<Arrival> arrivals;
@@ -165,7 +168,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     const uint32_t id = meshes[m].materials[local];
     if (!needs_[id]) continue;
     const Material& material = scene_->material(id);
-    Glossy g{&s, Frame(s.normal), Bsdf(material, s.albedo), {}};
+    Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
     if (g.bsdf.isDelta()) continue;  // mirror images need rays, not light samples
     Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
     for (int k = 0; k < options_.lightSamples; ++k) {
@@ -176,19 +179,95 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
       const Rgb value = ls->radiance * (invSamples / (ls->pdf * selectPdf));
       if (isFinite(value)) g.arrivals.push_back({g.frame.toLocal(ls->wi), value});
     }
-    if (!g.arrivals.empty()) glossy.push_back(std::move(g));
+    if (!g.arrivals.empty() || incoming_ != nullptr) glossy.push_back(std::move(g));
   }
   if (glossy.empty()) return WaveletRadiance();
+
+  // The indirect light arriving at the leaf, a microbuffer on each side of its mean normal.
+  thread_local std::optional<std::array<Gatherer, 2>> gatherers;
+  const Microbuffer* sides[2] = {nullptr, nullptr};
+  Vec3f mean(0.0f), centre(0.0f);
+  if (incoming_ != nullptr) {
+    GatherOptions gather;
+    gather.resolution = options_.incomingResolution;
+    if (!gatherers || gatherers->front().options() != gather) {
+      gatherers.emplace(std::array<Gatherer, 2>{Gatherer(gather), Gatherer(gather)});
+    }
+    float area = 0.0f;
+    for (const Glossy& g : glossy) {
+      mean += g.surfel->normal * g.surfel->area();
+      centre += g.surfel->position * g.surfel->area();
+      area += g.surfel->area();
+    }
+    centre = centre / area;
+    mean = mean.length2() > 0.0f ? normalize(mean) : glossy.front().surfel->normal;
+    GatherStats stats;
+    for (int side = 0; side < 2; ++side) {
+      const Vec3f n = side == 0 ? mean : -mean;
+      if ((*gatherers)[side].rasterize(*incoming_, centre, n, &stats).ok()) {
+        sides[side] = &(*gatherers)[side].microbuffer();
+      }
+    }
+  }
+  auto incomingRadiance = [&](const Vec3f& wi) {
+    const Microbuffer* buffer = sides[dot(wi, mean) > 0.0f ? 0 : 1];
+    if (buffer == nullptr) return Rgb(0.0f);
+    const int k = buffer->pixelIndex(wi);
+    return buffer->covered(k) ? buffer->radiance(k) : Rgb(0.0f);
+  };
+  const float invIndirect = 1.0f / static_cast<float>(std::max(options_.indirectSamples, 1));
+
   const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options_.resolution);
-  std::vector<Rgb> intensity(cube->directions.size(), Rgb(0.0f));
+  const size_t texels = cube->directions.size();
+  // The indirect light reflected towards every texel, once per material of the leaf, in the
+  // frame of the leaf's mean normal (its surfels' own differ little): the same BSDF samples for
+  // every direction out, so that the reflected light is a smooth function of the direction
+  // (each sample's half vector fixed), which the wavelets hold in few coefficients, where fresh
+  // samples per texel would be white noise.
+  std::vector<std::pair<uint32_t, std::vector<Rgb>>> reflected;
+  if (incoming_ != nullptr) {
+    const Frame frame(mean);
+    for (const Glossy& g : glossy) {
+      if (std::any_of(reflected.begin(), reflected.end(),
+                      [&](const auto& r) { return r.first == g.material; })) {
+        continue;
+      }
+      Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey,
+                             kGlossyLeafDomain + 1 + g.material);
+      std::vector<std::pair<float, Vec2f>> uniforms(options_.indirectSamples);
+      for (size_t k = 0; k < uniforms.size(); ++k) {  // stratified in u's first dimension
+        uniforms[k] = {rng.uniform(),
+                       Vec2f((static_cast<float>(k) + rng.uniform()) * invIndirect, rng.uniform())};
+      }
+      std::vector<Rgb> table(texels, Rgb(0.0f));
+      for (size_t t = 0; t < texels; ++t) {
+        const Vec3f wo = frame.toLocal(cube->directions[t]);
+        Rgb sum(0.0f);
+        for (const auto& [uc, u] : uniforms) {
+          const std::optional<BsdfSample> bs = g.bsdf.sample(wo, uc, u);
+          if (!bs || bs->delta || !(bs->pdf > 0.0f)) continue;
+          sum += bs->f * incomingRadiance(frame.toWorld(bs->wi)) * (std::abs(bs->wi.z) / bs->pdf);
+        }
+        if (isFinite(sum)) table[t] = sum * invIndirect;
+      }
+      reflected.emplace_back(g.material, std::move(table));
+    }
+  }
+
+  std::vector<Rgb> intensity(texels, Rgb(0.0f));
   for (Glossy& g : glossy) {
     const float area = g.surfel->area();
+    const std::vector<Rgb>* indirect = nullptr;
+    for (const auto& r : reflected) {
+      if (r.first == g.material) indirect = &r.second;
+    }
     for (size_t t = 0; t < cube->directions.size(); ++t) {
       const Vec3f wo = g.frame.toLocal(cube->directions[t]);
       Rgb radiance(0.0f);
       for (const Arrival& a : g.arrivals) {
         radiance += g.bsdf.f(wo, a.wiLocal) * a.value * std::abs(a.wiLocal.z);
       }
+      if (indirect != nullptr) radiance += (*indirect)[t];
       if (!isFinite(radiance)) continue;
       const float cosine = std::abs(wo.z);
       intensity[t] += radiance * (area * cosine);

@@ -17,6 +17,7 @@
 #include <span>
 
 #include "core/pbgi/surfel.h"
+#include "core/pbgi/tree_page.h"
 #include "core/pbgi/wavelet.h"
 #include "core/sampling/rng.h"
 #include "core/scene/scene.h"
@@ -76,6 +77,11 @@ struct GlossyBakeOptions {
   float tolerance = kShLobeTolerance;  // needsWavelets'
   uint64_t seed = 0;
   int frame = 0;
+  // With an incoming-light tree (GlossyLeafBaker::setIncoming): BSDF samples per glossy surfel
+  // and outgoing texel of the indirect light it reflects, and the resolution of the
+  // microbuffers that gather that light at the leaf.
+  int indirectSamples = 8;
+  int incomingResolution = 16;
 };
 
 // What the tree writer asks of the bake for each leaf holding glossy or refractive surfels
@@ -91,11 +97,18 @@ class GlossyLeafBaker {
 
   // Whether any material of the scene needs wavelets: a scene without one bakes none.
   bool anyWavelets() const { return any_; }
+  // Glossy surfels then also reflect the light of `tree` (a bake's tree of every diffuse
+  // bounce): gathered at each glossy leaf's centroid into two microbuffers, one a side of the
+  // leaf's mean normal, and sent out through the BSDF by importance sampling it (a Monte Carlo
+  // wavelet product; Wang et al. section 3.3 do it in the wavelet domain). Null: direct light
+  // alone. `tree` must be thread-safe (a PageCache) and outlive the calls.
+  void setIncoming(TreePageSource* tree) { incoming_ = tree; }
   WaveletRadiance operator()(std::span<Surfel> surfels, uint64_t leafKey) const;
 
  private:
   const Scene* scene_;
   GlossyBakeOptions options_;
+  TreePageSource* incoming_ = nullptr;
   std::vector<uint64_t> bases_;     // first global triangle id of each mesh
   std::vector<uint8_t> needs_;      // per scene material: needsWavelets
   bool any_ = false;

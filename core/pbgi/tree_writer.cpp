@@ -342,7 +342,7 @@ class TreeWriter::Impl {
     // Thresholded as every node's vector is.
     const WaveletRadiance* own = &w;
     return std::make_shared<const WaveletRadiance>(
-        WaveletRadiance::sum(std::span(&own, 1), 0.0f, options_.wavelets.relativeThreshold,
+        WaveletRadiance::sum(std::span(&own, 1), 0.0f, options_.wavelets.relativeError,
                              options_.wavelets.maxNodes));
   }
 
@@ -358,7 +358,7 @@ class TreeWriter::Impl {
       }
       if (!parts.empty()) {
         node.wavelet = std::make_shared<const WaveletRadiance>(
-            WaveletRadiance::sum(parts, 0.0f, options_.wavelets.relativeThreshold,
+            WaveletRadiance::sum(parts, 0.0f, options_.wavelets.relativeError,
                                  options_.wavelets.maxNodes));
       }
       waveletStack_.resize(waveletStack_.size() - childCount);
@@ -412,9 +412,9 @@ absl::Status TreeWriter::validateOptions(const TreeWriteOptions& o) {
     }
   }
   if (o.wavelets.leaf) {
-    if (!(o.wavelets.relativeThreshold >= 0.0f && o.wavelets.relativeThreshold < 1.0f)) {
+    if (!(o.wavelets.relativeError >= 0.0f && o.wavelets.relativeError < 1.0f)) {
       return absl::InvalidArgumentError(fmt::format(
-          "wavelet threshold {}: expected a fraction in [0, 1)", o.wavelets.relativeThreshold));
+          "wavelet error {}: expected a fraction in [0, 1)", o.wavelets.relativeError));
     }
     const size_t needed = size_t{minPage} + kWaveletSectionHeaderBytes +
                           maxWaveletEntryBytes(o.wavelets.maxNodes);

@@ -33,12 +33,13 @@ namespace pbgi {
 // direction; empty for none) and may set those surfels' radiance and back radiance to their
 // mean over each side, which gathers that see them as disks use. It runs in parallel and must
 // be thread-safe. An interior node's vector is the sum of its children's (the Haar transform
-// is linear), kept to relativeThreshold of its norm and at most maxNodes quadtree nodes. Null
+// is linear). Every node's vector keeps the fewest quadtree nodes that hold it within
+// relativeError (L2, relative to its norm; WaveletRadiance::fromDense), at most maxNodes. Null
 // (every scene without such materials): no wavelets, and the tree is byte for byte what it was.
 struct TreeWaveletOptions {
   std::function<WaveletRadiance(std::span<Surfel> surfels, uint64_t leafKey)> leaf;
-  float relativeThreshold = 0.01f;
-  size_t maxNodes = 256;
+  float relativeError = 0.1f;
+  size_t maxNodes = 128;
 };
 
 struct TreeWriteOptions {

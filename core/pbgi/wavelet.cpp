@@ -121,14 +121,13 @@ WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>&
 }
 
 WaveletRadiance WaveletRadiance::fromDense(std::span<const float> dense, int n, float threshold,
-                                           float relativeThreshold, size_t maxNodes) {
+                                           float relativeError, size_t maxNodes) {
   PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
   const size_t texels = static_cast<size_t>(n) * n;
   PBGI_CHECK_EQ(dense.size(), 6 * 3 * texels);
   double total = 0.0;
   for (const float v : dense) total += double{v} * v;
-  const float bound = std::max(threshold, relativeThreshold * static_cast<float>(std::sqrt(total)));
-  const float bound2 = bound * bound;
+  const float bound2 = threshold * threshold;
   WaveletRadiance w;
   w.n_ = n;
   double dropped = 0.0;
@@ -168,14 +167,21 @@ WaveletRadiance WaveletRadiance::fromDense(std::span<const float> dense, int n, 
       }
     }
   }
-  if (maxNodes > 0 && kept.size() > maxNodes) {
-    // The largest survive; ties go to the earlier node, so the result is deterministic.
+  // The error budget: the smallest nodes go while what is dropped stays within it; then at
+  // most maxNodes of the largest stay.
+  const double budget = double{relativeError} * relativeError * total;
+  if ((budget > dropped && !kept.empty()) || (maxNodes > 0 && kept.size() > maxNodes)) {
+    // Largest first; ties go to the earlier node, so the result is deterministic.
     std::stable_sort(kept.begin(), kept.end(),
                      [](const Candidate& a, const Candidate& b) { return a.norm2 > b.norm2; });
+    size_t keepCount = kept.size();
+    while (keepCount > 0 && dropped + kept[keepCount - 1].norm2 <= budget) {
+      dropped += kept[--keepCount].norm2;
+    }
     std::array<std::vector<bool>, 6> keep;
     for (int f = 0; f < 6; ++f) keep[f].assign(w.faces_[f].nodes.size(), false);
-    for (size_t i = 0; i < kept.size(); ++i) {
-      if (i < maxNodes) {
+    for (size_t i = 0; i < keepCount; ++i) {
+      if (maxNodes == 0 || i < maxNodes) {
         keep[kept[i].face][kept[i].node] = true;
       } else {
         dropped += kept[i].norm2;
@@ -216,7 +222,7 @@ std::vector<float> WaveletRadiance::dense() const {
 }
 
 WaveletRadiance WaveletRadiance::sum(std::span<const WaveletRadiance* const> parts,
-                                     float threshold, float relativeThreshold, size_t maxNodes) {
+                                     float threshold, float relativeError, size_t maxNodes) {
   int n = 0;
   for (const WaveletRadiance* p : parts) {
     if (p == nullptr || p->empty()) continue;
@@ -231,7 +237,7 @@ WaveletRadiance WaveletRadiance::sum(std::span<const WaveletRadiance* const> par
     const std::vector<float> d = p->dense();
     for (size_t i = 0; i < total.size(); ++i) total[i] += d[i];
   }
-  return fromDense(total, n, threshold, relativeThreshold, maxNodes);
+  return fromDense(total, n, threshold, relativeError, maxNodes);
 }
 
 absl::StatusOr<WaveletRadiance> WaveletRadiance::fromFaces(int n,

@@ -78,15 +78,18 @@ class WaveletRadiance {
   // The coefficients of every face, dense: face-major, then channel, then the n x n pyramid
   // layout of haarForward (6 x 3 x n x n floats), dropped ones 0.
   std::vector<float> dense() const;
-  // Keeps, of dense coefficients, each quadtree node whose nine detail values have a norm
-  // above max(threshold, relativeThreshold x the norm of all the coefficients), and of those
-  // at most `maxNodes`, the largest (0: no limit); what is dropped counts in rmsError().
+  // Keeps, of dense coefficients, the quadtree nodes whose nine detail values have a norm
+  // above `threshold`, less the smallest of them as long as what is dropped in all stays
+  // within `relativeError` of the norm of every coefficient (the L2 error of the function,
+  // relative, is then at most relativeError, whatever the threshold dropped besides), and of
+  // those at most `maxNodes`, the largest (0: no limit). What is dropped counts in rmsError()
+  // and relativeError().
   static WaveletRadiance fromDense(std::span<const float> dense, int n, float threshold,
-                                   float relativeThreshold = 0.0f, size_t maxNodes = 0);
+                                   float relativeError = 0.0f, size_t maxNodes = 0);
   // The sum of vectors of one resolution (a tree node's, from its children's: the Haar
   // transform is linear), kept as fromDense keeps it. Empty input: an empty vector.
   static WaveletRadiance sum(std::span<const WaveletRadiance* const> parts, float threshold,
-                             float relativeThreshold = 0.0f, size_t maxNodes = 0);
+                             float relativeError = 0.0f, size_t maxNodes = 0);
   // A vector read back from storage: faces as kept, checked (n a power of two up to
   // kMaxMicrobufferResolution, every node inside its level and in pyramid order, no node
   // twice, every value finite); the error names what is wrong.

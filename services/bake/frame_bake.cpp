@@ -35,8 +35,9 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // each bounce gathering only the light the last one added, later bounces coarser, 5 near
 // surfels' disks folded at the receiver's horizon instead of cut there, 6 near disks as exact
 // polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
-// spread to twice their radius.
-constexpr int kBounceRevision = 7;
+// spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
+// glossy surfels reflect).
+constexpr int kBounceRevision = 8;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -378,18 +379,50 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       report.tail = request.bounceTail
                         ? tailFactor(power(request.bounces), power(request.bounces - 1))
                         : Rgb(0.0f);
-      auto final = [&]() -> absl::StatusOr<TreeWriteResult> {
+      auto writeFinal = [&](const TreeFileWriteOptions& options) -> absl::StatusOr<TreeWriteResult> {
         PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
-                              TreeFileWriter::create(report.treePath, glossyTreeOptions));
+                              TreeFileWriter::create(report.treePath, options));
         PBGI_RETURN_IF_ERROR(finalLight(
             *sorted, irradiance.back(), irradiance.size() == 2 ? &irradiance[0] : nullptr,
             report.tail, report.sampling.surfels,
             [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
         return writer->finish();
-      }();
+      };
+      auto final = writeFinal(glossyTreeOptions);
       if (!final.ok()) return result = final.status(), void();
-      report.tree = *final;
       clock.lap("final tree");
+      if (glossyBaker.anyWavelets()) {
+        // Glossy surfels reflect the indirect light too: that of the tree just written (every
+        // diffuse bounce, and the glossy surfels' direct light), gathered at each glossy leaf;
+        // the final tree is written again with it.
+        final = [&]() -> absl::StatusOr<TreeWriteResult> {
+          const std::string lit = stem + ".glossy.tmp.pbgi";
+          std::error_code renameError;
+          std::filesystem::rename(report.treePath, lit, renameError);
+          if (renameError) {
+            return absl::InternalError(fmt::format("cannot rename {} to {}: {}", report.treePath,
+                                                   lit, renameError.message()));
+          }
+          absl::StatusOr<TreeWriteResult> written = [&]() -> absl::StatusOr<TreeWriteResult> {
+            PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFile> from, TreeFile::open(lit));
+            PageCache cache(*from, {.budgetBytes = request.memoryBudget / 4,
+                                    .policy = PageCachePolicy::kLeastRecent});
+            GlossyLeafBaker indirect(scene, glossyOptions);
+            indirect.setIncoming(&cache);
+            TreeFileWriteOptions options = treeOptions;
+            options.tree.wavelets.leaf = [&indirect](std::span<Surfel> s, uint64_t key) {
+              return indirect(s, key);
+            };
+            return writeFinal(options);
+          }();
+          std::error_code removeError;
+          std::filesystem::remove(lit, removeError);
+          return written;
+        }();
+        if (!final.ok()) return result = final.status(), void();
+        clock.lap("glossy indirect");
+      }
+      report.tree = *final;
     }
     report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
 
