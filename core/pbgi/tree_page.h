@@ -34,10 +34,17 @@
 //   exact SH, the rest is u32 magic 0x56574250 ("PBWV"), u16 section version (1), u32 entry
 //   count, then per node that has a wavelet vector, in node order:
 //   u32 node index (ghosts too, whose vectors keep only the faces' averages), u8 log2 of
-//   the cube's resolution n, and per face (6): scaling 3 x f32,
+//   the cube's resolution n, u8 coding, f32 factor, and per face (6): scaling 3 x f32,
 //   detail scale f32, u16 kept-node count, then per kept quadtree node (pyramid order):
 //   u8 level, u8 x, u8 y, details 9 x f16 (horizontal, vertical, diagonal x RGB, each over
 //   the face's detail scale). A page without wavelets has no section and reads as before.
+//   Hierarchical coding (Wang et al. section 3.1): coding 0 stores the node's vector whole;
+//   coding 1 stores its difference from `factor` times its in-page parent's (decoded) vector,
+//   the parent's entry coming first. A page root has no parent in its page, so it is stored
+//   whole: the bootstrap level, a page deep. The encoder keeps, of whole vector and
+//   difference, the one with fewer kept nodes, each thresholded (WaveletRadiance::fromDense)
+//   to within the page's relative error of the node's vector as given, measured on the
+//   decoded (half-float) values.
 // Node record: u8 child count (0 for a leaf), u8 surfel count (leaves), u32 first child
 //   reference or first surfel, u32 point count, then
 //   float:     bounds 6 x f32, centroid 3 x f32, cone axis 3 x f32, cone cos f32, area f32,
@@ -83,8 +90,18 @@ inline constexpr uint32_t kNoWavelet = UINT32_MAX;
 size_t waveletEntryBytes(const WaveletRadiance& w);
 // The most an entry of at most `maxNodes` kept quadtree nodes takes.
 inline constexpr size_t maxWaveletEntryBytes(size_t maxNodes) {
-  return 4 + 1 + 6 * (16 + 2) + maxNodes * (3 + 18);
+  return 4 + 1 + 1 + 4 + 6 * (16 + 2) + maxNodes * (3 + 18);
 }
+
+// What the wavelet sections of pages hold, summed over pages.
+struct WaveletPageStats {
+  uint64_t entries = 0;       // vectors stored (ghosts' included)
+  uint64_t differences = 0;   // of them, coded against their parent's
+  uint64_t keptNodes = 0;     // quadtree nodes stored
+  uint64_t bytes = 0;         // the sections' bytes
+  double maxRelativeError = 0.0;  // of a decoded vector against the one given, L2
+  WaveletPageStats& operator+=(const WaveletPageStats& o);
+};
 
 // kQuantized stores 16-bit codebook indices, kQuantized8 8-bit ones (codebooks of at most
 // 256 entries, 2 bytes less per node).
@@ -232,6 +249,10 @@ struct PageNode {
   std::vector<GhostNode> ghosts;
   // The node's glossy light as wavelet intensity (empty: none; see TreePage::wavelets).
   std::shared_ptr<const WaveletRadiance> wavelet;
+  // The most its entry in the wavelet section takes (the whole vector coded within the page's
+  // error; a difference is kept only when smaller), what the pager counts; 0: the size of
+  // `wavelet` as it is.
+  size_t waveletBytes = 0;
 };
 
 // The float fields of a node record after its point count (bounds, centroid, cone, area,
@@ -249,9 +270,12 @@ size_t treePageBytes(TreeEncoding encoding, size_t nodes, size_t refs, size_t su
 
 // Encodes nodes (in page order: mostly parents before children; a parent may also follow
 // children packed into the page before it) into a payload. `id` is the page's own id: references with that page id are in-page.
+// `waveletError`: the relative error each node's wavelet vector is coded within (above);
+// `waveletStats`, when given, is added to.
 std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
                                     std::span<const PageNode> nodes,
-                                    const TreeCodebooks* codebooks);
+                                    const TreeCodebooks* codebooks, float waveletError = 0.1f,
+                                    WaveletPageStats* waveletStats = nullptr);
 
 // Decodes and validates a payload: counts against the size, every reference and surfel range
 // in bounds, indices inside the codebooks, at most one in-page parent per node. Errors name

@@ -30,7 +30,8 @@ size_t TreePager::nodeBytes(const PageNode& node, size_t childCount) const {
   for (const GhostNode& g : node.ghosts) bytes += ghostBytes(g);
   // Each wavelet entry counts the section's header too: a page holds at most that much more.
   if (node.wavelet && !node.wavelet->empty()) {
-    bytes += kWaveletSectionHeaderBytes + waveletEntryBytes(*node.wavelet);
+    bytes += kWaveletSectionHeaderBytes +
+             (node.waveletBytes > 0 ? node.waveletBytes : waveletEntryBytes(*node.wavelet));
   }
   return bytes;
 }
@@ -141,7 +142,8 @@ absl::StatusOr<NodeRef> TreePager::place(Subtree& subtree) {
 absl::Status TreePager::flushPage() {
   if (open_.empty()) return absl::OkStatus();
   const auto pageId = static_cast<uint32_t>(stats_.pages);
-  const std::vector<uint8_t> bytes = encodeTreePage(pageId, options_.encoding, open_, codebooks_);
+  const std::vector<uint8_t> bytes = encodeTreePage(pageId, options_.encoding, open_, codebooks_,
+                                                    options_.waveletError, &stats_.wavelets);
   auto id = sink_(bytes);
   if (!id.ok()) return id.status();
   PBGI_CHECK_EQ(*id, pageId);

@@ -28,12 +28,14 @@ using PageSink = std::function<absl::StatusOr<uint32_t>(std::span<const uint8_t>
 struct TreePagerOptions {
   TreeEncoding encoding = TreeEncoding::kQuantized;
   uint32_t pageSize = 64 * 1024;
+  float waveletError = 0.1f;  // what each wavelet vector is coded within (tree_page.h)
 };
 
 struct TreePagerStats {
   uint64_t pages = 0;
   uint64_t nodes = 0;
   uint64_t payloadBytes = 0;  // uncompressed, headers included
+  WaveletPageStats wavelets;
 };
 
 class TreePager {

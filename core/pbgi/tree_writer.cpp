@@ -147,15 +147,27 @@ class TreeWriter::Impl {
     return result;
   }
 
+  // The vectors the pages get are held this close to the exact sums: a fifth of the error the
+  // pages code them within (hierarchically, tree_page.h), so that what the writer drops
+  // first adds little to it.
+  float preThreshold() const { return options_.wavelets.relativeError / 5.0f; }
+
   TreeWaveletReport waveletReport() const {
     TreeWaveletReport r = waveletReport_;
     r.leaves = leafWavelets_.load();
+    const WaveletPageStats& pages = pager_->stats().wavelets;
+    r.stored = pages.entries;
+    r.differences = pages.differences;
+    r.keptNodes = pages.keptNodes;
+    r.coefficients = 3 * (6 * pages.entries + 3 * pages.keptNodes);
+    r.bytes = pages.bytes;
+    r.maxRelativeError = std::max(r.maxRelativeError, pages.maxRelativeError);
     return r;
   }
 
  private:
   TreePagerOptions pagerOptions() const {
-    return TreePagerOptions{options_.encoding, options_.pageSize};
+    return TreePagerOptions{options_.encoding, options_.pageSize, options_.wavelets.relativeError};
   }
 
   absl::Status onNode(const BuiltNode& n) {
@@ -342,8 +354,8 @@ class TreeWriter::Impl {
     // Thresholded as every node's vector is.
     const WaveletRadiance* own = &w;
     return std::make_shared<const WaveletRadiance>(
-        WaveletRadiance::sum(std::span(&own, 1), 0.0f, options_.wavelets.relativeError,
-                             options_.wavelets.maxNodes));
+        WaveletRadiance::sum(std::span(&own, 1), 0.0f, preThreshold(),
+                             waveletNodeBudget(options_)));
   }
 
   // In post-order: a leaf's vector (computed already, or none) waits for its parent; an
@@ -358,20 +370,18 @@ class TreeWriter::Impl {
       }
       if (!parts.empty()) {
         node.wavelet = std::make_shared<const WaveletRadiance>(
-            WaveletRadiance::sum(parts, 0.0f, options_.wavelets.relativeError,
-                                 options_.wavelets.maxNodes));
+            WaveletRadiance::sum(parts, 0.0f, preThreshold(), waveletNodeBudget(options_)));
       }
       waveletStack_.resize(waveletStack_.size() - childCount);
     }
     waveletStack_.push_back(node.wavelet);
     if (node.wavelet) {
-      const WaveletRadiance& w = *node.wavelet;
+      node.waveletBytes = waveletEntryBytes(WaveletRadiance::fromDense(
+          node.wavelet->dense(), node.wavelet->resolution(), 0.0f,
+          options_.wavelets.relativeError));  // as the page codes it whole
       ++waveletReport_.nodes;
-      waveletReport_.keptNodes += w.keptNodes();
-      waveletReport_.coefficients += w.keptCoefficients();
-      waveletReport_.bytes += waveletEntryBytes(w);
       waveletReport_.maxRelativeError =
-          std::max(waveletReport_.maxRelativeError, double{w.relativeError()});
+          std::max(waveletReport_.maxRelativeError, double{node.wavelet->relativeError()});
     }
   }
 
@@ -392,6 +402,14 @@ class TreeWriter::Impl {
   NodeAttributes root_;
   absl::Status failure_;
 };
+
+size_t waveletNodeBudget(const TreeWriteOptions& o) {
+  if (o.wavelets.maxNodes > 0) return o.wavelets.maxNodes;
+  const size_t minPage = TreePager::minPageSize(o.encoding, o.build.leafSize);
+  const size_t whole = maxWaveletEntryBytes(0) + kWaveletSectionHeaderBytes;
+  if (o.pageSize < minPage + whole) return 0;
+  return (o.pageSize - minPage - whole) / (maxWaveletEntryBytes(1) - maxWaveletEntryBytes(0));
+}
 
 absl::Status TreeWriter::validateOptions(const TreeWriteOptions& o) {
   if (o.build.leafSize < 1 || o.build.leafSize > kMaxLeafSize) {
@@ -416,13 +434,14 @@ absl::Status TreeWriter::validateOptions(const TreeWriteOptions& o) {
       return absl::InvalidArgumentError(fmt::format(
           "wavelet error {}: expected a fraction in [0, 1)", o.wavelets.relativeError));
     }
-    const size_t needed = size_t{minPage} + kWaveletSectionHeaderBytes +
-                          maxWaveletEntryBytes(o.wavelets.maxNodes);
-    if (o.wavelets.maxNodes < 1 || o.pageSize < needed) {
+    const size_t nodes = waveletNodeBudget(o);
+    const size_t needed =
+        size_t{minPage} + kWaveletSectionHeaderBytes + maxWaveletEntryBytes(std::max<size_t>(nodes, 1));
+    if (nodes < 1 || o.pageSize < needed) {
       return absl::InvalidArgumentError(fmt::format(
-          "wavelets of at most {} quadtree nodes a vector need pages of at least {} bytes, and "
-          "at least 1 node; page size {}",
-          o.wavelets.maxNodes, needed, o.pageSize));
+          "wavelets of at most {} quadtree nodes a vector need pages of at least {} bytes; page "
+          "size {}",
+          std::max<size_t>(nodes, 1), needed, o.pageSize));
     }
   }
   if (o.kmeansIterations < 0) {

@@ -38,8 +38,8 @@ namespace pbgi {
 // (every scene without such materials): no wavelets, and the tree is byte for byte what it was.
 struct TreeWaveletOptions {
   std::function<WaveletRadiance(std::span<Surfel> surfels, uint64_t leafKey)> leaf;
-  float relativeError = 0.1f;
-  size_t maxNodes = 128;
+  float relativeError = 0.2f;
+  size_t maxNodes = 0;  // 0: as many as a page holds beside the largest node
 };
 
 struct TreeWriteOptions {
@@ -64,10 +64,15 @@ struct TreeWriteOptions {
 struct TreeWaveletReport {
   uint64_t leaves = 0;        // leaves whose vector `leaf` computed
   uint64_t nodes = 0;         // nodes with a vector, leaves included
-  uint64_t keptNodes = 0;     // quadtree nodes kept, over all vectors
-  uint64_t coefficients = 0;  // scaling and detail coefficients kept, per channel counted
-  uint64_t bytes = 0;         // their entries in the pages
-  double maxRelativeError = 0.0;  // of a node's vector, thresholding against the exact sum
+  uint64_t stored = 0;        // vectors in the pages (ghosts' face averages included)
+  uint64_t differences = 0;   // of them, coded against their parent's
+  uint64_t keptNodes = 0;     // quadtree nodes stored
+  uint64_t coefficients = 0;  // scaling and detail coefficients stored, each channel counted
+  uint64_t bytes = 0;         // the pages' wavelet sections
+  // The larger of the worst relative L2 errors of the writer's threshold (against the exact
+  // sum of a node's leaves) and of the pages' coding (against the writer's vector); a node's
+  // whole error is at most their sum.
+  double maxRelativeError = 0.0;
 };
 
 // How far the quantized spherical functions are from the float ones, over every node.
@@ -92,6 +97,10 @@ struct TreeWriteResult {
   uint64_t spillBytes = 0;
   std::string toString() const;
 };
+
+// The most quadtree nodes a wavelet vector keeps: options.wavelets.maxNodes, or when 0 as many
+// as fit a page beside the largest node (0 when not even one does).
+size_t waveletNodeBudget(const TreeWriteOptions& options);
 
 class TreeWriter {
  public:

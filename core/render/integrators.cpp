@@ -72,6 +72,12 @@ const std::vector<ParamSpec>& pbgiParams() {
        .help = "indirect bounces baked into the tree"},
       {.key = "bake_quality", .type = ParamType::kChoice, .choices = {"draft", "default", "high"},
        .defaultText = "draft", .help = "gather preset of the baked bounces"},
+      {.key = "bake_wavelet_error", .type = ParamType::kFloat, .lo = 0.0, .hi = 0.99,
+       .defaultText = "0.2",
+       .help = "glossy light: relative L2 error each tree node's wavelet vector is coded within"},
+      {.key = "bake_wavelet_resolution", .type = ParamType::kChoice,
+       .choices = {"4", "8", "16", "32", "64"}, .defaultText = "16",
+       .help = "glossy light: texels a side of each face of a glossy surfel's cube map"},
   };
   return specs;
 }
@@ -127,6 +133,8 @@ TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
   t.bakePoints = static_cast<uint64_t>(r.params.intOr("bake_points", 0));
   t.bakeBounces = static_cast<int>(r.params.intOr("bake_bounces", 3));
   t.bakeCut = *cutPreset(r.params.choiceOr("bake_quality", "draft"));
+  t.bakeWaveletError = static_cast<float>(r.params.floatOr("bake_wavelet_error", 0.2));
+  t.bakeWaveletResolution = std::stoi(r.params.choiceOr("bake_wavelet_resolution", "16"));
   return t;
 }
 

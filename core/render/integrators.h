@@ -32,6 +32,8 @@ struct TreeNeeds {
   uint64_t bakePoints = 0;                 // surfels; 0: the baker's default
   int bakeBounces = 3;
   CutOptions bakeCut;                      // how the bake's bounces gather
+  float bakeWaveletError = 0.2f;           // glossy light: each wavelet vector's coding error
+  int bakeWaveletResolution = 16;          // glossy light: cube-map texels a face side
 };
 
 struct IntegratorContext {

@@ -66,6 +66,8 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
   request.points = needs.bakePoints;
   request.bounces = needs.bakeBounces;
   request.bounceCut = needs.bakeCut;
+  request.tree.wavelets.relativeError = needs.bakeWaveletError;
+  request.waveletResolution = needs.bakeWaveletResolution;
   request.pbgiVersion = std::string("pbgi ") + PBGI_VERSION;
   return request;
 }
@@ -77,7 +79,7 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
   const uint64_t points = request.points > 0 ? request.points : kDefaultBakePoints;
   text += fmt::format(
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_cut={}|encoding={}|leaf={}"
-      "|page={}|power={}|area={}|exact={}|payload={}|version={}",
+      "|page={}|power={}|area={}|exact={}|wavelets={} {} {}|payload={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
       request.bounces > 0
           ? fmt::format("{} chunk {} tail {} revision {}", request.bounceCut.toString(),
@@ -85,7 +87,8 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
           : "",
       treeEncodingName(request.tree.encoding), request.tree.build.leafSize, request.tree.pageSize,
       request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
-      kTreePayloadVersion, request.pbgiVersion);
+      request.waveletResolution, request.tree.wavelets.relativeError,
+      request.tree.wavelets.maxNodes, kTreePayloadVersion, request.pbgiVersion);
   return XXH3_64bits(text.data(), text.size());
 }
 
@@ -151,6 +154,12 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));
   }
   if (auto s = request.bounceCut.validate(); !s.ok()) return s;
+  if (request.waveletResolution < 2 || request.waveletResolution > kMaxMicrobufferResolution ||
+      (request.waveletResolution & (request.waveletResolution - 1)) != 0) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet resolution {}: expected a power of two from 2 to {}",
+                    request.waveletResolution, kMaxMicrobufferResolution));
+  }
   if (request.lightSamples < 1) {
     return absl::InvalidArgumentError(
         fmt::format("light samples {}: expected at least 1", request.lightSamples));
@@ -193,6 +202,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     // Glossy and refractive light the SH cannot hold goes into the direct-light tree and the
     // final one as wavelets (GlossyLeafBaker); a scene without such materials bakes none.
     GlossyBakeOptions glossyOptions;
+    glossyOptions.resolution = request.waveletResolution;
     glossyOptions.seed = shot.render.seed;
     glossyOptions.frame = request.frame;
     const GlossyLeafBaker glossyBaker(scene, glossyOptions);

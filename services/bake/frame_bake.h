@@ -49,7 +49,9 @@ struct FrameBakeRequest {
   bool bounceTail = true;    // estimate the bounces past the last (see above)
   int lightSamples = 16;     // per surfel, for direct light
   int threads = 0;           // 0: all cores
-  TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes (seed: the shot's)
+  TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes, wavelet error
+                             // (seed: the shot's; its wavelets' leaf: the bake's)
+  int waveletResolution = 16;  // n x n texels a face of glossy surfels' cube maps
   PointCloudMode pointCloud = PointCloudMode::kAuto;
   std::string tempDir;       // spill files; empty: the system's temporary folder
   std::string pbgiVersion;

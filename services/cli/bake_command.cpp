@@ -32,6 +32,8 @@ struct BakeOptions {
   std::string tempDir;
   std::optional<std::string> bounceQuality;
   bool noTail = false;
+  std::optional<float> waveletError;
+  std::optional<int> waveletResolution;
 };
 
 int runBake(const BakeOptions& o) {
@@ -55,6 +57,8 @@ int runBake(const BakeOptions& o) {
   }
   request.tree.pageSize = static_cast<uint32_t>(*pageSize);
   request.tree.build.leafSize = o.leafSize;
+  if (o.waveletError) request.tree.wavelets.relativeError = *o.waveletError;
+  if (o.waveletResolution) request.waveletResolution = *o.waveletResolution;
   request.tree.powerCentres = o.powerCentres;
   // CLI11 has already checked the name against the same list.
   request.tree.encoding = parseTreeEncoding(o.encoding).value_or(TreeEncoding::kQuantized);
@@ -104,10 +108,13 @@ int runBake(const BakeOptions& o) {
   }
   if (t.wavelets.nodes > 0) {
     std::printf(
-        "  wavelets (glossy light): %llu leaves baked, %llu nodes, %llu coefficients kept, %llu "
-        "bytes (%.1f%% of the file), worst node's thresholding error %.3g (relative)\n",
+        "  wavelets (glossy light): %llu leaves baked, %llu nodes, %llu vectors stored (%llu as "
+        "differences from their parent's), %llu coefficients, %llu bytes (%.1f%% of the file), "
+        "worst relative error %.3g\n",
         static_cast<unsigned long long>(t.wavelets.leaves),
         static_cast<unsigned long long>(t.wavelets.nodes),
+        static_cast<unsigned long long>(t.wavelets.stored),
+        static_cast<unsigned long long>(t.wavelets.differences),
         static_cast<unsigned long long>(t.wavelets.coefficients),
         static_cast<unsigned long long>(t.wavelets.bytes),
         report->treeFileBytes > 0 ? 100.0 * double(t.wavelets.bytes) / double(report->treeFileBytes)
@@ -180,6 +187,12 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
                   "Write the OpenVDB point cloud: auto (when it fits the budget), always, never")
       ->check(CLI::IsMember({"auto", "always", "never"}));
   cmd->add_option("--temp-dir", options->tempDir, "Folder for spill files (default: the system's)");
+  cmd->add_option("--wavelet-error", options->waveletError,
+                  "Glossy light: the relative L2 error each node's wavelet vector is coded within "
+                  "(default: the shot's bake_wavelet_error, 0.2)");
+  cmd->add_option("--wavelet-resolution", options->waveletResolution,
+                  "Glossy light: texels a side of each cube-map face (a power of two; default: the "
+                  "shot's bake_wavelet_resolution, 16)");
   cmd->callback([options, &action] { action = [options] { return runBake(*options); }; });
 }
 
