@@ -531,6 +531,7 @@ absl::Status readWaveletSection(std::span<const uint8_t> bytes, TreePage* page) 
           for (int c = 0; c < 3; ++c) d[c] = halfBits(r.u16()) * scale;
         }
       }
+      page->waveletStoredNodes += count;
     }
     auto w = WaveletRadiance::fromFaces(1 << log2n, std::move(faces));
     if (!w.ok()) return fail(fmt::format("entry {} (node {}): {}", e, node, w.status().message()));
@@ -561,6 +562,7 @@ absl::Status readWaveletSection(std::span<const uint8_t> bytes, TreePage* page) 
     page->wavelets.push_back(std::move(*w));
   }
   if (left != 0) return fail(fmt::format("{} bytes left over after {} entries", left, entries));
+  page->waveletSectionBytes = static_cast<uint32_t>(bytes.size());
   return absl::OkStatus();
 }
 

@@ -153,6 +153,10 @@ struct TreePage {
   // The wavelet intensity (W/sr as a function of direction) of the nodes that have one: the
   // light their glossy and refractive surfels send out, beside the SH's diffuse light.
   std::vector<WaveletRadiance> wavelets;
+  // What the page's wavelet section stored: its bytes and quadtree nodes (differences from
+  // parents count as stored, not as decoded).
+  uint32_t waveletSectionBytes = 0;
+  uint32_t waveletStoredNodes = 0;
 
   const WaveletRadiance* waveletOf(const TreeNode& n) const {
     return n.wavelet == kNoWavelet ? nullptr : &wavelets[n.wavelet];

@@ -127,7 +127,18 @@ absl::StatusOr<TreeWriteResult> TreeFileWriter::finish() {
       {"area_relative_rms_error", fmt::format("{:.6g}", result->quantization.area.relativeRms)},
       {"clamped_surfel_radiance", std::to_string(result->quantization.clampedSurfelRadiance)},
   };
-  meta.sections.push_back({std::string(kTreeSection), textBytes(formatKeyValues(tree))});
+  std::vector<std::pair<std::string, std::string>> keys = tree;
+  if (result->wavelets.nodes > 0) {  // a tree without glossy light keeps its bytes
+    const TreeWaveletReport& w = result->wavelets;
+    keys.insert(keys.end(),
+                {{"wavelet_error", fmt::format("{:.6g}", options_.tree.wavelets.relativeError)},
+                 {"wavelet_vectors", std::to_string(w.stored)},
+                 {"wavelet_differences", std::to_string(w.differences)},
+                 {"wavelet_coefficients", std::to_string(w.coefficients)},
+                 {"wavelet_bytes", std::to_string(w.bytes)},
+                 {"wavelet_max_relative_error", fmt::format("{:.6g}", w.maxRelativeError)}});
+  }
+  meta.sections.push_back({std::string(kTreeSection), textBytes(formatKeyValues(keys))});
   if (quantized(options_.tree.encoding)) {
     meta.sections.push_back({std::string(kPowerSection), encodeCodebook(result->codebooks.power)});
     meta.sections.push_back({std::string(kAreaSection), encodeCodebook(result->codebooks.area)});

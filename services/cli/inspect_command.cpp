@@ -19,6 +19,7 @@ namespace {
 struct TreeStatistics {
   std::map<int, uint64_t> depthHistogram;  // nodes per depth
   uint64_t nodes = 0, leaves = 0, surfels = 0, pagesVisited = 0;
+  uint64_t waveletPages = 0, waveletVectors = 0, waveletStoredNodes = 0, waveletBytes = 0;
 };
 
 // Walks the tree from the root, decoding every page it reaches; a damaged page or a
@@ -47,6 +48,12 @@ absl::Status walkTree(TreeFile& tree, TreeStatistics* stats) {
       if (e.ref.page < seen.size() && !seen[e.ref.page]) {
         seen[e.ref.page] = 1;
         ++stats->pagesVisited;
+        if (!page->wavelets.empty()) {
+          ++stats->waveletPages;
+          stats->waveletVectors += page->wavelets.size();
+          stats->waveletStoredNodes += page->waveletStoredNodes;
+          stats->waveletBytes += page->waveletSectionBytes;
+        }
       }
     }
     if (e.ref.index >= page->nodes.size()) {
@@ -136,6 +143,27 @@ int inspectTree(const std::string& path) {
   }
   std::printf("  every node decoded from the root (%llu pages reached)\n",
               static_cast<unsigned long long>(stats.pagesVisited));
+  if (stats.waveletPages > 0) {
+    auto key = [&](const char* k) {
+      for (const auto& [name, value] : (*tree)->treeInfo()) {
+        if (name == k) return value;
+      }
+      return std::string("?");
+    };
+    std::printf(
+        "  wavelets (glossy light): %llu vectors in %llu pages, %llu coefficients stored (%llu "
+        "quadtree nodes), %llu bytes (%.1f%% of the payload); coded within %s, measured worst "
+        "relative error %s\n",
+        static_cast<unsigned long long>(stats.waveletVectors),
+        static_cast<unsigned long long>(stats.waveletPages),
+        static_cast<unsigned long long>(3 * (6 * stats.waveletVectors + 3 * stats.waveletStoredNodes)),
+        static_cast<unsigned long long>(stats.waveletStoredNodes),
+        static_cast<unsigned long long>(stats.waveletBytes),
+        uncompressed > 0 ? 100.0 * double(stats.waveletBytes) / double(uncompressed) : 0.0,
+        key("wavelet_error").c_str(), key("wavelet_max_relative_error").c_str());
+  } else {
+    std::printf("  wavelets: none\n");
+  }
   std::printf("  depth histogram (depth: nodes):");
   for (const auto& [depth, count] : stats.depthHistogram) {
     std::printf(" %d:%llu", depth, static_cast<unsigned long long>(count));
