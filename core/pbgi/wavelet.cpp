@@ -281,6 +281,33 @@ absl::StatusOr<WaveletRadiance> WaveletRadiance::fromFaces(int n,
   return w;
 }
 
+Rgb WaveletRadiance::dot(const WaveletRadiance& other) const {
+  if (n_ == 0 || other.n_ == 0) return Rgb(0.0f);
+  PBGI_CHECK_EQ(n_, other.n_);
+  Rgb sum(0.0f);
+  for (int f = 0; f < 6; ++f) {
+    const WaveletFace& a = faces_[f];
+    const WaveletFace& b = other.faces_[f];
+    sum += a.scaling * b.scaling;
+    // Both node lists are in pyramid order: a merge finds the nodes both keep.
+    auto i = a.nodes.begin();
+    auto j = b.nodes.begin();
+    while (i != a.nodes.end() && j != b.nodes.end()) {
+      const uint32_t ki = nodeKey(i->level, i->x, i->y), kj = nodeKey(j->level, j->x, j->y);
+      if (ki < kj) {
+        ++i;
+      } else if (kj < ki) {
+        ++j;
+      } else {
+        for (int k = 0; k < 3; ++k) sum += i->detail[k] * j->detail[k];
+        ++i;
+        ++j;
+      }
+    }
+  }
+  return sum;
+}
+
 Rgb WaveletRadiance::evaluate(const Vec3f& dir) const {
   if (n_ == 0) return Rgb(0.0f);
   const int texel = cubePixelIndex(dir, n_);

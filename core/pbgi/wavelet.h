@@ -95,6 +95,14 @@ class WaveletRadiance {
   // twice, every value finite); the error names what is wrong.
   static absl::StatusOr<WaveletRadiance> fromFaces(int n, std::array<WaveletFace, 6> faces);
 
+  // The product of two functions in the wavelet domain (Wang et al. section 3.3): the sum
+  // over their common coefficients of the products, which for an orthonormal basis is the sum
+  // over texels of the products of their values (Parseval). With one of them a BSDF slice
+  // projected with each texel's solid angle as weight, f(wi) cos(wi) dOmega, it is the
+  // reflected radiance, integral of f L cos dOmega, over only the coefficients both keep.
+  // Both must have the same resolution.
+  Rgb dot(const WaveletRadiance& other) const;
+
   int resolution() const { return n_; }
   bool empty() const { return n_ == 0; }
   const std::array<WaveletFace, 6>& faces() const { return faces_; }

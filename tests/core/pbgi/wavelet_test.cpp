@@ -158,5 +158,122 @@ TEST(Wavelet, ConstantRadianceKeepsNoDetailAndBrokenSamplesAreCounted) {
   EXPECT_NEAR(broken.evaluate(Vec3f(0.0f, 0.0f, 1.0f)).x, 0.0f, 1e-5f);  // black where broken
 }
 
+// The relative L2 distance between two dense coefficient vectors (which, the basis being
+// orthonormal, is that of the functions over the texels).
+double relativeDistance(const std::vector<float>& given, const std::vector<float>& got) {
+  double d2 = 0.0, n2 = 0.0;
+  for (size_t k = 0; k < given.size(); ++k) {
+    d2 += double(given[k] - got[k]) * (given[k] - got[k]);
+    n2 += double(given[k]) * given[k];
+  }
+  return std::sqrt(d2 / n2);
+}
+
+// A highlight on a noisy floor: what a glossy surfel's Monte Carlo light looks like.
+Rgb noisyHighlight(const Vec3f& d, const Vec3f& axis) {
+  const uint64_t h = static_cast<uint64_t>(std::abs(d.x * 7919.0f + d.y * 104729.0f + d.z * 1299709.0f));
+  const float noise = 0.05f * static_cast<float>(h % 1000) / 1000.0f;
+  return lobe(d, axis, 80.0f) + Rgb(0.2f + noise);
+}
+
+TEST(Wavelet, KeepingTheFewestNodesHoldsTheRelativeErrorItIsGiven) {
+  const Vec3f axis = normalize(Vec3f(0.3f, -0.5f, 0.8f));
+  const int n = 16;
+  const WaveletRadiance exact =
+      WaveletRadiance::project([&](const Vec3f& d) { return noisyHighlight(d, axis); }, n, 0.0f);
+  const std::vector<float> given = exact.dense();
+  size_t lastKept = exact.keptNodes() + 1;
+  for (float error : {0.01f, 0.05f, 0.1f, 0.3f}) {
+    const WaveletRadiance kept = WaveletRadiance::fromDense(given, n, 0.0f, error);
+    const double measured = relativeDistance(given, kept.dense());
+    std::printf("[ measured ] relative error %g: %zu of %zu nodes, measured %.4f\n", error,
+                kept.keptNodes(), exact.keptNodes(), measured);
+    EXPECT_LE(measured, error * (1.0 + 1e-4));
+    EXPECT_NEAR(kept.relativeError(), measured, 1e-4);
+    EXPECT_LT(kept.keptNodes(), lastKept);
+    lastKept = kept.keptNodes();
+  }
+  // A node budget keeps the largest nodes and reports what it cost.
+  const WaveletRadiance capped = WaveletRadiance::fromDense(given, n, 0.0f, 0.0f, 5);
+  EXPECT_EQ(capped.keptNodes(), 5u);
+  EXPECT_NEAR(capped.relativeError(), relativeDistance(given, capped.dense()), 1e-4);
+}
+
+TEST(Wavelet, ASumIsTheSumOfItsParts) {
+  const int n = 8;
+  const WaveletRadiance a = WaveletRadiance::project(
+      [](const Vec3f& d) { return lobe(d, Vec3f(0.0f, 0.0f, 1.0f), 30.0f); }, n, 0.0f);
+  const WaveletRadiance b = WaveletRadiance::project(
+      [](const Vec3f& d) { return lobe(d, normalize(Vec3f(1.0f, 1.0f, 0.0f)), 5.0f); }, n, 0.0f);
+  const WaveletRadiance* parts[] = {&a, nullptr, &b};
+  const WaveletRadiance sum = WaveletRadiance::sum(parts, 0.0f);
+  Rng rng = Rng::forKeys(5, 6, 7, 8);
+  for (int i = 0; i < 200; ++i) {
+    const Vec3f d(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f);
+    if (d.length2() < 1e-4f) continue;
+    const Rgb expected = a.evaluate(d) + b.evaluate(d);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(sum.evaluate(d)[c], expected[c], 1e-5f);
+  }
+  EXPECT_TRUE(WaveletRadiance::sum(std::span<const WaveletRadiance* const>(), 0.0f).empty());
+}
+
+// The wavelet radiance product: a BSDF slice projected once with each texel's solid angle as
+// weight, dotted with projected radiance, is the reflected radiance the texels integrate.
+TEST(Wavelet, TheProductOfAProjectedBrdfAndRadianceIsTheSpatialIntegral) {
+  const int n = 16;
+  const auto cube = microbufferTables(n);
+  const Vec3f normal(0.0f, 0.0f, 1.0f);
+  const Vec3f mirror = normalize(Vec3f(0.4f, 0.2f, 1.0f));
+  // A Phong-like lobe times the cosine, per unit solid angle.
+  auto brdfCos = [&](const Vec3f& wi) {
+    const float c = dot(wi, normal);
+    return c > 0.0f ? 20.0f * std::pow(std::max(0.0f, dot(wi, mirror)), 30.0f) * c : 0.0f;
+  };
+  auto radiance = [&](const Vec3f& wi) { return noisyHighlight(wi, normalize(Vec3f(0.5f, 0.1f, 1.0f))); };
+  double integral[3] = {0.0, 0.0, 0.0};
+  for (size_t t = 0; t < cube->directions.size(); ++t) {
+    const Rgb v = radiance(cube->directions[t]) * (brdfCos(cube->directions[t]) * cube->solidAngles[t]);
+    for (int c = 0; c < 3; ++c) integral[c] += v[c];
+  }
+  const WaveletRadiance brdf = WaveletRadiance::project(
+      [&](const Vec3f& wi) {
+        return Rgb(brdfCos(wi) * cube->solidAngles[static_cast<size_t>(cubePixelIndex(wi, n))]);
+      },
+      n, 0.0f);
+  const WaveletRadiance light = WaveletRadiance::project(radiance, n, 0.0f);
+  const Rgb product = brdf.dot(light);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(product[c], integral[c], 1e-4 * integral[c] + 1e-6);
+  // Thresholded (each to 5 %), the product keeps within a few percent of the integral.
+  const Rgb sparse = WaveletRadiance::fromDense(brdf.dense(), n, 0.0f, 0.05f)
+                         .dot(WaveletRadiance::fromDense(light.dense(), n, 0.0f, 0.05f));
+  std::printf("[ measured ] product %.5g, thresholded %.5g, integral %.5g\n", product.x,
+              sparse.x, integral[0]);
+  EXPECT_NEAR(sparse.x, integral[0], 0.05 * integral[0]);
+}
+
+TEST(Wavelet, StoredFacesAreCheckedByName) {
+  const WaveletRadiance w = WaveletRadiance::project(
+      [](const Vec3f& d) { return lobe(d, Vec3f(0.0f, 0.0f, 1.0f), 30.0f); }, 4, 0.0f);
+  ASSERT_GE(w.faces()[4].nodes.size(), 2u);
+  EXPECT_TRUE(WaveletRadiance::fromFaces(4, w.faces()).ok());
+  EXPECT_NE(WaveletRadiance::fromFaces(3, w.faces()).status().message().find("power of two"),
+            std::string::npos);
+  auto broken = [&](auto&& change) {
+    std::array<WaveletFace, 6> faces = w.faces();
+    change(faces[4]);
+    return std::string(WaveletRadiance::fromFaces(4, faces).status().message());
+  };
+  EXPECT_NE(broken([](WaveletFace& f) { f.nodes[0].level = 2; }).find("outside the 2 levels"),
+            std::string::npos);
+  EXPECT_NE(broken([](WaveletFace& f) { f.nodes[1].x = 7; }).find("outside"), std::string::npos);
+  EXPECT_NE(broken([](WaveletFace& f) { std::swap(f.nodes[0], f.nodes[1]); }).find("order"),
+            std::string::npos);
+  EXPECT_NE(broken([](WaveletFace& f) { f.nodes[1].detail[2].y = std::nanf(""); })
+                .find("not finite"),
+            std::string::npos);
+  EXPECT_NE(broken([](WaveletFace& f) { f.scaling.z = INFINITY; }).find("scaling not finite"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace pbgi

@@ -5,7 +5,10 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <memory>
 
+#include "core/util/bytes.h"
 #include "tests/support/run_pbgi.h"
 #include "tests/support/surfel_clouds.h"
 #include "tests/support/test_paths.h"
@@ -115,6 +118,25 @@ std::vector<uint8_t> floatPage(uint32_t id, const std::vector<std::vector<NodeRe
   return encodeTreePage(id, TreeEncoding::kFloat, nodes, nullptr);
 }
 
+// A one-leaf float page whose leaf has a wavelet vector (a lobe on a 4-texel cube), with
+// `damage` applied to the bytes of its wavelet section (which starts at the offset given).
+std::vector<uint8_t> waveletPage(const std::function<void(std::vector<uint8_t>&, size_t)>& damage) {
+  PageNode n;
+  n.attributes.bounds.extend(Vec3f(0.0f));
+  n.attributes.bounds.extend(Vec3f(1.0f));
+  n.attributes.pointCount = 1;
+  Surfel s;
+  s.radius = 0.1f;
+  s.materialClass = MaterialClass::kGlossy;
+  n.surfels.push_back(s);
+  n.wavelet = std::make_shared<const WaveletRadiance>(WaveletRadiance::project(
+      [](const Vec3f& d) { return Rgb(std::exp(8.0f * (normalize(d).z - 1.0f))); }, 4, 0.0f));
+  const std::vector<PageNode> nodes{n};
+  std::vector<uint8_t> bytes = encodeTreePage(0, TreeEncoding::kFloat, nodes, nullptr);
+  damage(bytes, treePageBytes(TreeEncoding::kFloat, 1, 0, 1, 0));
+  return bytes;
+}
+
 void writeCrafted(const std::string& path, const std::vector<std::vector<uint8_t>>& pages,
                   const std::vector<PageFileSection>& sections) {
   auto writer = PageFileWriter::create(path, {.pageSize = 4096});
@@ -148,6 +170,10 @@ const std::vector<Crafted>& craftedTrees() {
       {"reference_loop.pbgi", 1, "the file's references loop"},
       {"reference_to_nowhere.pbgi", 1, "reference to node 9 of page 1"},
       {"quantized_without_codebooks.pbgi", 1, "quantized tree without a \"codebook.power\""},
+      {"wavelet_future_section.pbgi", 1,
+       "page 0: wavelet section: version 9, this build reads version 1"},
+      {"wavelet_nan_scaling.pbgi", 1, "wavelet section: entry 0 (node 0): wavelet face 0: scaling "
+                                       "not finite"},
   };
   return files;
 }
@@ -171,6 +197,11 @@ void makeFuzzSeeds(const fs::path& dir) {
 
 void makeCraftedTrees(const fs::path& dir) {
   makeFuzzSeeds(dir / "fuzz_corpus");
+  {
+    const std::vector<uint8_t> page = waveletPage([](std::vector<uint8_t>&, size_t) {});
+    std::ofstream(dir / "fuzz_corpus" / "float_wavelets.page", std::ios::binary)
+        .write(reinterpret_cast<const char*>(page.data()), static_cast<std::streamsize>(page.size()));
+  }
   const std::vector<uint8_t> leafPage = floatPage(0, {{}});
   writeCrafted((dir / "future_payload.pbgi").string(), {leafPage},
                {{"tree", text(treeSection("99", "float"))}});
@@ -192,6 +223,14 @@ void makeCraftedTrees(const fs::path& dir) {
                {{"tree", text(treeSection(version, "float"))}});
   writeCrafted((dir / "quantized_without_codebooks.pbgi").string(), {leafPage},
                {{"tree", text(treeSection(version, "quantized"))}});
+  writeCrafted((dir / "wavelet_future_section.pbgi").string(),
+               {waveletPage([](std::vector<uint8_t>& b, size_t section) { b[section + 4] = 9; })},
+               {{"tree", text(treeSection(version, "float"))}});
+  writeCrafted((dir / "wavelet_nan_scaling.pbgi").string(),
+               {waveletPage([](std::vector<uint8_t>& b, size_t section) {
+                 storeU32(b.data() + section + 20, 0x7fc00000u);  // face 0's red scaling
+               })},
+               {{"tree", text(treeSection(version, "float"))}});
 }
 
 TEST(TreeFileCrafted, EachBadFileIsRefusedWithItsReason) {
