@@ -171,7 +171,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
     if (g.bsdf.isDelta()) continue;  // mirror images need rays, not light samples
     Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
-    for (int k = 0; k < options_.lightSamples; ++k) {
+    for (int k = 0; options_.directLight && k < options_.lightSamples; ++k) {
       float selectPdf = 0.0f;
       const std::optional<LightSample> ls =
           sampleUnoccludedLight(*scene_, s.position, s.normal, rng, &selectPdf);

@@ -81,6 +81,9 @@ struct GlossyBakeOptions {
   // and outgoing texel of the indirect light it reflects, and the resolution of the
   // microbuffers that gather that light at the leaf.
   int indirectSamples = 8;
+  // Whether the leaf's vector holds the lights' direct light (false: only what it reflects of
+  // the incoming tree, for the trees of a bake's bounces, which hold the light a bounce adds).
+  bool directLight = true;
   int incomingResolution = 16;
 };
 

@@ -98,7 +98,8 @@ namespace {
 // page cache of a quarter of the budget and, when `toPath` is given, writes the tree of the
 // light the bounce adds there. Adds the bounce's reflected power to `power`.
 absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const std::string* toPath,
-                                           BounceRequest bounce, const TreeFileWriteOptions& options,
+                                           BounceRequest bounce, TreeFileWriteOptions options,
+                                           const GlossyLeafBaker* glossy,
                                            const FrameBakeRequest& request,
                                            FrameBakeReport* report, Rgb* power) {
   auto from = TreeFile::open(fromPath);
@@ -107,6 +108,16 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4,
                            .policy = PageCachePolicy::kLeastRecent});
   std::unique_ptr<TreeFileWriter> writer;
+  // Glossy surfels add the light they reflect of the tree the bounce gathers from: the light
+  // reaching diffuse surfaces by way of glossy ones then bounces on.
+  std::optional<GlossyLeafBaker> reflector;
+  if (toPath != nullptr && glossy != nullptr) {
+    reflector.emplace(*glossy);
+    reflector->setIncoming(&cache);
+    options.tree.wavelets.leaf = [r = &*reflector](std::span<Surfel> s, uint64_t key) {
+      return (*r)(s, key);
+    };
+  }
   if (toPath != nullptr) {
     auto created = TreeFileWriter::create(*toPath, options);
     if (!created.ok()) return created.status();
@@ -206,6 +217,9 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     glossyOptions.seed = shot.render.seed;
     glossyOptions.frame = request.frame;
     const GlossyLeafBaker glossyBaker(scene, glossyOptions);
+    GlossyBakeOptions reflectOnly = glossyOptions;
+    reflectOnly.directLight = false;
+    const GlossyLeafBaker bounceReflector(scene, reflectOnly);
     if (glossyBaker.anyWavelets()) {
       TreeWriteOptions withWavelets = treeOptions.tree;
       withWavelets.wavelets.leaf = [](std::span<Surfel>, uint64_t) { return WaveletRadiance(); };
@@ -373,7 +387,8 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
                              .frame = request.frame,
                              .bounce = bounce,
                              .surfels = report.sampling.surfels},
-                            treeOptions, request, &report, &power);
+                            treeOptions, glossyBaker.anyWavelets() ? &bounceReflector : nullptr,
+                            request, &report, &power);
       std::error_code removeError;
       std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
       if (!lit.ok()) return result = lit.status(), void();
