@@ -136,6 +136,44 @@ namespace {
 // Keeps the glossy surfels' light samples apart from every other stream.
 constexpr uint64_t kGlossyLeafDomain = 0x474c4f5353594c46ull;
 
+constexpr int kMaxSpecularChain = 8;
+constexpr int kSmoothRays = 1;
+
+// The light leaving a smooth (delta) surface at p towards unit world direction `out`: the
+// BSDF sampled at the surface (lobe by uc), the ray traced on through every smooth surface it
+// meets, and the emission of the light it ends on (lights hit or escaped to), times the
+// chain's throughput. Black when it ends on a rough surface or goes on too long.
+Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame,
+                          const Bsdf& bsdf, const Vec3f& out, float uc, Rng& rng) {
+  const std::optional<BsdfSample> first =
+      bsdf.sample(frame.toLocal(out), uc, Vec2f(rng.uniform(), rng.uniform()));
+  if (!first || !(first->pdf > 0.0f) || isBlack(first->f)) return Rgb(0.0f);
+  Rgb beta = first->f * (std::abs(first->wi.z) / first->pdf);
+  Vec3f dir = frame.toWorld(first->wi);
+  Ray ray = scene.spawnRay(p, dot(dir, frame.n) > 0.0f ? frame.n : -frame.n, dir);
+  for (int depth = 0; depth < kMaxSpecularChain; ++depth) {
+    SurfaceHit hit;
+    if (!scene.intersect(ray, &hit)) {
+      Rgb sky(0.0f);
+      for (const int index : scene.infiniteLights()) sky += scene.lights()[index]->escaped(dir);
+      return beta * sky;
+    }
+    if (hit.light >= 0) return beta * scene.lights()[hit.light]->emitted(hit.ng, -dir);
+    if (hit.material == kNoMaterial) return Rgb(0.0f);
+    const Bsdf next(scene.material(hit.material), scene.albedoAt(hit));
+    if (!next.isDelta()) return Rgb(0.0f);
+    const Frame at(hit.ns);
+    const std::optional<BsdfSample> bs =
+        next.sample(at.toLocal(-dir), rng.uniform(), Vec2f(rng.uniform(), rng.uniform()));
+    if (!bs || !(bs->pdf > 0.0f) || isBlack(bs->f)) return Rgb(0.0f);
+    beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+    dir = at.toWorld(bs->wi);
+    ray = scene.spawnRay(hit.p, hit.ng, dir);
+    if (!isFinite(beta)) return Rgb(0.0f);
+  }
+  return Rgb(0.0f);
+}
+
 }  // namespace
 
 WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t leafKey) const {
@@ -152,7 +190,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     std::vector<Arrival> arrivals;
     Rgb front{0.0f}, back{0.0f};  // cosine-weighted sums of outgoing radiance per side
   };
-  std::vector<Glossy> glossy;
+  std::vector<Glossy> glossy, smooth;
   const float invSamples = 1.0f / static_cast<float>(options_.lightSamples);
   for (size_t j = 0; j < surfels.size(); ++j) {
     Surfel& s = surfels[j];
@@ -169,7 +207,11 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     if (!needs_[id]) continue;
     const Material& material = scene_->material(id);
     Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
-    if (g.bsdf.isDelta()) continue;  // mirror images need rays, not light samples
+    if (g.bsdf.isDelta()) {
+      // Mirrors and glass: their light is traced back through them, below.
+      if (options_.directLight && options_.specularChains) smooth.push_back(std::move(g));
+      continue;
+    }
     Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
     for (int k = 0; options_.directLight && k < options_.lightSamples; ++k) {
       float selectPdf = 0.0f;
@@ -181,13 +223,13 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     }
     if (!g.arrivals.empty() || incoming_ != nullptr) glossy.push_back(std::move(g));
   }
-  if (glossy.empty()) return WaveletRadiance();
+  if (glossy.empty() && smooth.empty()) return WaveletRadiance();
 
   // The indirect light arriving at the leaf, a microbuffer on each side of its mean normal.
   thread_local std::optional<std::array<Gatherer, 2>> gatherers;
   const Microbuffer* sides[2] = {nullptr, nullptr};
   Vec3f mean(0.0f), centre(0.0f);
-  if (incoming_ != nullptr) {
+  if (incoming_ != nullptr && !glossy.empty()) {
     GatherOptions gather;
     gather.resolution = options_.incomingResolution;
     if (!gatherers || gatherers->front().options() != gather) {
@@ -253,6 +295,48 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
       reflected.emplace_back(g.material, std::move(table));
     }
   }
+
+  // Mirrors and glass (delta BSDFs): the lights seen through them, each texel's direction
+  // traced back through their specular chain (up to kMaxSpecularChain surfaces, each lobe
+  // picked by the BSDF's own sampling) to the light it ends on, from the centroid of the leaf's
+  // smooth surfels, kSmoothRays jittered rays a texel. A chain that ends on a rough surface
+  // brings nothing here: that light is the tree's. This is what puts a glass sphere's caustic
+  // on the floor under it.
+  for (const Glossy& g : smooth) {
+    if (std::any_of(reflected.begin(), reflected.end(),
+                    [&](const auto& r) { return r.first == g.material; })) {
+      continue;
+    }
+    Vec3f n(0.0f), p(0.0f);
+    float area = 0.0f;
+    for (const Glossy& h : smooth) {
+      if (h.material != g.material) continue;
+      n += h.surfel->normal * h.surfel->area();
+      p += h.surfel->position * h.surfel->area();
+      area += h.surfel->area();
+    }
+    p = p / area;
+    n = n.length2() > 0.0f ? normalize(n) : g.surfel->normal;
+    const Frame frame(n);
+    Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey,
+                           kGlossyLeafDomain + 0x10000 + g.material);
+    const float jitter = 2.0f * std::tan(0.25f * kPi / static_cast<float>(options_.resolution));
+    std::vector<Rgb> table(texels, Rgb(0.0f));
+    for (size_t t = 0; t < texels; ++t) {
+      Rgb sum(0.0f);
+      for (int k = 0; k < kSmoothRays; ++k) {
+        const Vec3f d = normalize(cube->directions[t] +
+                                  Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f,
+                                        rng.uniform() - 0.5f) *
+                                      jitter);
+        const float uc = (static_cast<float>(k) + rng.uniform()) / kSmoothRays;
+        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng);
+      }
+      if (isFinite(sum)) table[t] = sum / static_cast<float>(kSmoothRays);
+    }
+    reflected.emplace_back(g.material, std::move(table));
+  }
+  for (Glossy& g : smooth) glossy.push_back(std::move(g));
 
   std::vector<Rgb> intensity(texels, Rgb(0.0f));
   for (Glossy& g : glossy) {

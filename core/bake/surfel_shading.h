@@ -84,6 +84,9 @@ struct GlossyBakeOptions {
   // Whether the leaf's vector holds the lights' direct light (false: only what it reflects of
   // the incoming tree, for the trees of a bake's bounces, which hold the light a bounce adds).
   bool directLight = true;
+  // Whether mirrors and glass trace their specular chains to the lights (with directLight):
+  // a bake does it in the tree it ends with alone, the chains being its dearest part.
+  bool specularChains = true;
   int incomingResolution = 16;
 };
 

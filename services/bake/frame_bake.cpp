@@ -216,7 +216,11 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     glossyOptions.resolution = request.waveletResolution;
     glossyOptions.seed = shot.render.seed;
     glossyOptions.frame = request.frame;
-    const GlossyLeafBaker glossyBaker(scene, glossyOptions);
+    // The direct-light tree of a bake with bounces leaves the specular chains (caustics) to the
+    // final tree: they cost most and only light what bounces after them.
+    GlossyBakeOptions firstTree = glossyOptions;
+    firstTree.specularChains = request.bounces == 0;
+    const GlossyLeafBaker glossyBaker(scene, firstTree);
     GlossyBakeOptions reflectOnly = glossyOptions;
     reflectOnly.directLight = false;
     const GlossyLeafBaker bounceReflector(scene, reflectOnly);
@@ -413,13 +417,15 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
             [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
         return writer->finish();
       };
-      auto final = writeFinal(glossyTreeOptions);
+      // Written first without wavelets: the light the glossy surfels then gather (below).
+      auto final = writeFinal(glossyBaker.anyWavelets() ? treeOptions : glossyTreeOptions);
       if (!final.ok()) return result = final.status(), void();
       clock.lap("final tree");
       if (glossyBaker.anyWavelets()) {
         // Glossy surfels reflect the indirect light too: that of the tree just written (every
-        // diffuse bounce, and the glossy surfels' direct light), gathered at each glossy leaf;
-        // the final tree is written again with it.
+        // bounce's light, diffuse surfels' and what glossy ones reflected of each bounce),
+        // gathered at each glossy leaf; the final tree is written again with it, their direct
+        // light and mirrors' and glass's specular chains.
         final = [&]() -> absl::StatusOr<TreeWriteResult> {
           const std::string lit = stem + ".glossy.tmp.pbgi";
           std::error_code renameError;
