@@ -129,7 +129,8 @@ TEST(PbgiAccuracy, SponzaDefaultPresetMatchesThePathTracer) {
 
 // Issue 14's glossy scene: most of the light reaches the walls by way of the two GGX blocks,
 // which the tree carries as wavelets (before them the mean indirect light was 0.43 of the path
-// tracer's at 128 x 128). GLOSSY_MEASURED
+// tracer's at 128 x 128). Measured here: mean indirect 0.907 / 0.921 / 0.941 of the path
+// tracer's, relMSE 0.0054.
 TEST(PbgiAccuracy, GlossyCornellBoxCarriesTheBlocksLight) {
   expectAccurate({"glossy-cornell/glossy-cornell.shot.toml", 64, 64, 60000, 3, 0.1,
                   0.05, true});
@@ -189,7 +190,7 @@ Blob brightBlob(const Image& image, int x0, int y0, int x1, int y1) {
 
 // A smooth glass sphere's caustic: light the sphere focuses on the floor in its own shadow,
 // which reaches the tree through the glass surfels' specular chains. PBGI puts it where the
-// path tracer does, and it stands out of its surroundings as it does there. CAUSTIC_MEASURED
+// path tracer does, as bright. Measured: centroid (27.05, 29.67) against (29.47, 28.80).
 TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
   auto loaded =
       loadShotFile((testing::sourceDir() / "config/scenes/glass-caustic/caustic.shot.toml").string());
@@ -210,8 +211,24 @@ TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
               "%.2f) peak %.3g contrast %.2f\n",
               want.x, want.y, want.peak, want.inside / want.outside, got.x, got.y, got.peak,
               got.inside / got.outside);
+  // The light on the floor where the path tracer's caustic is (rows 29 to 31, 7 pixels wide
+  // at its centroid; the rows above are the sphere itself, path traced by both): without the
+  // glass's specular chains PBGI has 0.60 of the path tracer's light there (measured), with them
+  // 1.56: the caustic is there, too concentrated at 64 x 48 (the cube maps' 16 texels a face).
+  auto around = [&](const Image& image) {
+    const int r = image.channelIndex("indirect.R");
+    double sum = 0.0;
+    for (int y = 29; y <= 31; ++y)
+      for (int x = static_cast<int>(want.x) - 3; x <= static_cast<int>(want.x) + 3; ++x)
+        sum += 0.2126 * image.at(x, y, r) + 0.7152 * image.at(x, y, r + 1) +
+               0.0722 * image.at(x, y, r + 2);
+    return sum / 21.0;
+  };
+  std::printf("light at the caustic: PBGI %.4g, path tracer %.4g\n", around(pbgi), around(path));
   EXPECT_NEAR(got.x, want.x, 3.0);
   EXPECT_NEAR(got.y, want.y, 3.0);
+  EXPECT_GT(around(pbgi), 0.75 * around(path));
+  EXPECT_LT(around(pbgi), 2.0 * around(path));
   EXPECT_GT(got.inside / got.outside, 0.5 * want.inside / want.outside);
   fs::remove_all(dir);
 }
