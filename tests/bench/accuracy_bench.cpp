@@ -355,6 +355,32 @@ int runBench(const Args& args) {
     }
   }
 
+  if (!treePath.empty()) {
+    // The tree's size, and what of it is glossy light (wavelets, issue 14): against the rest.
+    auto tree = TreeFile::open(treePath);
+    if (tree.ok()) {
+      std::error_code ec;
+      const uint64_t fileBytes = fs::file_size(treePath, ec);
+      uint64_t payload = 0;
+      for (const PageEntry& e : (*tree)->container().directory()) payload += e.uncompressedSize;
+      uint64_t waveletBytes = 0;
+      std::string waveletError = "-", worst = "-";
+      for (const auto& [k, v] : (*tree)->treeInfo()) {
+        if (k == "wavelet_bytes") waveletBytes = std::stoull(v);
+        if (k == "wavelet_error") waveletError = v;
+        if (k == "wavelet_max_relative_error") worst = v;
+      }
+      std::printf("tree %s: %llu bytes, pages %llu bytes uncompressed, of which wavelets %llu "
+                  "(%.2fx the pages without them; coded within %s, worst measured %s)\n",
+                  treePath.c_str(), static_cast<unsigned long long>(fileBytes),
+                  static_cast<unsigned long long>(payload),
+                  static_cast<unsigned long long>(waveletBytes),
+                  payload > waveletBytes ? double(waveletBytes) / double(payload - waveletBytes)
+                                         : 0.0,
+                  waveletError.c_str(), worst.c_str());
+    }
+  }
+
   const std::string csvPath = (fs::path(args.out) / (shot->name + ".csv")).string();
   std::FILE* csv = std::fopen(csvPath.c_str(), "w");
   if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
