@@ -7,9 +7,21 @@
 
 #include "core/pbgi/external_sort.h"
 #include "core/pbgi/morton.h"
+#include "core/pbgi/tree_writer.h"
 #include "core/sampling/rng.h"
 
 namespace pbgi::testing {
+
+// Small pages, leaves and codebooks: trees of a few thousand surfels span many pages.
+inline TreeWriteOptions smallTreeOptions(TreeEncoding encoding, uint32_t pageSize = 4096) {
+  TreeWriteOptions o;
+  o.encoding = encoding;
+  o.pageSize = pageSize;
+  o.build.leafSize = 8;
+  o.powerCentres = 64;
+  o.areaCentres = 16;
+  return o;
+}
 
 // Surfels on a few planes and a sphere, sorted by key, numbered in input order.
 inline std::vector<SortedSurfel> makeSorted(size_t n, uint64_t seed, bool allSamePosition = false) {

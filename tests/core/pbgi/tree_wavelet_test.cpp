@@ -44,12 +44,7 @@ std::vector<SortedSurfel> withGlossy(std::vector<SortedSurfel> points, int every
 }
 
 TreeWriteOptions options(TreeEncoding encoding, std::atomic<int>* calls) {
-  TreeWriteOptions o;
-  o.encoding = encoding;
-  o.pageSize = 16384;
-  o.build.leafSize = 8;
-  o.powerCentres = 64;
-  o.areaCentres = 16;
+  TreeWriteOptions o = testing::smallTreeOptions(encoding, 16384);
   o.wavelets.leaf = [calls](std::span<Surfel> surfels, uint64_t) {
     ++*calls;
     return leafIntensity(surfels);

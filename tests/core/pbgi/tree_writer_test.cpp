@@ -14,15 +14,7 @@ namespace {
 
 using testing::makeSorted;
 
-TreeWriteOptions smallPages(TreeEncoding encoding) {
-  TreeWriteOptions o;
-  o.encoding = encoding;
-  o.pageSize = 4096;
-  o.build.leafSize = 8;
-  o.powerCentres = 64;
-  o.areaCentres = 16;
-  return o;
-}
+TreeWriteOptions smallPages(TreeEncoding encoding) { return testing::smallTreeOptions(encoding); }
 
 struct Walk {
   std::vector<const TreeNode*> nodes;  // top-down, depth first
