@@ -20,6 +20,8 @@ namespace {
 
 // Keeps the surfels' light samples apart from every other stream keyed (seed, frame, n).
 constexpr uint64_t kSurfelDirectLightDomain = 0x5355524644495245ull;
+// And the glossy materials' reflection samples.
+constexpr uint64_t kReflectionDomain = 0x5245464c53455453ull;
 
 }  // namespace
 
@@ -125,9 +127,41 @@ GlossyLeafBaker::GlossyLeafBaker(const Scene& scene, const GlossyBakeOptions& op
   bases_.resize(meshes.size());
   for (size_t m = 0; m < meshes.size(); ++m) bases_[m] = scene.triangleIdBase(m);
   needs_.resize(scene.materials().size());
+  reflection_.resize(needs_.size());
+  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options.resolution);
+  const size_t texels = cube->directions.size();
+  const int k = std::max(options.indirectSamples, 1);
   for (size_t i = 0; i < needs_.size(); ++i) {
-    needs_[i] = needsWavelets(scene.material(static_cast<uint32_t>(i)), options.tolerance);
+    const Material& material = scene.material(static_cast<uint32_t>(i));
+    needs_[i] = needsWavelets(material, options.tolerance);
     any_ = any_ || needs_[i];
+    const Bsdf bsdf(material, untexturedAlbedo(material));
+    if (!needs_[i] || bsdf.isDelta() || options.indirectSamples < 1) continue;
+    for (int set = 0; set < kReflectionSets; ++set) {
+      ReflectionSamples& s = reflection_[i].emplace_back();
+      s.wi.assign(texels * k, Vec3f(0.0f, 0.0f, 1.0f));
+      s.weight.assign(texels * k, Rgb(0.0f));
+      // The same stratified uniforms for every direction out: the reflected light is then a
+      // smooth function of the direction (each sample's half vector fixed), which the wavelets
+      // hold in few coefficients, where fresh samples per texel would be white noise.
+      Rng rng = Rng::forKeys(options.seed, i, static_cast<uint64_t>(set), kReflectionDomain);
+      std::vector<std::pair<float, Vec2f>> uniforms(k);
+      for (int j = 0; j < k; ++j) {
+        uniforms[j] = {rng.uniform(),
+                       Vec2f((static_cast<float>(j) + rng.uniform()) / k, rng.uniform())};
+      }
+      for (size_t t = 0; t < texels; ++t) {
+        for (int j = 0; j < k; ++j) {
+          const std::optional<BsdfSample> bs =
+              bsdf.sample(cube->directions[t], uniforms[j].first, uniforms[j].second);
+          if (!bs || bs->delta || !(bs->pdf > 0.0f)) continue;
+          const Rgb w = bs->f * (std::abs(bs->wi.z) / (bs->pdf * k));
+          if (!isFinite(w)) continue;
+          s.wi[t * k + j] = bs->wi;
+          s.weight[t * k + j] = w;
+        }
+      }
+    }
   }
 }
 
@@ -257,7 +291,6 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     const int k = buffer->pixelIndex(wi);
     return buffer->covered(k) ? buffer->radiance(k) : Rgb(0.0f);
   };
-  const float invIndirect = 1.0f / static_cast<float>(std::max(options_.indirectSamples, 1));
 
   const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options_.resolution);
   const size_t texels = cube->directions.size();
@@ -274,23 +307,23 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
                       [&](const auto& r) { return r.first == g.material; })) {
         continue;
       }
-      Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey,
-                             kGlossyLeafDomain + 1 + g.material);
-      std::vector<std::pair<float, Vec2f>> uniforms(options_.indirectSamples);
-      for (size_t k = 0; k < uniforms.size(); ++k) {  // stratified in u's first dimension
-        uniforms[k] = {rng.uniform(),
-                       Vec2f((static_cast<float>(k) + rng.uniform()) * invIndirect, rng.uniform())};
-      }
-      std::vector<Rgb> table(texels, Rgb(0.0f));
+      if (reflection_[g.material].empty()) continue;
+      const ReflectionSamples& set = reflection_[g.material][leafKey % kReflectionSets];
+      const size_t k = static_cast<size_t>(std::max(options_.indirectSamples, 1));
+      // The reflected light by texel of the material's local cube, then resampled to the
+      // world's texels (the nearest local one).
+      std::vector<Rgb> local(texels, Rgb(0.0f));
       for (size_t t = 0; t < texels; ++t) {
-        const Vec3f wo = frame.toLocal(cube->directions[t]);
         Rgb sum(0.0f);
-        for (const auto& [uc, u] : uniforms) {
-          const std::optional<BsdfSample> bs = g.bsdf.sample(wo, uc, u);
-          if (!bs || bs->delta || !(bs->pdf > 0.0f)) continue;
-          sum += bs->f * incomingRadiance(frame.toWorld(bs->wi)) * (std::abs(bs->wi.z) / bs->pdf);
+        for (size_t j = t * k; j < (t + 1) * k; ++j) {
+          if (!isBlack(set.weight[j])) sum += set.weight[j] * incomingRadiance(frame.toWorld(set.wi[j]));
         }
-        if (isFinite(sum)) table[t] = sum * invIndirect;
+        if (isFinite(sum)) local[t] = sum;
+      }
+      std::vector<Rgb> table(texels);
+      for (size_t t = 0; t < texels; ++t) {
+        table[t] = local[static_cast<size_t>(
+            cubePixelIndex(frame.toLocal(cube->directions[t]), options_.resolution))];
       }
       reflected.emplace_back(g.material, std::move(table));
     }

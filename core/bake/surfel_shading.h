@@ -99,6 +99,7 @@ struct GlossyBakeOptions {
 // are measured once, here. Thread-safe; the same leaf and key give the same bits.
 class GlossyLeafBaker {
  public:
+  static constexpr int kReflectionSets = 16;
   GlossyLeafBaker(const Scene& scene, const GlossyBakeOptions& options);
 
   // Whether any material of the scene needs wavelets: a scene without one bakes none.
@@ -118,6 +119,15 @@ class GlossyLeafBaker {
   std::vector<uint64_t> bases_;     // first global triangle id of each mesh
   std::vector<uint8_t> needs_;      // per scene material: needsWavelets
   bool any_ = false;
+  // Per rough material that needs wavelets, kReflectionSets sets of indirectSamples BSDF
+  // samples for each texel of a cube in the material's local frame (z the normal): direction
+  // in and f cos / pdf, drawn once, so that a leaf's reflected light costs lookups, not BSDF
+  // sampling. A leaf takes set leafKey % kReflectionSets: neighbours' samples differ.
+  struct ReflectionSamples {
+    std::vector<Vec3f> wi;
+    std::vector<Rgb> weight;  // black where the sample failed
+  };
+  std::vector<std::vector<ReflectionSamples>> reflection_;  // by material, then set
 };
 
 }  // namespace pbgi

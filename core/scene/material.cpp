@@ -211,6 +211,20 @@ std::optional<BsdfSample> dielectricSample(const Material& m, TransportMode mode
 
 }  // namespace
 
+Rgb untexturedAlbedo(const Material& m) {
+  switch (m.type) {
+    case MaterialType::kDiffuse:
+      return m.albedo;
+    case MaterialType::kConductor:
+      return m.complexIor ? m.tint : m.specular * m.tint;
+    case MaterialType::kDielectric:
+      return Rgb(1.0f);
+    case MaterialType::kEmissive:
+      return Rgb(0.0f);
+  }
+  return Rgb(0.0f);
+}
+
 Bsdf::Bsdf(const Material& material, const Rgb& albedo, TransportMode mode)
     : material_(&material), albedo_(albedo), mode_(mode) {}
 

@@ -45,6 +45,11 @@ struct BsdfSample {
   bool transmission = false;
 };
 
+// The albedo a material's BSDF takes where no texture applies: a diffuse material's own, a
+// conductor's Fresnel colour (its tint, times `specular` for Schlick), 1 for dielectrics, 0 for
+// emitters.
+Rgb untexturedAlbedo(const Material& m);
+
 // The BSDF of a material at one shading point (texture already looked up into `albedo`).
 class Bsdf {
  public:

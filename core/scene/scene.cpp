@@ -176,17 +176,8 @@ float Scene::lightProbability(int lightIndex) const {
 Rgb Scene::albedoAt(const SurfaceHit& hit) const {
   if (hit.material == kNoMaterial) return Rgb(0.0f);
   const Material& m = materials_[hit.material];
-  switch (m.type) {
-    case MaterialType::kDiffuse:
-      return m.albedoTexture ? m.albedoTexture->evaluate(hit.uv) : m.albedo;
-    case MaterialType::kConductor:
-      return m.complexIor ? m.tint : m.specular * m.tint;
-    case MaterialType::kDielectric:
-      return Rgb(1.0f);
-    case MaterialType::kEmissive:
-      return Rgb(0.0f);
-  }
-  return Rgb(0.0f);
+  if (m.type == MaterialType::kDiffuse && m.albedoTexture) return m.albedoTexture->evaluate(hit.uv);
+  return untexturedAlbedo(m);
 }
 
 SceneBuilder::SceneBuilder() = default;
