@@ -1,7 +1,9 @@
 #include "core/bake/surfel_sampler.h"
 
 #include <cmath>
+#include <optional>
 
+#include "core/bake/surfel_shading.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
 #include "core/util/check.h"
@@ -64,17 +66,38 @@ MaterialClass materialClassOf(const Material& material) {
   if (material.isEmissive() || (!isBlack(material.radiance) && isFinite(material.radiance))) {
     return MaterialClass::kEmissive;
   }
+  const bool rough = !needsWavelets(material);
   switch (material.type) {
     case MaterialType::kDiffuse:
       return MaterialClass::kDiffuse;
     case MaterialType::kConductor:
-      return MaterialClass::kGlossy;
+      return rough ? MaterialClass::kDiffuse : MaterialClass::kGlossy;
     case MaterialType::kDielectric:
-      return MaterialClass::kTransmissive;
+      return rough ? MaterialClass::kDiffuse : MaterialClass::kTransmissive;
     case MaterialType::kEmissive:
       return MaterialClass::kEmissive;
   }
   return MaterialClass::kDiffuse;
+}
+
+Rgb hemisphericalAlbedo(const Material& material) {
+  if (material.type == MaterialType::kDiffuse) return material.albedo;
+  const Bsdf bsdf(material, untexturedAlbedo(material));
+  if (bsdf.isBlack()) return Rgb(0.0f);
+  constexpr int kSamples = 4096;
+  Rng rng = Rng::forKeys(0x48454d49ull, kSamples);
+  Rgb sum(0.0f);
+  for (int k = 0; k < kSamples; ++k) {
+    const Vec3f wi = sampleCosineHemisphere(Vec2f(rng.uniform(), rng.uniform()));
+    const float uc = rng.uniform();
+    const Vec2f u(rng.uniform(), rng.uniform());
+    // Reciprocity: the light reflected out of wi's side, sampled from wi.
+    const std::optional<BsdfSample> bs = bsdf.sample(wi, uc, u);
+    if (!bs || !(bs->pdf > 0.0f) || bs->wi.z <= 0.0f) continue;
+    const Rgb w = bs->f * (bs->wi.z / bs->pdf);
+    if (isFinite(w)) sum += w;
+  }
+  return vmin(sum / static_cast<float>(kSamples), Rgb(1.0f));
 }
 
 absl::Status planSurfels(const Scene& scene, const SurfelSamplingOptions& options,
@@ -133,6 +156,17 @@ absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& opti
   };
 
   const std::vector<MeshData>& meshes = scene.meshes();
+  // Each material's class, once (measuring a glossy lobe against the SH is not free), and the
+  // albedo of the rough glossy ones that reflect as diffuse.
+  std::vector<MaterialClass> classes(scene.materials().size());
+  std::vector<std::optional<Rgb>> diffuseAlbedo(scene.materials().size());
+  for (size_t i = 0; i < classes.size(); ++i) {
+    const Material& material = scene.material(static_cast<uint32_t>(i));
+    classes[i] = materialClassOf(material);
+    if (classes[i] == MaterialClass::kDiffuse && material.type != MaterialType::kDiffuse) {
+      diffuseAlbedo[i] = hemisphericalAlbedo(material);
+    }
+  }
   SurfelSamplingStats done = plan;
   done.surfels = 0;
   double cumulative = 0.0;
@@ -156,8 +190,7 @@ absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& opti
     const MeshData& mesh = meshes[m];
     const uint32_t triangleId = static_cast<uint32_t>(scene.triangleIdBase(m) + t);
     const uint32_t materialIndex = mesh.materials[t];
-    const Material& material = scene.material(materialIndex);
-    const MaterialClass materialClass = materialClassOf(material);
+    const MaterialClass materialClass = classes[materialIndex];
     const Vec3f ng = normalize(cross(p1 - p0, p2 - p0));
     const uint32_t i0 = mesh.indices[3 * t], i1 = mesh.indices[3 * t + 1],
                    i2 = mesh.indices[3 * t + 2];
@@ -184,7 +217,7 @@ absl::Status sampleSurfels(const Scene& scene, const SurfelSamplingOptions& opti
       hit.ng = hit.ns = ng;
       if (!mesh.uvs.empty()) hit.uv = mesh.uvs[i0] * b0 + mesh.uvs[i1] * b1 + mesh.uvs[i2] * b2;
       hit.material = materialIndex;
-      surfel.albedo = scene.albedoAt(hit);
+      surfel.albedo = diffuseAlbedo[materialIndex] ? *diffuseAlbedo[materialIndex] : scene.albedoAt(hit);
       if (absl::Status s = sink(surfel); !s.ok()) {
         status = withContext(s, fmt::format("surfel {}", firstHere + j));
         return;

@@ -51,8 +51,15 @@ struct SurfelSamplingStats {
 };
 
 // The class a material's surfels carry: kEmissive for any material that emits (as the scene
-// makes a light of it), else by BSDF: diffuse, glossy (conductor), transmissive (dielectric).
+// makes a light of it), else by BSDF: diffuse, glossy (conductor), transmissive (dielectric),
+// except that a rough conductor or dielectric whose lobes the tree's SH hold (needsWavelets
+// false, e.g. GGX alpha 1) is diffuse: its surfels then take its hemispherical albedo and
+// reflect like a Lambertian surface of that albedo, paying for no wavelets.
 MaterialClass materialClassOf(const Material& material);
+// The albedo of a Lambertian surface that reflects as much of uniform light as the material:
+// the BSDF's hemispherical-hemispherical reflectance (its own albedo for diffuse materials),
+// by a fixed set of 4,096 cosine-weighted directions in and one BSDF sample out each.
+Rgb hemisphericalAlbedo(const Material& material);
 
 // The number of surfels a sampling with these options places on `scene`, and their radius,
 // without placing them (for progress and memory estimates).

@@ -55,7 +55,12 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
             backRadiance += material.radiance;
             ++localEmissive;
           }
-          const Rgb diffuse = material.type == MaterialType::kDiffuse ? surfel.albedo : Rgb(0.0f);
+          // Rough glossy materials whose lobes the SH hold are diffuse surfels too
+          // (materialClassOf), of their hemispherical albedo.
+          const Rgb diffuse = material.type == MaterialType::kDiffuse ||
+                                      surfel.materialClass == MaterialClass::kDiffuse
+                                  ? surfel.albedo
+                                  : Rgb(0.0f);
           if (!isBlack(diffuse)) {
             // Two-sided, as for the path tracer: each light sample lights the side it arrives
             // on, so a wall wound the wrong way is lit on the side the light reaches.

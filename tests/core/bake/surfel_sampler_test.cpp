@@ -253,6 +253,43 @@ TEST(SurfelSamplerTest, MaterialClasses) {
   }
 }
 
+// A conductor so rough that the tree's SH hold its lobes (GGX alpha 1: shLobeError 0.27) is
+// sampled as a diffuse surface of its hemispherical albedo; a glossy one (alpha 0.25) is not.
+TEST(SurfelSamplerTest, ARoughConductorIsDiffuseOfItsHemisphericalAlbedo) {
+  SceneBuilder b;
+  Material rough, glossy;
+  rough.type = glossy.type = MaterialType::kConductor;
+  rough.roughness = 1.0f;
+  glossy.roughness = 0.25f;
+  rough.specular = glossy.specular = Rgb(0.9f, 0.6f, 0.3f);
+  const uint32_t ids[2] = {b.addMaterial(rough), b.addMaterial(glossy)};
+  for (int i = 0; i < 2; ++i) {
+    b.addMesh(makeQuadMesh({0, 0, float(i)}, {1, 0, 0}, {0, 1, 0}, ids[i]));
+  }
+  auto scene = buildScene(b);
+  ASSERT_NE(scene, nullptr);
+  const Rgb albedo = hemisphericalAlbedo(rough);
+  std::printf("[ measured ] GGX alpha 1, specular (0.9, 0.6, 0.3): hemispherical albedo "
+              "(%.3f, %.3f, %.3f)\n", albedo.x, albedo.y, albedo.z);
+  // Below the Fresnel colour (a rough lobe loses light to masking), in its order.
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_GT(albedo[c], 0.3f * rough.specular[c]);
+    EXPECT_LT(albedo[c], rough.specular[c] + 0.05f);
+  }
+  EXPECT_GT(albedo.x, albedo.y);
+  EXPECT_GT(albedo.y, albedo.z);
+  const std::vector<Surfel> surfels = collect(*scene, byCount(100, 1));
+  ASSERT_EQ(surfels.size(), 100u);
+  for (const Surfel& s : surfels) {
+    if (s.triangle / 2 == 0) {
+      EXPECT_EQ(s.materialClass, MaterialClass::kDiffuse);
+      EXPECT_EQ(s.albedo, albedo);
+    } else {
+      EXPECT_EQ(s.materialClass, MaterialClass::kGlossy);
+    }
+  }
+}
+
 TEST(SurfelSamplerTest, BadOptionsAndEmptyScenesAreErrors) {
   auto scene = twoQuadScene();
   ASSERT_NE(scene, nullptr);
