@@ -349,7 +349,11 @@ class TreeWriter::Impl {
 
   std::shared_ptr<const WaveletRadiance> leafWavelet(std::span<Surfel> surfels, uint64_t key) {
     const WaveletRadiance w = options_.wavelets.leaf(surfels, key);
-    if (w.empty()) return nullptr;
+    // Black (glossy surfels no light reaches): no vector, the same as none.
+    const bool black = w.keptNodes() == 0 &&
+                       std::all_of(w.faces().begin(), w.faces().end(),
+                                   [](const WaveletFace& f) { return isBlack(f.scaling); });
+    if (w.empty() || black) return nullptr;
     leafWavelets_.fetch_add(1, std::memory_order_relaxed);
     // Thresholded as every node's vector is.
     const WaveletRadiance* own = &w;
