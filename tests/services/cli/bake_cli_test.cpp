@@ -68,6 +68,27 @@ TEST(BakeCli, BakesWaveletsOnlyForScenesWithGlossyMaterials) {
   EXPECT_NE(diffuse.out.find("wavelets: none"), std::string::npos) << diffuse.out;
 }
 
+// The glossy stage too: its leaves' vectors are keyed by the leaf, whatever the threads or
+// the budget.
+TEST(BakeCli, GlossyBakesGiveTheSameBytesForAnyThreadsAndBudget) {
+  const fs::path dir = testing::makeTempDir("bake-cli-glossy-same");
+  const fs::path shot =
+      testing::sourceDir() / "config/scenes/glossy-cornell/glossy-cornell.shot.toml";
+  std::vector<std::string> trees;
+  for (const char* flags : {"--threads 1", "--threads 2", "--threads 2 --mem-budget 1M"}) {
+    const fs::path out = dir / std::to_string(trees.size());
+    const testing::RunResult r =
+        runPbgi("bake " + shellQuote(shot.string()) + " --out " + shellQuote(out.string()) +
+                " --points 8000 --point-cloud never " + flags);
+    ASSERT_EQ(r.exitCode, 0) << r.output();
+    EXPECT_NE(r.out.find("wavelets (glossy light): "), std::string::npos) << r.out;
+    trees.push_back(slurpFile((out / "glossy-cornell.0001.pbgi").string()));
+  }
+  ASSERT_GT(trees[0].size(), 1000u);
+  EXPECT_TRUE(trees[0] == trees[1]) << "1 and 2 threads differ";
+  EXPECT_TRUE(trees[1] == trees[2]) << "in core and out of core differ";
+}
+
 TEST(BakeCli, InCoreOutOfCoreAndThreadCountsGiveTheSameBytes) {
   const fs::path dir = testing::makeTempDir("bake-cli-same");
   const std::string inCore = bake(dir / "a", "--mem-budget 1G --threads 2");
