@@ -165,6 +165,10 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));
   }
   if (auto s = request.bounceCut.validate(); !s.ok()) return s;
+  if (!(request.tree.wavelets.relativeError >= 0.0f && request.tree.wavelets.relativeError < 1.0f)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "wavelet error {}: expected a fraction in [0, 1)", request.tree.wavelets.relativeError));
+  }
   if (request.waveletResolution < 2 || request.waveletResolution > kMaxMicrobufferResolution ||
       (request.waveletResolution & (request.waveletResolution - 1)) != 0) {
     return absl::InvalidArgumentError(

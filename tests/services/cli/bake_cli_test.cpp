@@ -146,6 +146,13 @@ TEST(BakeCli, BadFlagsAreUsageErrors) {
   r = runPbgi(base + " --mem-budget 100K");
   EXPECT_EQ(r.exitCode, 2);
   EXPECT_NE(r.err.find("too small"), std::string::npos) << r.err;
+  // The wavelet settings are checked whether or not the scene has glossy materials.
+  r = runPbgi(base + " --wavelet-error 1.5");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("wavelet error 1.5"), std::string::npos) << r.err;
+  r = runPbgi(base + " --wavelet-resolution 12");
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("wavelet resolution 12"), std::string::npos) << r.err;
 }
 
 }  // namespace
