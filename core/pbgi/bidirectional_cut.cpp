@@ -244,7 +244,9 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
             "older payload, or damaged)",
             ref.page, ref.index, c, page.children[node.first + c].page));
       }
-      weights[c] = nodeContribution(*child, page.childWavelet(node, c), to.p, to.n);
+      // (A page without wavelets, every page of a diffuse scene's tree, skips the lookup.)
+      weights[c] = nodeContribution(
+          *child, page.wavelets.empty() ? nullptr : page.childWavelet(node, c), to.p, to.n);
       total += weights[c];
     }
     if (!(total > 0.0f)) return Descent{};

@@ -185,9 +185,9 @@ inline Rgb clusterRadiance(const NodeAttributes& a, const ClusterView& view,
   const float covered = view.coverage();
   if (!(covered > 0.0f)) return Rgb(0.0f);
   const Rgb back = a.area > 0.0f ? vmax(a.backPower, Rgb(0.0f)) / a.area : Rgb(0.0f);
-  const Rgb glossy =
-      wavelet != nullptr ? vmax(wavelet->evaluate(view.toReceiver), Rgb(0.0f)) : Rgb(0.0f);
-  return (front * view.area + back * view.backArea + glossy) / covered;
+  Rgb sum = front * view.area + back * view.backArea;
+  if (wavelet != nullptr) sum += vmax(wavelet->evaluate(view.toReceiver), Rgb(0.0f));
+  return sum / covered;
 }
 
 // The node a reference names, DataLoss when the page has no such node.
