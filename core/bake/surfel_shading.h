@@ -8,10 +8,12 @@
 // it arrives on), so that the PBGI integrators differ from the reference only in how they
 // gather indirect light.
 //
-// Only the Lambertian part of a material reflects into this radiance. Conductors and
-// dielectrics have no Lambertian lobe, so glossy and transmissive surfels reflect nothing
+// Only the Lambertian part of a material reflects into this radiance: diffuse materials', and
+// rough conductors and dielectrics that the sampler made diffuse surfels of their
+// hemispherical albedo (materialClassOf). Glossy and transmissive surfels reflect nothing
 // here (they still occlude, and emit if their material emits); their view-dependent radiance
-// belongs to the wavelet stage, which only scenes with such materials pay for.
+// is the wavelet stage's (GlossyLeafBaker below), which only scenes with such materials pay
+// for.
 
 #include <cstdint>
 #include <span>
