@@ -23,15 +23,52 @@ constexpr uint64_t kSurfelDirectLightDomain = 0x5355524644495245ull;
 // And the glossy materials' reflection samples.
 constexpr uint64_t kReflectionDomain = 0x5245464c53455453ull;
 
+// The first global triangle id of each of the scene's meshes, for materialOfTriangle.
+std::vector<uint64_t> meshBases(const Scene& scene) {
+  std::vector<uint64_t> bases(scene.meshes().size());
+  for (size_t m = 0; m < bases.size(); ++m) bases[m] = scene.triangleIdBase(m);
+  return bases;
+}
+
+// The material index of a surfel's triangle (a global triangle id, Scene::globalTriangleId).
+uint32_t materialOfTriangle(const Scene& scene, std::span<const uint64_t> bases,
+                            uint32_t triangle) {
+  const auto it = std::upper_bound(bases.begin(), bases.end(), uint64_t{triangle});
+  PBGI_CHECK(it != bases.begin());
+  const size_t m = static_cast<size_t>(it - bases.begin()) - 1;
+  const uint64_t local = triangle - bases[m];
+  PBGI_CHECK_LT(local, scene.meshes()[m].triangleCount());
+  return scene.meshes()[m].materials[local];
+}
+
+// A light sample arriving at a surfel, in the frame of its normal: direction and radiance over
+// its densities (light choice and solid angle), what the BSDF then sends each way.
+struct Arrival {
+  Vec3f wiLocal;
+  Rgb value;
+};
+
+// `count` light samples at a surfel (each lighting the side it arrives on, with its shadow
+// ray), the blocked and the non-finite left out, each weighted by `weight`.
+void sampleArrivals(const Scene& scene, const Surfel& surfel, const Frame& frame, int count,
+                    float weight, Rng& rng, std::vector<Arrival>* out) {
+  for (int k = 0; k < count; ++k) {
+    float selectPdf = 0.0f;
+    const std::optional<LightSample> ls =
+        sampleUnoccludedLight(scene, surfel.position, surfel.normal, rng, &selectPdf);
+    if (!ls) continue;
+    const Rgb value = ls->radiance * (weight / (ls->pdf * selectPdf));
+    if (isFinite(value)) out->push_back({frame.toLocal(ls->wi), value});
+  }
+}
+
 }  // namespace
 
 SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surfels,
                                       uint64_t firstSurfelIndex,
                                       const SurfelShadingOptions& options) {
   PBGI_CHECK_GT(options.lightSamples, 0);
-  const std::vector<MeshData>& meshes = scene.meshes();
-  std::vector<uint64_t> bases(meshes.size());
-  for (size_t m = 0; m < meshes.size(); ++m) bases[m] = scene.triangleIdBase(m);
+  const std::vector<uint64_t> bases = meshBases(scene);
   const float invSamples = 1.0f / static_cast<float>(options.lightSamples);
 
   std::atomic<uint64_t> emissive{0}, discarded{0}, nonFinite{0};
@@ -41,12 +78,8 @@ SurfelShadingStats shadeSurfelsDirect(const Scene& scene, std::span<Surfel> surf
         uint64_t localEmissive = 0, localDiscarded = 0, localNonFinite = 0;
         for (size_t i = range.begin(); i != range.end(); ++i) {
           Surfel& surfel = surfels[i];
-          const auto it = std::upper_bound(bases.begin(), bases.end(), uint64_t{surfel.triangle});
-          PBGI_CHECK(it != bases.begin());
-          const size_t m = static_cast<size_t>(it - bases.begin()) - 1;
-          const uint64_t local = surfel.triangle - bases[m];
-          PBGI_CHECK_LT(local, meshes[m].triangleCount());
-          const Material& material = scene.material(meshes[m].materials[local]);
+          const Material& material =
+              scene.material(materialOfTriangle(scene, bases, surfel.triangle));
 
           // Emissive materials emit on both sides, as the scene's triangle lights do.
           Rgb radiance(0.0f), backRadiance(0.0f);
@@ -128,9 +161,7 @@ bool needsWavelets(const Material& material, float tolerance) {
 GlossyLeafBaker::GlossyLeafBaker(const Scene& scene, const GlossyBakeOptions& options)
     : scene_(&scene), options_(options) {
   PBGI_CHECK_GT(options.lightSamples, 0);
-  const std::vector<MeshData>& meshes = scene.meshes();
-  bases_.resize(meshes.size());
-  for (size_t m = 0; m < meshes.size(); ++m) bases_[m] = scene.triangleIdBase(m);
+  bases_ = meshBases(scene);
   needs_.resize(scene.materials().size());
   reflection_.resize(needs_.size());
   const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options.resolution);
@@ -216,11 +247,6 @@ Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame
 }  // namespace
 
 WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t leafKey) const {
-  const std::vector<MeshData>& meshes = scene_->meshes();
-  struct Arrival {
-    Vec3f wiLocal;
-    Rgb value;  // radiance / (pdf * light selection pdf) / samples
-  };
   struct Glossy {
     Surfel* surfel;
     uint32_t material;
@@ -237,12 +263,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
         s.materialClass != MaterialClass::kTransmissive) {
       continue;
     }
-    const auto it = std::upper_bound(bases_.begin(), bases_.end(), uint64_t{s.triangle});
-    if (it == bases_.begin()) continue;
-    const size_t m = static_cast<size_t>(it - bases_.begin()) - 1;
-    const uint64_t local = s.triangle - bases_[m];
-    if (local >= meshes[m].triangleCount()) continue;
-    const uint32_t id = meshes[m].materials[local];
+    const uint32_t id = materialOfTriangle(*scene_, bases_, s.triangle);
     if (!needs_[id]) continue;
     const Material& material = scene_->material(id);
     Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
@@ -251,14 +272,9 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
       if (options_.directLight && options_.specularChains) smooth.push_back(std::move(g));
       continue;
     }
-    Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
-    for (int k = 0; options_.directLight && k < options_.lightSamples; ++k) {
-      float selectPdf = 0.0f;
-      const std::optional<LightSample> ls =
-          sampleUnoccludedLight(*scene_, s.position, s.normal, rng, &selectPdf);
-      if (!ls) continue;
-      const Rgb value = ls->radiance * (invSamples / (ls->pdf * selectPdf));
-      if (isFinite(value)) g.arrivals.push_back({g.frame.toLocal(ls->wi), value});
+    if (options_.directLight) {
+      Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
+      sampleArrivals(*scene_, s, g.frame, options_.lightSamples, invSamples, rng, &g.arrivals);
     }
     if (!g.arrivals.empty() || incoming_ != nullptr) glossy.push_back(std::move(g));
   }
@@ -399,9 +415,7 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     g.surfel->radiance = g.front * kInvPi;
     g.surfel->backRadiance = g.back * kInvPi;
   }
-  return WaveletRadiance::project(
-      [&](const Vec3f& dir) { return intensity[static_cast<size_t>(cubePixelIndex(dir, options_.resolution))]; },
-      options_.resolution, 0.0f);
+  return WaveletRadiance::fromTexels(intensity, options_.resolution, 0.0f);
 }
 
 WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
@@ -409,21 +423,11 @@ WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
                                      float threshold, int lightSamples, Rng& rng) {
   PBGI_CHECK_GT(lightSamples, 0);
   // The light samples first, shared by every direction out.
-  struct Arrival {
-    Vec3f wiLocal;
-    Rgb value;  // radiance / (pdf * light selection pdf)
-  };
   std::vector<Arrival> arrivals;
   const Frame frame(surfel.normal);
-  for (int k = 0; k < lightSamples; ++k) {
-    // Its shadow ray leaves on the side the sample arrives from.
-    float selectPdf = 0.0f;
-    const std::optional<LightSample> ls =
-        sampleUnoccludedLight(scene, surfel.position, surfel.normal, rng, &selectPdf);
-    if (ls) arrivals.push_back({frame.toLocal(ls->wi), ls->radiance / (ls->pdf * selectPdf)});
-  }
+  sampleArrivals(scene, surfel, frame, lightSamples, 1.0f / static_cast<float>(lightSamples), rng,
+                 &arrivals);
   const Bsdf bsdf(material, albedo);
-  const float invSamples = 1.0f / static_cast<float>(lightSamples);
   return WaveletRadiance::project(
       [&](const Vec3f& wo) {
         const Vec3f woLocal = frame.toLocal(wo);
@@ -431,7 +435,7 @@ WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,
         for (const Arrival& a : arrivals) {
           sum += bsdf.f(woLocal, a.wiLocal) * a.value * std::abs(a.wiLocal.z);
         }
-        return sum * invSamples;
+        return sum;
       },
       n, threshold);
 }

@@ -98,15 +98,23 @@ float shProjectionError(const std::function<float(const Vec3f&)>& f, int n) {
 WaveletRadiance WaveletRadiance::project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
                                          float threshold) {
   PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
-  PBGI_CHECK(threshold >= 0.0f);
   const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(n);
+  std::vector<Rgb> values(cube->directions.size());
+  for (size_t t = 0; t < values.size(); ++t) values[t] = radiance(cube->directions[t]);
+  return fromTexels(values, n, threshold);
+}
+
+WaveletRadiance WaveletRadiance::fromTexels(std::span<const Rgb> values, int n, float threshold) {
+  PBGI_CHECK(isPowerOfTwo(n) && n <= kMaxMicrobufferResolution);
+  PBGI_CHECK(threshold >= 0.0f);
   const size_t texels = static_cast<size_t>(n) * n;
+  PBGI_CHECK_EQ(values.size(), 6 * texels);
   std::vector<float> coefficients(6 * 3 * texels);
   uint64_t nonFinite = 0;
   for (int face = 0; face < 6; ++face) {
     float* channel = &coefficients[face * 3 * texels];
     for (size_t k = 0; k < texels; ++k) {
-      Rgb value = radiance(cube->directions[face * texels + k]);
+      Rgb value = values[face * texels + k];
       if (!isFinite(value)) {
         value = Rgb(0.0f);
         ++nonFinite;

@@ -74,6 +74,8 @@ class WaveletRadiance {
   // in nonFiniteSamples()).
   static WaveletRadiance project(const std::function<Rgb(const Vec3f&)>& radiance, int n,
                                  float threshold);
+  // The same from values already at the texel centres, in the cube's layout (6 n n of them).
+  static WaveletRadiance fromTexels(std::span<const Rgb> texels, int n, float threshold);
 
   // The coefficients of every face, dense: face-major, then channel, then the n x n pyramid
   // layout of haarForward (6 x 3 x n x n floats), dropped ones 0.
