@@ -406,7 +406,9 @@ std::vector<WaveletEntry> codeWavelets(std::span<const PageNode> nodes,
     const std::vector<float> full = given->dense();
     const double fullNorm = std::sqrt(norm2Of(full));
     WaveletEntry entry{static_cast<uint32_t>(i), 0, 0.0f,
-                       asStored(WaveletRadiance::fromDense(full, n, 0.0f, relativeError))};
+                       asStored(nodes[i].waveletWhole
+                                    ? *nodes[i].waveletWhole
+                                    : WaveletRadiance::fromDense(full, n, 0.0f, relativeError))};
     std::vector<float> got = entry.stored.dense();
     const int64_t p = parentOf[i];
     if (p >= 0 && static_cast<size_t>(p) < i && !decoded[p].empty() &&

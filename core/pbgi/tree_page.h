@@ -253,10 +253,11 @@ struct PageNode {
   std::vector<GhostNode> ghosts;
   // The node's glossy light as wavelet intensity (empty: none; see TreePage::wavelets).
   std::shared_ptr<const WaveletRadiance> wavelet;
-  // The most its entry in the wavelet section takes (the whole vector coded within the page's
-  // error; a difference is kept only when smaller), what the pager counts; 0: the size of
-  // `wavelet` as it is.
-  size_t waveletBytes = 0;
+  // `wavelet` thresholded whole to the page's error (WaveletRadiance::fromDense), when the
+  // writer has it: the entry the page stores unless a difference from the parent's is
+  // smaller, so the most the entry takes (what the pager counts), and what the encoder then
+  // need not compute again. Null: the encoder computes it, the pager counts `wavelet`.
+  std::shared_ptr<const WaveletRadiance> waveletWhole;
 };
 
 // The float fields of a node record after its point count (bounds, centroid, cone, area,

@@ -31,7 +31,7 @@ size_t TreePager::nodeBytes(const PageNode& node, size_t childCount) const {
   // Each wavelet entry counts the section's header too: a page holds at most that much more.
   if (node.wavelet && !node.wavelet->empty()) {
     bytes += kWaveletSectionHeaderBytes +
-             (node.waveletBytes > 0 ? node.waveletBytes : waveletEntryBytes(*node.wavelet));
+             waveletEntryBytes(node.waveletWhole ? *node.waveletWhole : *node.wavelet);
   }
   return bytes;
 }

@@ -380,7 +380,7 @@ class TreeWriter::Impl {
     }
     waveletStack_.push_back(node.wavelet);
     if (node.wavelet) {
-      node.waveletBytes = waveletEntryBytes(WaveletRadiance::fromDense(
+      node.waveletWhole = std::make_shared<const WaveletRadiance>(WaveletRadiance::fromDense(
           node.wavelet->dense(), node.wavelet->resolution(), 0.0f,
           options_.wavelets.relativeError));  // as the page codes it whole
       ++waveletReport_.nodes;
