@@ -38,5 +38,5 @@ run_target() {
 extra="$*"
 run_target page_file "tests/fuzz/page_file_fuzz.cpp formats/pbgi/page_file_decode.cpp" \
   tests/data/pbgi/fuzz_corpus "${PBGI_FUZZ_BINARY:-}"
-run_target tree_page "tests/fuzz/tree_page_fuzz.cpp core/pbgi/tree_page.cpp core/pbgi/tree.cpp core/pbgi/sh.cpp" \
+run_target tree_page "tests/fuzz/tree_page_fuzz.cpp core/pbgi/tree_page.cpp core/pbgi/tree.cpp core/pbgi/sh.cpp core/pbgi/wavelet.cpp core/pbgi/microbuffer.cpp" \
   tests/data/pbgi_tree/fuzz_corpus "${PBGI_TREE_FUZZ_BINARY:-}"
