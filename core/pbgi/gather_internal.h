@@ -323,14 +323,22 @@ absl::Status visitNode(const TreePage& page, NodeRef ref, uint32_t depth, const 
 template <typename Splat, typename Leaf>
 absl::Status TreeWalk::run(TreePageSource& tree, const Vec3f& p, const Vec3f& n,
                            GatherStats* stats, Splat&& splat, Leaf&& leaf) {
+  const StackEntry root{tree.root(), 0};
+  return runFrom(tree, std::span<const StackEntry>(&root, 1), p, n, stats, splat, leaf);
+}
+
+template <typename Splat, typename Leaf>
+absl::Status TreeWalk::runFrom(TreePageSource& tree, std::span<const StackEntry> starts,
+                               const Vec3f& p, const Vec3f& n, GatherStats* stats, Splat&& splat,
+                               Leaf&& leaf) {
   using namespace gather_internal;
   const float planeSlack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
-  stack_.clear();
-  stack_.push_back({tree.root(), 0});
+  stack_.assign(starts.rbegin(), starts.rend());
   absl::Status status;
   while (!stack_.empty() && status.ok()) {
     const StackEntry entry = stack_.back();
     stack_.pop_back();
+    current_ = entry;
     absl::StatusOr<const TreePage*> pageOr = holdPage(held_, useClock_, tree, entry.ref.page, stats);
     if (!pageOr.ok()) {
       status = pageOr.status();

@@ -30,6 +30,16 @@ double cornerSolidAngle(double x, double y) {
   return std::atan2(x * y, std::sqrt(1.0 + x * x + y * y));
 }
 
+// The unit direction through face coordinates (u, v).
+void unitThroughFace(const FaceAxes& axes, double u, double v, Vec3d& out) {
+  double p[3];
+  p[axes.a] = axes.sign;
+  p[axes.b] = u;
+  p[axes.c] = v;
+  const double len = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+  for (int i = 0; i < 3; ++i) out[i] = p[i] / len;
+}
+
 std::shared_ptr<const MicrobufferTables> computeTables(int n) {
   auto tables = std::make_shared<MicrobufferTables>();
   tables->resolution = n;
@@ -42,22 +52,13 @@ std::shared_ptr<const MicrobufferTables> computeTables(int n) {
   const double step = 2.0 / n;
   for (int f = 0; f < kCubeFaces; ++f) {
     const FaceAxes axes = faceAxes(f);
-    // The unit direction through face coordinates (u, v).
-    auto unit = [&](double u, double v, Vec3d& out) {
-      double p[3];
-      p[axes.a] = axes.sign;
-      p[axes.b] = u;
-      p[axes.c] = v;
-      const double len = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
-      for (int i = 0; i < 3; ++i) out[i] = p[i] / len;
-    };
+    auto unit = [&](double u, double v, Vec3d& out) { unitThroughFace(axes, u, v, out); };
     for (int j = 0; j < n; ++j) {
       const double v0 = -1.0 + j * step, v1 = v0 + step;
       for (int i = 0; i < n; ++i) {
         const double u0 = -1.0 + i * step, u1 = u0 + step;
         const size_t k = (static_cast<size_t>(f) * n + j) * n + i;
-        const double omega = cornerSolidAngle(u1, v1) - cornerSolidAngle(u0, v1) -
-                             cornerSolidAngle(u1, v0) + cornerSolidAngle(u0, v0);
+        const double omega = cubeRectSolidAngle(u0, u1, v0, v1);
         tables->solidAngles[k] = static_cast<float>(omega);
         tables->widths[k] = static_cast<float>(std::sqrt(omega));
         tables->inverseWidths[k] = static_cast<float>(1.0 / std::sqrt(omega));
@@ -145,18 +146,32 @@ void Microbuffer::clear(const Vec3f& origin, const Vec3f& normal) {
   }
 }
 
-int cubePixelIndex(const Vec3f& dir, int n) {
+CubePoint cubePoint(const Vec3f& dir) {
   const float ax = std::abs(dir.x), ay = std::abs(dir.y), az = std::abs(dir.z);
   const int a = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);
   const int f = 2 * a + (dir[a] < 0.0f ? 1 : 0);
   const FaceAxes axes = faceAxes(f);
   const float inv = 1.0f / std::abs(dir[a]);
+  return {f, dir[axes.b] * inv, dir[axes.c] * inv};
+}
+
+Vec3f cubeDirection(int face, double u, double v) {
+  Vec3d d;
+  unitThroughFace(faceAxes(face), u, v, d);
+  return Vec3f(static_cast<float>(d[0]), static_cast<float>(d[1]), static_cast<float>(d[2]));
+}
+
+double cubeRectSolidAngle(double u0, double u1, double v0, double v1) {
+  return cornerSolidAngle(u1, v1) - cornerSolidAngle(u0, v1) - cornerSolidAngle(u1, v0) +
+         cornerSolidAngle(u0, v0);
+}
+
+int cubePixelIndex(const Vec3f& dir, int n) {
+  const CubePoint c = cubePoint(dir);
   const float half = 0.5f * static_cast<float>(n);
-  const int i =
-      std::clamp(static_cast<int>(std::floor((dir[axes.b] * inv + 1.0f) * half)), 0, n - 1);
-  const int j =
-      std::clamp(static_cast<int>(std::floor((dir[axes.c] * inv + 1.0f) * half)), 0, n - 1);
-  return (f * n + j) * n + i;
+  const int i = std::clamp(static_cast<int>(std::floor((c.u + 1.0f) * half)), 0, n - 1);
+  const int j = std::clamp(static_cast<int>(std::floor((c.v + 1.0f) * half)), 0, n - 1);
+  return (c.face * n + j) * n + i;
 }
 
 int Microbuffer::pixelIndex(const Vec3f& dir) const { return cubePixelIndex(dir, n_); }

@@ -65,6 +65,18 @@ std::shared_ptr<const MicrobufferTables> microbufferTables(int resolution);
 // layout above: (f N + j) N + i.
 int cubePixelIndex(const Vec3f& dir, int resolution);
 
+// Where direction `dir` (any length but 0) meets the cube: face f (layout above) and its face
+// coordinates (u, v) in [-1, 1].
+struct CubePoint {
+  int face;
+  float u, v;
+};
+CubePoint cubePoint(const Vec3f& dir);
+// The unit direction through face coordinates (u, v) of face f.
+Vec3f cubeDirection(int face, double u, double v);
+// The exact solid angle of the square [u0, u1] x [v0, v1] of a face.
+double cubeRectSolidAngle(double u0, double u1, double v0, double v1);
+
 class Microbuffer {
  public:
   explicit Microbuffer(int resolution);

@@ -8,6 +8,7 @@
 #include <memory>
 #include <optional>
 #include <queue>
+#include <span>
 #include <unordered_map>
 #include <vector>
 
@@ -32,11 +33,20 @@ class TreeWalk {
   absl::Status run(TreePageSource& tree, const Vec3f& p, const Vec3f& n, GatherStats* stats,
                    Splat&& splat, Leaf&& leaf);
 
- private:
+  // A node and its depth below the root.
   struct StackEntry {
     NodeRef ref;
     uint32_t depth;
   };
+  // The same walk from given nodes instead of the root (the subtrees of nodes splatted before,
+  // walked again: adaptive_gather.h), in the order given.
+  template <typename Splat, typename Leaf>
+  absl::Status runFrom(TreePageSource& tree, std::span<const StackEntry> starts, const Vec3f& p,
+                       const Vec3f& n, GatherStats* stats, Splat&& splat, Leaf&& leaf);
+  // The node being visited, for splat and leaf callbacks that record what they took.
+  const StackEntry& current() const { return current_; }
+
+ private:
   struct HeldPage {
     uint32_t id = 0;
     std::shared_ptr<const TreePage> page;
@@ -46,6 +56,7 @@ class TreeWalk {
   std::vector<StackEntry> stack_;
   std::vector<HeldPage> held_;
   uint64_t useClock_ = 0;
+  StackEntry current_{};
 };
 
 // TreeWalk's walk (the same tests, the same nodes taken or refined), page by page: the nodes

@@ -12,65 +12,27 @@
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
 #include "core/scene/material.h"
+#include "tests/support/bsdf_reference.h"
 #include "tests/support/memory_tree.h"
 #include "tests/support/surfel_shapes.h"
 
 namespace pbgi {
 namespace {
 
+using testing::conductorMaterial;
+using testing::dielectricMaterial;
+using testing::diffuseMaterial;
+using testing::directionalAlbedo;
 using testing::FailingPageSource;
+using testing::referenceDiskReflection;
+using testing::relativeError;
+using testing::unitWo;
 using testing::memoryTree;
 using testing::MemoryTreeSource;
 using testing::RecordingSource;
 using testing::treeOf;
 using testing::diskSurfels;
 using testing::sphereSurfels;
-
-Material diffuseMaterial(const Rgb& albedo) {
-  Material m;
-  m.type = MaterialType::kDiffuse;
-  m.albedo = albedo;
-  return m;
-}
-
-Material dielectricMaterial(float roughness) {
-  Material m;
-  m.type = MaterialType::kDielectric;
-  m.roughness = roughness;
-  m.ior = 1.5f;
-  return m;
-}
-
-Material conductorMaterial(float roughness, const Rgb& specular,
-                           MicrofacetDistribution distribution = MicrofacetDistribution::kGgx) {
-  Material m;
-  m.type = MaterialType::kConductor;
-  m.roughness = roughness;
-  m.specular = specular;
-  m.distribution = distribution;
-  return m;
-}
-
-// The directional albedo, by stratified Monte Carlo with the BSDF's own sampling.
-Rgb directionalAlbedo(const Bsdf& bsdf, const Vec3f& wo, int n = 512) {
-  Rng rng(3);
-  double sum[3] = {0.0, 0.0, 0.0};
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      const Vec2f u((i + rng.uniform()) / n, (j + rng.uniform()) / n);
-      const auto s = bsdf.sample(wo, rng.uniform(), u);
-      if (!s || s->wi.z <= 0.0f) continue;
-      const Rgb w = s->f * (s->wi.z / s->pdf);
-      for (int c = 0; c < 3; ++c) sum[c] += w[c];
-    }
-  }
-  const double count = double(n) * n;
-  return Rgb(float(sum[0] / count), float(sum[1] / count), float(sum[2] / count));
-}
-
-float relativeError(float value, float expected) { return std::abs(value / expected - 1.0f); }
-
-Vec3f unitWo(float x, float y, float z) { return normalize(Vec3f(x, y, z)); }
 
 // The pixels' regions tile the hemisphere: their solid angles add up to 2 pi, and directions
 // drawn uniformly over it fall into the pixels in proportion to those solid angles.
@@ -211,30 +173,6 @@ TEST(WarpedGather, DielectricReflectionIsRightOnAverage) {
                 fmt::format("{}", wo).c_str(), receivers, mean / albedo);
     EXPECT_NEAR(mean / albedo, 1.0, 0.03);
   }
-}
-
-// Reflected radiance from a disk emitter by brute force: stratified BSDF samples ray-cast
-// against the exact disk.
-double referenceDiskReflection(const Bsdf& bsdf, const Frame& frame, const Vec3f& wo,
-                               const Vec3f& center, const Vec3f& normal, float radius,
-                               float radiance) {
-  const int n = 1024;
-  Rng rng(5);
-  double sum = 0.0;
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      const auto s =
-          bsdf.sample(wo, rng.uniform(), Vec2f((i + rng.uniform()) / n, (j + rng.uniform()) / n));
-      if (!s || s->wi.z <= 0.0f) continue;
-      const Vec3f w = frame.toWorld(s->wi);
-      const float denom = dot(w, normal);
-      if (!(denom < 0.0f)) continue;
-      const float t = dot(center, normal) / denom;  // the receiver is at the origin
-      if (!(t > 0.0f) || (w * t - center).length2() > radius * radius) continue;
-      sum += s->f.x * s->wi.z / s->pdf * radiance;
-    }
-  }
-  return sum / (double(n) * n);
 }
 
 // A small bright disk in the mirror direction of a sharp conductor: what warping is for. The
