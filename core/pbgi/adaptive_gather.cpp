@@ -32,6 +32,9 @@ constexpr float kInvGolden = 0.618033988749895f;
 // A far disk is splatted as a footprint while at most this many times the cell its centre is
 // seen in, cut into pieces at most kMaxDiskSplits times; larger ones are ray-cast.
 constexpr float kMaxFootprintCells = 16.0f;
+// The angular radius of a whole cube face seen from the centre: its corners at acos(1/sqrt 3).
+constexpr float kFaceCos = 0.57735027f;
+constexpr float kFaceSin = 0.81649658f;
 constexpr int kMaxDiskSplits = 3;
 // Where the cells' centres catch less than this share of the sampled BSDF weight, the lobe is
 // narrower than the cells and the weights come from the samples themselves.
@@ -96,19 +99,54 @@ void AdaptiveGatherer::initCells() {
       }
     }
   }
-  for (Cell& c : cells_) {
-    c.dir = cubeDirection(c.face, c.u0 + 0.5 * c.size, c.v0 + 0.5 * c.size);
-    c.solidAngle = static_cast<float>(cubeRectSolidAngle(c.u0, c.u0 + c.size, c.v0, c.v0 + c.size));
-    c.child = c.firstRecord = c.leafIndex = -1;
-    // Entirely below the horizon when its four corners are: the square is planar, and the
-    // height above a plane through the origin is linear on it.
-    c.active = false;
-    for (int k = 0; k < 4 && !c.active; ++k) {
-      const Vec3f corner = cubeDirection(c.face, c.u0 + (k & 1) * c.size, c.v0 + (k >> 1) * c.size);
-      c.active = dot(corner, frame_.n) > 0.0f;
+  for (Cell& c : cells_) shape(&c);
+  leafCount_ = static_cast<int>(cells_.size());
+}
+
+void AdaptiveGatherer::shape(Cell* c) const {
+  const float half = 0.5f * c->size;
+  c->dir = cubeDirection(c->face, c->u0 + half, c->v0 + half);
+  c->solidAngle = static_cast<float>(cubeRectSolidAngle(c->u0, c->u0 + c->size, c->v0, c->v0 + c->size));
+  c->child = c->firstRecord = c->leafIndex = -1;
+  // Entirely below the horizon when its four corners are: the square is planar, and the
+  // height above a plane through the origin is linear on it. Its angular radius: the farthest
+  // corner's angle from its centre.
+  c->active = false;
+  float cosRadius = 1.0f;
+  for (int k = 0; k < 4; ++k) {
+    const Vec3f corner = cubeDirection(c->face, c->u0 + (k & 1) * c->size, c->v0 + (k >> 1) * c->size);
+    c->active = c->active || dot(corner, frame_.n) > 0.0f;
+    cosRadius = std::min(cosRadius, dot(corner, c->dir));
+  }
+  c->cosRadius = std::clamp(cosRadius, -1.0f, 1.0f);
+  c->sinRadius = std::sqrt(1.0f - c->cosRadius * c->cosRadius);
+}
+
+bool AdaptiveGatherer::reachesCellBelow(const Vec3f& dir, float sinRadius, float solidAngle) {
+  // Cones of half-angles a (the query's, below pi / 2 unless it holds the receiver) and b (a
+  // cell's, at most a face's) meet when the angle between their axes is at most a + b.
+  const bool everywhere = !(sinRadius < 1.0f);
+  const float sinA = everywhere ? 1.0f : sinRadius;
+  const float cosA = everywhere ? -1.0f : std::sqrt(1.0f - sinA * sinA);
+  auto reaches = [&](const Vec3f& axis, float cosB, float sinB) {
+    return everywhere || dot(dir, axis) >= cosA * cosB - sinA * sinB;
+  };
+  cellStack_.clear();
+  const int perFace = options_.baseResolution * options_.baseResolution;
+  for (int f = 0; f < kCubeFaces; ++f) {
+    if (!reaches(cubeDirection(f, 0.0f, 0.0f), kFaceCos, kFaceSin)) continue;
+    for (int c = f * perFace; c < (f + 1) * perFace; ++c) cellStack_.push_back(c);
+  }
+  while (!cellStack_.empty()) {
+    const Cell& cell = cells_[cellStack_.back()];
+    cellStack_.pop_back();
+    if (!reaches(cell.dir, cell.cosRadius, cell.sinRadius)) continue;
+    if (cell.solidAngle < solidAngle) return true;  // so are its leaves
+    if (cell.child >= 0) {
+      for (int q = 0; q < 4; ++q) cellStack_.push_back(cell.child + q);
     }
   }
-  leafCount_ = static_cast<int>(cells_.size());
+  return false;
 }
 
 void AdaptiveGatherer::split(int c) {
@@ -122,14 +160,7 @@ void AdaptiveGatherer::split(int c) {
     k.u0 = parent.u0 + (q & 1) * half;
     k.v0 = parent.v0 + (q >> 1) * half;
     k.size = half;
-    k.dir = cubeDirection(k.face, k.u0 + 0.5 * half, k.v0 + 0.5 * half);
-    k.solidAngle = static_cast<float>(cubeRectSolidAngle(k.u0, k.u0 + half, k.v0, k.v0 + half));
-    k.child = k.firstRecord = k.leafIndex = -1;
-    k.active = false;
-    for (int e = 0; e < 4 && !k.active; ++e) {
-      const Vec3f corner = cubeDirection(k.face, k.u0 + (e & 1) * half, k.v0 + (e >> 1) * half);
-      k.active = dot(corner, frame_.n) > 0.0f;
-    }
+    shape(&k);
     cells_.push_back(k);
   }
   if (bsdf_ != nullptr) {
@@ -244,12 +275,19 @@ void AdaptiveGatherer::weigh(const Bsdf& bsdf, const Vec3f& wo) {
 
 bool AdaptiveGatherer::place(int c, const Record& r, GatherStats* stats) {
   Cell& cell = cells_[c];
+  float room = options_.splatFraction * cell.solidAngle;
+  if (r.omega > room || r.boundOmega > kMaxExtentFactor * room) return false;
+  // A node must also be small against every cell its bounds reach: one placed by its centroid
+  // into a large cell beside or around small ones (a glossy lobe's) would leave those black.
+  if (r.boundSin > 0.0f && reachesCellBelow(r.dir, r.boundSin, r.omega / options_.splatFraction)) {
+    return false;
+  }
+  // Only a record small against the cells it reaches is invisible through a black cell: a
+  // large node whose centroid falls beside a sharp lobe still covers the lobe's cells.
   if (!cell.active || isBlack(cell.weight)) {
-    ++stats->clustersInvisible;  // seen only through a black cell: nothing to reflect
+    ++stats->clustersInvisible;
     return true;
   }
-  const float room = options_.splatFraction * cell.solidAngle;
-  if (r.omega > room || r.boundOmega > kMaxExtentFactor * room) return false;
   compose(c, r);
   return true;
 }
@@ -321,7 +359,8 @@ void AdaptiveGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf,
       // Far and not much larger than the cell it is seen in: its footprint, cut into pieces as
       // small as the cells they land in (a disk about a cell's size placed whole by its centre
       // would leave that cell's coverage all or nothing).
-      if (omega <= kMaxFootprintCells * cells_[leafOf(dir)].solidAngle) {
+      if (omega <= kMaxFootprintCells * cells_[leafOf(dir)].solidAngle &&
+          !reachesCellBelow(dir, s.radius / distance, omega / kMaxFootprintCells)) {
         placeDisk(r, stats);
         ++stats->disksSplatted;
         continue;
@@ -355,6 +394,7 @@ absl::Status AdaptiveGatherer::traverse(TreePageSource& tree,
     r.distance = distance;
     r.omega = view.coverage() / distance2;  // both sides cover
     r.boundOmega = kPi * bounds.boundRadius2 / bounds.centerDistance2;
+    r.boundSin = std::sqrt(bounds.boundRadius2 / bounds.centerDistance2);
     if (!(r.omega > 0.0f)) {
       ++stats->clustersInvisible;  // no area towards the receiver
       return true;

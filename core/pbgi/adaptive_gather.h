@@ -107,6 +107,7 @@ class AdaptiveGatherer {
     int32_t leafIndex = -1;    // in leaves_, -1 for split cells
     uint8_t face = 0, level = 0;
     bool active = false;       // reaches above the horizon
+    float cosRadius = 1.0f, sinRadius = 0.0f;  // of the angle from dir to the farthest corner
     Rgb weight{0.0f};  // f cos solid angle at the centre, scaled (see the header comment)
     LayeredPixel pixel;
   };
@@ -117,7 +118,8 @@ class AdaptiveGatherer {
     int32_t next;
     Vec3f dir;
     float distance, extent, omega;  // omega: the splat's solid angle
-    float boundOmega;               // a node's bounding sphere's solid angle
+    float boundOmega;               // a node's bounding sphere's solid angle ...
+    float boundSin;                 // ... and the sine of its half-angle (0 for disks)
     Rgb radiance;                   // not yet scaled by coverage
   };
   struct Disk {
@@ -136,6 +138,12 @@ class AdaptiveGatherer {
   int leafOf(const Vec3f& dir) const;  // index in cells_
   void refineByBsdf(const Bsdf& bsdf, const Vec3f& wo, const Vec2f& jitter);
   void weigh(const Bsdf& bsdf, const Vec3f& wo);
+  // Sets a cell's centre, solid angle, angular radius and whether it reaches above the
+  // horizon from its face square; clears its links.
+  void shape(Cell* c) const;
+  // Whether the cone of half-angle asin(sinRadius) around dir reaches a cell of less than
+  // `solidAngle` (the quadtree walked from the roots, only into cells the cone reaches).
+  bool reachesCellBelow(const Vec3f& dir, float sinRadius, float solidAngle);
   // Composes a splat into leaf cell c (recording it); false when c cannot hold it whole.
   bool place(int c, const Record& r, GatherStats* stats);
   void compose(int c, const Record& r);
@@ -164,6 +172,7 @@ class AdaptiveGatherer {
   std::vector<Sample> samples_;
   std::vector<float> mass_;
   std::vector<int32_t> work_;
+  std::vector<int32_t> cellStack_;
   std::vector<TreeWalk::StackEntry> rewalk_;
   int leafCount_ = 0;
   int lightSplits_ = 0;

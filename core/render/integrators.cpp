@@ -31,6 +31,10 @@ const std::vector<ParamSpec>& pbgiParams() {
        .defaultText = "bidirectional",
        .help = "how diffuse receivers gather: one bidirectional cut per block of pixels, or a "
                "microbuffer per pixel"},
+      {.key = "glossy_gather", .type = ParamType::kChoice, .choices = {"adaptive", "warped"},
+       .defaultText = "adaptive",
+       .help = "how glossy receivers gather: a quadtree microbuffer refined by the BSDF and the "
+               "light, or one warped by the BSDF"},
       {.key = "quality", .type = ParamType::kChoice, .choices = {"draft", "default", "high"},
        .defaultText = "default", .help = "preset of every threshold below"},
       {.key = "light_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
@@ -61,7 +65,7 @@ const std::vector<ParamSpec>& pbgiParams() {
        .help = "per-pixel: largest solid angle (sr) splatted as one cluster"},
       {.key = "microbuffer_resolution", .type = ParamType::kInt, .lo = 1,
        .hi = kMaxMicrobufferResolution, .defaultText = "the preset's",
-       .help = "per-pixel and glossy: microbuffer pixels per cube face side"},
+       .help = "per-pixel and warped glossy: microbuffer pixels per cube face side"},
       {.key = "gathers_per_pixel", .type = ParamType::kInt, .lo = 1, .hi = 64, .defaultText = "4",
        .help = "most microbuffer gathers the samples of one pixel make"},
       {.key = "cache_mb", .type = ParamType::kInt, .lo = 1, .hi = 1 << 24, .defaultText = "256",
@@ -92,6 +96,9 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.perPixel.maxSolidAngle = static_cast<float>(p.floatOr("max_solid_angle", s.perPixel.maxSolidAngle));
   s.perPixel.resolution = static_cast<int>(p.intOr("microbuffer_resolution", s.perPixel.resolution));
   s.glossy = glossyGatherOptions(s.perPixel);
+  s.glossyGather = p.choiceOr("glossy_gather", "adaptive") == "warped" ? GlossyGatherKind::kWarped
+                                                                       : GlossyGatherKind::kAdaptive;
+  s.adaptive = adaptiveGatherOptions(s.perPixel);
   s.maxGathersPerPixel = static_cast<int>(p.intOr("gathers_per_pixel", 4));
   s.cut = *cutPreset(quality);
   s.cut.lightSolidAngle = static_cast<float>(p.floatOr("light_solid_angle", s.cut.lightSolidAngle));
@@ -121,6 +128,7 @@ absl::Status validatePbgi(const RenderSettings& r) {
   }
   if (absl::Status st = s.perPixel.validate(); !st.ok()) return st;
   if (absl::Status st = s.glossy.validate(); !st.ok()) return st;
+  if (absl::Status st = s.adaptive.validate(); !st.ok()) return st;
   return s.cut.validate();
 }
 

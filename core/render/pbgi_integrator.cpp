@@ -56,7 +56,7 @@ constexpr size_t kGathersTogether = 512;
 class PerPixelScratch final : public IntegratorScratch {
  public:
   explicit PerPixelScratch(const PbgiSettings& settings)
-      : pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)) {
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)) {
     gatherers.reserve(kGathersTogether);  // Gatherers stay where they are
   }
   PixelGathers pixel;
@@ -147,7 +147,7 @@ class PerPixelPbgi final : public Integrator {
 // One block's state: its receivers, its cut's buffers, what it counted.
 struct BidirectionalBlock {
   explicit BidirectionalBlock(const PbgiSettings& settings)
-      : pixel(settings.glossy, static_cast<size_t>(settings.maxGathersPerPixel)),
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)),
         cut(settings.cut) {}
   PixelGathers pixel;
   BidirectionalCut cut;
@@ -252,6 +252,13 @@ class BidirectionalPbgi final : public Integrator {
 WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather) {
   WarpedGatherOptions o;
   o.resolution = std::clamp(gather.resolution * 4 / 3, 2, kMaxMicrobufferResolution);
+  o.nearFieldFactor = gather.nearFieldFactor;
+  o.selfSkipRadius = gather.selfSkipRadius;
+  return o;
+}
+
+AdaptiveGatherOptions adaptiveGatherOptions(const GatherOptions& gather) {
+  AdaptiveGatherOptions o;
   o.nearFieldFactor = gather.nearFieldFactor;
   o.selfSkipRadius = gather.selfSkipRadius;
   return o;

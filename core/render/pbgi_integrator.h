@@ -4,17 +4,18 @@
 //
 // Per-pixel (Christensen 2008): every pixel gathers for its own samples. A sample whose first
 // hit lies on the plane of an earlier gather of the same pixel, near it, facing the same way
-// takes that gather's result; others gather anew into a cube microbuffer (diffuse) or the
-// warped one (glossy), up to maxGathersPerPixel records. Diffuse receivers reflect albedo / pi
+// takes that gather's result; others gather anew into a cube microbuffer (diffuse) or a
+// glossy one (adaptive or warped, as glossyGather says), up to maxGathersPerPixel records. Diffuse receivers reflect albedo / pi
 // times the gathered irradiance.
 //
 // Bidirectional (Jarabo et al. 2014, core/pbgi/bidirectional_cut.h): the diffuse receivers
 // of every sample of a block of the fixed grid (its pixels x spp x the views of a camera
 // array) gather together through one cut of the light tree against a tree of the receivers,
-// so that light that is coarse for many pixels is computed once. Glossy receivers keep the
-// warped microbuffer.
+// so that light that is coarse for many pixels is computed once. Glossy receivers keep their
+// own microbuffer.
 #include <memory>
 
+#include "core/pbgi/adaptive_gather.h"
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/pbgi/tree_page.h"
@@ -25,11 +26,16 @@
 namespace pbgi {
 
 enum class PbgiGatherKind { kBidirectional, kPerPixel };
+// Glossy receivers' microbuffer: warped by the BSDF (Ritschel et al. 2009) or the adaptive
+// quadtree refined by the BSDF and the light (Wang et al. 2016, adaptive_gather.h).
+enum class GlossyGatherKind { kWarped, kAdaptive };
 
 struct PbgiSettings {
   PbgiGatherKind gather = PbgiGatherKind::kBidirectional;
   GatherOptions perPixel;      // the per-pixel gather's microbuffer
-  WarpedGatherOptions glossy;  // glossy receivers' warped microbuffer
+  GlossyGatherKind glossyGather = GlossyGatherKind::kAdaptive;
+  WarpedGatherOptions glossy;     // glossy receivers' warped microbuffer
+  AdaptiveGatherOptions adaptive;  // ... or their adaptive one
   int maxGathersPerPixel = 4;  // per-pixel gathers a pixel's samples make
   CutOptions cut;              // the bidirectional cut
   int blockSize = 64;          // the bidirectional cut's blocks, in view pixels
@@ -44,6 +50,8 @@ struct PbgiSettings {
 // The warped microbuffer that goes with a gather preset: a third more pixels a side than the
 // cube's faces (the lobe takes them all), the same near field.
 WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather);
+// The adaptive microbuffer that goes with a gather preset: its near field.
+AdaptiveGatherOptions adaptiveGatherOptions(const GatherOptions& gather);
 
 // `tree` (usually a PageCache) must outlive the integrator and be safe to share between
 // threads; the settings must be valid. Errors: the tree source's (a page it cannot give names

@@ -81,8 +81,14 @@ Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
   return r;
 }
 
-PixelGathers::PixelGathers(const WarpedGatherOptions& glossy, size_t maxGathersPerPixel)
-    : warped_(glossy), shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {}
+PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel)
+    : shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
+  if (settings.glossyGather == GlossyGatherKind::kAdaptive) {
+    adaptive_.emplace(settings.adaptive);
+  } else {
+    warped_.emplace(settings.glossy);
+  }
+}
 
 absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& scene,
                                           const Receiver& r, const Rgb& albedo, Rng& rng,
@@ -95,7 +101,8 @@ absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& sce
   const Frame frame(r.n);
   const Vec2f jitter(rng.uniform(), rng.uniform());
   absl::StatusOr<Rgb> lo =
-      warped_.reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats);
+      adaptive_ ? adaptive_->reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats)
+                : warped_->reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats);
   if (!lo.ok()) return lo.status();
   if (absl::Status s = checkGathered(*lo); !s.ok()) return s;
   ++(*counters)[kGathers];

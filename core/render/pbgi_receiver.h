@@ -6,21 +6,25 @@
 //   - nothing, when the ray escapes, or the hit reflects nothing (an emitter, black albedo);
 //   - the path tracer, for mirrors and glass (delta or refractive BSDFs), whose indirect light
 //     PBGI cannot gather;
-//   - the warped microbuffer gather for glossy receivers (Ritschel et al. 2009), shared
-//     between a pixel's samples that see the same material the same way;
+//   - the adaptive microbuffer gather for glossy receivers (Wang et al. 2016), or the warped
+//     one (Ritschel et al. 2009) when the settings ask for it, shared between a pixel's
+//     samples that see the same material the same way;
 //   - a diffuse gather: the per-pixel microbuffer or the bidirectional cut.
 // Surfaces are two-sided, as for the path tracer: a receiver gathers on the side its camera
 // ray arrives from.
 #include <cstdint>
+#include <optional>
 #include <span>
 
 #include <absl/status/status.h>
 
+#include "core/pbgi/adaptive_gather.h"
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/pbgi/gather_reuse.h"
 #include "core/pbgi/warped_gather.h"
 #include "core/render/integrator.h"
+#include "core/render/pbgi_integrator.h"
 #include "core/render/path_tracer.h"
 #include "core/scene/scene.h"
 
@@ -92,7 +96,7 @@ inline constexpr float kReuseDistanceFraction = 0.05f;
 // (key kNoMaterial: any diffuse material shares it).
 class PixelGathers {
  public:
-  PixelGathers(const WarpedGatherOptions& glossy, size_t maxGathersPerPixel);
+  PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel);
   // Forget the pixel's gathers: call before each pixel.
   void newPixel() { shared_.clear(); }
   GatherReuse& shared() { return shared_; }
@@ -103,7 +107,8 @@ class PixelGathers {
                               RenderCounters* counters);
 
  private:
-  WarpedGatherer warped_;
+  std::optional<WarpedGatherer> warped_;      // one of the two, as the settings say
+  std::optional<AdaptiveGatherer> adaptive_;
   GatherReuse shared_;
 };
 

@@ -1,8 +1,10 @@
 #pragma once
 // Materials and brute-force references the glossy gathers' tests share.
 #include <cmath>
+#include <span>
 
 #include "core/math/vec.h"
+#include "core/pbgi/surfel.h"
 #include "core/sampling/rng.h"
 #include "core/scene/material.h"
 
@@ -54,12 +56,12 @@ inline float relativeError(float value, float expected) { return std::abs(value 
 
 inline Vec3f unitWo(float x, float y, float z) { return normalize(Vec3f(x, y, z)); }
 
-// Reflected radiance from a disk emitter by brute force: stratified BSDF samples ray-cast
-// against the exact disk.
-inline double referenceDiskReflection(const Bsdf& bsdf, const Frame& frame, const Vec3f& wo,
-                               const Vec3f& center, const Vec3f& normal, float radius,
-                               float radiance) {
-  const int n = 1024;
+// Reflected radiance (red channel) from disks facing the receiver at the origin, by brute
+// force: n x n stratified BSDF samples ray-cast against every disk, each disk hit adding its
+// radiance (as a gather's buffer does: the disks of a surface sum to its area, overlapping
+// where others leave holes).
+inline double referenceDisksReflection(const Bsdf& bsdf, const Frame& frame, const Vec3f& wo,
+                                       std::span<const Surfel> disks, int n = 1024) {
   Rng rng(5);
   double sum = 0.0;
   for (int j = 0; j < n; ++j) {
@@ -68,14 +70,27 @@ inline double referenceDiskReflection(const Bsdf& bsdf, const Frame& frame, cons
           bsdf.sample(wo, rng.uniform(), Vec2f((i + rng.uniform()) / n, (j + rng.uniform()) / n));
       if (!s || s->wi.z <= 0.0f) continue;
       const Vec3f w = frame.toWorld(s->wi);
-      const float denom = dot(w, normal);
-      if (!(denom < 0.0f)) continue;
-      const float t = dot(center, normal) / denom;  // the receiver is at the origin
-      if (!(t > 0.0f) || (w * t - center).length2() > radius * radius) continue;
-      sum += s->f.x * s->wi.z / s->pdf * radiance;
+      for (const Surfel& d : disks) {
+        const float denom = dot(w, d.normal);
+        if (!(denom < 0.0f)) continue;
+        const float t = dot(d.position, d.normal) / denom;
+        if (!(t > 0.0f) || (w * t - d.position).length2() > d.radius * d.radius) continue;
+        sum += s->f.x * s->wi.z / s->pdf * d.radiance.x;
+      }
     }
   }
   return sum / (double(n) * n);
+}
+
+inline double referenceDiskReflection(const Bsdf& bsdf, const Frame& frame, const Vec3f& wo,
+                                      const Vec3f& center, const Vec3f& normal, float radius,
+                                      float radiance) {
+  Surfel disk;
+  disk.position = center;
+  disk.normal = normal;
+  disk.radius = radius;
+  disk.radiance = Rgb(radiance);
+  return referenceDisksReflection(bsdf, frame, wo, std::span(&disk, 1));
 }
 
 }  // namespace pbgi::testing
