@@ -32,9 +32,6 @@ constexpr float kInvGolden = 0.618033988749895f;
 // A far disk is splatted as a footprint while at most this many times the cell its centre is
 // seen in, cut into pieces at most kMaxDiskSplits times; larger ones are ray-cast.
 constexpr float kMaxFootprintCells = 16.0f;
-// The angular radius of a whole cube face seen from the centre: its corners at acos(1/sqrt 3).
-constexpr float kFaceCos = 0.57735027f;
-constexpr float kFaceSin = 0.81649658f;
 constexpr int kMaxDiskSplits = 3;
 // Where the cells' centres catch less than this share of the sampled BSDF weight, the lobe is
 // narrower than the cells and the weights come from the samples themselves.
@@ -108,6 +105,7 @@ void AdaptiveGatherer::shape(Cell* c) const {
   c->dir = cubeDirection(c->face, c->u0 + half, c->v0 + half);
   c->solidAngle = static_cast<float>(cubeRectSolidAngle(c->u0, c->u0 + c->size, c->v0, c->v0 + c->size));
   c->child = c->firstRecord = c->leafIndex = -1;
+  c->smallestLeaf = c->solidAngle;
   // Entirely below the horizon when its four corners are: the square is planar, and the
   // height above a plane through the origin is linear on it. Its angular radius: the farthest
   // corner's angle from its centre.
@@ -124,27 +122,26 @@ void AdaptiveGatherer::shape(Cell* c) const {
 
 bool AdaptiveGatherer::reachesCellBelow(const Vec3f& dir, float sinRadius, float solidAngle) {
   // Cones of half-angles a (the query's, below pi / 2 unless it holds the receiver) and b (a
-  // cell's, at most a face's) meet when the angle between their axes is at most a + b.
+  // cell's, at most a face's) meet when the angle between their axes is at most a + b. Only
+  // subtrees holding a leaf below `solidAngle` are looked at: most of the sphere is pruned by
+  // one comparison.
   const bool everywhere = !(sinRadius < 1.0f);
   const float sinA = everywhere ? 1.0f : sinRadius;
   const float cosA = everywhere ? -1.0f : std::sqrt(1.0f - sinA * sinA);
-  auto reaches = [&](const Vec3f& axis, float cosB, float sinB) {
-    return everywhere || dot(dir, axis) >= cosA * cosB - sinA * sinB;
-  };
   cellStack_.clear();
-  const int perFace = options_.baseResolution * options_.baseResolution;
-  for (int f = 0; f < kCubeFaces; ++f) {
-    if (!reaches(cubeDirection(f, 0.0f, 0.0f), kFaceCos, kFaceSin)) continue;
-    for (int c = f * perFace; c < (f + 1) * perFace; ++c) cellStack_.push_back(c);
+  const int roots = kCubeFaces * options_.baseResolution * options_.baseResolution;
+  for (int c = 0; c < roots; ++c) {
+    if (cells_[c].smallestLeaf < solidAngle) cellStack_.push_back(c);
   }
   while (!cellStack_.empty()) {
     const Cell& cell = cells_[cellStack_.back()];
     cellStack_.pop_back();
-    if (!reaches(cell.dir, cell.cosRadius, cell.sinRadius)) continue;
-    if (cell.solidAngle < solidAngle) return true;  // so are its leaves
-    if (cell.child >= 0) {
-      for (int q = 0; q < 4; ++q) cellStack_.push_back(cell.child + q);
+    if (!(cell.smallestLeaf < solidAngle)) continue;
+    if (!everywhere && dot(dir, cell.dir) < cosA * cell.cosRadius - sinA * cell.sinRadius) {
+      continue;  // the cone misses the cell
     }
+    if (cell.child < 0) return true;
+    for (int q = 0; q < 4; ++q) cellStack_.push_back(cell.child + q);
   }
   return false;
 }
@@ -161,6 +158,7 @@ void AdaptiveGatherer::split(int c) {
     k.v0 = parent.v0 + (q >> 1) * half;
     k.size = half;
     shape(&k);
+    k.parent = c;
     cells_.push_back(k);
   }
   if (bsdf_ != nullptr) {
@@ -185,6 +183,12 @@ void AdaptiveGatherer::split(int c) {
   }
   cells_[c].child = first;
   cells_[c].firstRecord = -1;
+  // The smallest leaf below each ancestor (the four children are about equal: take the least).
+  float smallest = cells_[first].solidAngle;
+  for (int q = 1; q < 4; ++q) smallest = std::min(smallest, cells_[first + q].solidAngle);
+  for (int a = c; a >= 0 && smallest < cells_[a].smallestLeaf; a = cells_[a].parent) {
+    cells_[a].smallestLeaf = smallest;
+  }
   leafCount_ += 3;
 }
 

@@ -108,6 +108,8 @@ class AdaptiveGatherer {
     uint8_t face = 0, level = 0;
     bool active = false;       // reaches above the horizon
     float cosRadius = 1.0f, sinRadius = 0.0f;  // of the angle from dir to the farthest corner
+    float smallestLeaf = 0.0f;  // the least solid angle of a leaf in its subtree (its own if a leaf)
+    int32_t parent = -1;
     Rgb weight{0.0f};  // f cos solid angle at the centre, scaled (see the header comment)
     LayeredPixel pixel;
   };
