@@ -1,6 +1,7 @@
 #!/bin/sh
 # Installs every Debian 12 package pbgi needs to build, test and run; only what is missing.
-# Idempotent: a second run installs nothing and takes about a second.
+# Idempotent: a second run installs nothing and takes about a second. postgresql-15 is the
+# server the PostgreSQL job store's tests start a throwaway cluster of (initdb, pg_ctl).
 set -eu
 
 PACKAGES="
@@ -8,7 +9,7 @@ build-essential cmake ninja-build git ccache pkg-config clang libclang-rt-14-dev
 libembree-dev libopenexr-dev libimath-dev libopenimageio-dev libopenvdb-dev
 libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
-libsqlite3-dev libpqxx-dev libassimp-dev libtomlplusplus-dev libcli11-dev
+libsqlite3-dev libpqxx-dev postgresql-15 libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
 libcpp-httplib-dev libxxhash-dev
 "

@@ -660,9 +660,10 @@ absl::StatusOr<std::unique_ptr<Coordinator>> Coordinator::start(const Coordinato
   impl->options = options;
   impl->options.stateDir = fs::absolute(options.stateDir).lexically_normal().string();
   impl->options.outputRoot = fs::absolute(options.outputRoot).lexically_normal().string();
-  PBGI_ASSIGN_OR_RETURN(impl->store,
-                        openSqliteJobStore((fs::path(impl->options.stateDir) / "jobs.db").string(),
-                                           options.retry));
+  const std::string store = options.store.empty()
+                                ? (fs::path(impl->options.stateDir) / "jobs.db").string()
+                                : options.store;
+  PBGI_ASSIGN_OR_RETURN(impl->store, openJobStore(store, options.retry));
   impl->started = wallClock();
 
   grpc::ServerBuilder builder;

@@ -22,6 +22,8 @@ struct CoordinatorOptions {
   std::string listen = "127.0.0.1:0";  // host:port; port 0 picks a free one
   std::string httpListen;              // host:port for /metrics and /status; empty: none
   std::string stateDir;                // jobs.db and jobs/<job>/ (bakes, tiles)
+  // The job store: a SQLite file or a postgresql:// URI (openJobStore); empty: <stateDir>/jobs.db.
+  std::string store;
   std::string outputRoot;              // every job's frames must lie under it
   std::string token;                   // required on every RPC (not empty)
   double leaseSeconds = 30.0;          // a worker heartbeats well within this
@@ -38,7 +40,8 @@ struct CoordinatorMetrics;
 
 class Coordinator {
  public:
-  // Opens (or creates) <stateDir>/jobs.db, binds both listeners and starts serving. After a
+  // Opens (or creates) the job store (<stateDir>/jobs.db by default), binds both listeners
+  // and starts serving. After a
   // restart, leases already in the database get one lease period to be heartbeated before
   // they are reclaimed: their workers may only have lost sight of the coordinator.
   static absl::StatusOr<std::unique_ptr<Coordinator>> start(const CoordinatorOptions& options);

@@ -1,4 +1,4 @@
-// pbgi-coordinator [--config FILE] [--listen HOST:PORT] [--state DIR] ...
+// pbgi-coordinator [--config FILE] [--listen HOST:PORT] [--state DIR] [--store URI] ...
 
 #include <cstdio>
 #include <map>
@@ -29,6 +29,9 @@ int coordinatorDaemonMain(int argc, char** argv) {
   app.add_option("--http", o.httpListen, "HTTP address of /metrics and /status (empty: none)");
   app.add_option("--state", stateDir, "State folder: jobs.db, job folders, token")
       ->capture_default_str();
+  app.add_option("--store", o.store,
+                 "Job store: a SQLite file, or a postgresql://user@host/db URI that several "
+                 "coordinators may share (default: <state>/jobs.db)");
   app.add_option("--output-root", o.outputRoot,
                  "Every job's frames must lie under this folder (default: <state>/output)");
   app.add_option("--token-file", tokenFile,

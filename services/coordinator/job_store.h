@@ -1,8 +1,9 @@
 #pragma once
 // The coordinator's durable state: jobs, their tasks, workers and per-(job, worker) failure
 // counts, behind one interface so that a farm can swap the embedded SQLite store for
-// PostgreSQL. Every call is one transaction, committed before it returns: a task is leased
-// in the database before the worker that leased it hears about it (ARCHITECTURE invariant 3).
+// PostgreSQL, which several coordinators can share. Every call is one transaction, committed
+// before it returns: a task is leased in the database before the worker that leased it hears
+// about it (ARCHITECTURE invariant 3).
 //
 // A job is a shot plus overrides. It becomes, per frame: bake(frame) when the integrator needs
 // a tree, tile(frame, t) for every tile (each waits on its frame's bake), and assemble(frame)
@@ -17,10 +18,12 @@
 // leased task, so a worker that lost its lease can never commit a result.
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <absl/status/status.h>
@@ -175,5 +178,110 @@ class JobStore {
 // The embedded store: one SQLite file in WAL mode (created with its schema when missing).
 absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& path,
                                                             const RetryPolicy& policy);
+// The shared store: a PostgreSQL database named by a libpq URI (postgresql://user@host/db),
+// its tables created when missing. Several coordinators may open one database: leases are
+// taken with row locks, so a task is never leased twice and a stale attempt never commits.
+absl::StatusOr<std::unique_ptr<JobStore>> openPostgresJobStore(const std::string& uri,
+                                                              const RetryPolicy& policy);
+// The one place that picks an implementation: a postgresql:// or postgres:// URI opens
+// PostgreSQL, anything else is a SQLite file's path.
+absl::StatusOr<std::unique_ptr<JobStore>> openJobStore(const std::string& spec,
+                                                       const RetryPolicy& policy);
+bool isPostgresUri(std::string_view spec);
+// The URI with its password (user:password@, password=...) cut out: what errors and logs show.
+std::string redactedUri(std::string_view uri);
+
+// The store's rules, written once for every implementation: the SQL differs, what it decides
+// does not.
+
+// Both schemas spell kinds and states as the enums' numbers (and their CHECKs keep stored
+// values in range, which is why rows are cast back without a test).
+static_assert(static_cast<int>(TaskKind::kBake) == 0 && static_cast<int>(TaskKind::kTile) == 1 &&
+              static_cast<int>(TaskKind::kAssemble) == 2);
+static_assert(static_cast<int>(TaskState::kBlocked) == 0 &&
+              static_cast<int>(TaskState::kReady) == 1 &&
+              static_cast<int>(TaskState::kLeased) == 2 &&
+              static_cast<int>(TaskState::kDone) == 3 && static_cast<int>(TaskState::kDead) == 4 &&
+              static_cast<int>(TaskState::kCancelled) == 5);
+static_assert(static_cast<int>(JobState::kActive) == 0 && static_cast<int>(JobState::kDone) == 1 &&
+              static_cast<int>(JobState::kFailed) == 2 &&
+              static_cast<int>(JobState::kCancelled) == 3);
+// One column list for every task and job query of both stores, so that a store's readTask()
+// and readJob() and its SELECTs cannot drift apart.
+#define PBGI_TASK_COLUMNS \
+  "id, job, kind, frame, tile, state, attempt, failures, worker, last_error, progress"
+#define PBGI_JOB_COLUMNS                                                                      \
+  "id, name, shot_path, shot_text, overrides, output_pattern, priority, frames, tile_count, " \
+  "needs_bake, state, submitted"
+
+// InvalidArgument unless the policy allows an attempt and its back-offs are not negative.
+absl::Status validateRetryPolicy(const RetryPolicy& policy);
+// InvalidArgument for a job without tiles or frames, or with a frame listed twice.
+absl::Status validateJobSpec(const JobSpec& spec);
+
+// The tasks a job becomes, in insertion order (so ids follow it): per frame its bake when the
+// job needs one, its tiles, its assemble; ready when they wait on nothing.
+struct PlannedTask {
+  TaskKind kind = TaskKind::kTile;
+  int frame = 0;
+  int tile = -1;
+  TaskState state = TaskState::kBlocked;
+};
+std::vector<PlannedTask> planTasks(const JobSpec& spec);
+
+// Within a frame a bake waits on nothing, a tile on the bake, an assemble on the tiles. In
+// promotion order: a task made ready is not done, so what waits on it stays blocked.
+struct Dependency {
+  TaskKind kind;
+  std::optional<TaskKind> waitsOn;
+};
+inline constexpr std::array<Dependency, 3> kDependencies = {{
+    {TaskKind::kBake, std::nullopt},
+    {TaskKind::kTile, TaskKind::kBake},
+    {TaskKind::kAssemble, TaskKind::kTile},
+}};
+// The kinds of the same frame that can never run once a task of `kind` is dead.
+std::vector<TaskKind> dependentKinds(TaskKind kind);
+// The last error of a task that dies because `dead` did.
+std::string waitsOnDeadError(const TaskRef& dead, std::string_view error);
+
+// A job's frames as stored: the numbers in submission order, space separated.
+std::string formatFrames(std::span<const int> frames);
+// DataLoss, naming `where`, when the text is not a list of numbers.
+absl::StatusOr<std::vector<int>> parseFrames(std::string_view text, std::string_view where);
+
+// Failures of one job on one worker that blocklist the worker; no threshold means never.
+int64_t blocklistThreshold(const RetryPolicy& policy);
+
+// What a failed attempt makes of its task: ready again after the doubling back-off, or dead
+// at the cap.
+struct FailureOutcome {
+  TaskState state = TaskState::kReady;
+  int failures = 0;
+  Seconds notBefore = 0;
+};
+FailureOutcome failureOutcome(const RetryPolicy& policy, int failuresBefore, Seconds now);
+// The event text of a failure: the error, then what the worker printed.
+std::string failureEventText(std::string_view error, std::string_view log);
+std::string leaseExpiredError(std::string_view worker);
+
+// FailedPrecondition, saying which attempt holds the task now, unless `attempt` is the current
+// attempt of the leased task `info`.
+absl::Status checkCurrentLease(const TaskInfo& info, int attempt);
+// Progress comes from the network: NaN is 0, the rest is clamped to 0..1.
+double clampProgress(double progress);
+// Where a job settles given which task states it still has (indexed by TaskState): active
+// while something can make progress, then done, failed, or cancelled again.
+JobState settledJobState(JobState current, const std::array<bool, 6>& present);
+
+// The lease walk: the jobs in lease order, and in each the worker's held frames of that job
+// first (most recent first), then any frame; `pick` takes the first ready task of a job (of one
+// frame when given) and says whether it found one. Returns whether any pick did.
+absl::StatusOr<bool> pickInLeaseOrder(
+    std::span<const int64_t> jobs, std::span<const HeldFrame> held,
+    const std::function<absl::StatusOr<bool>(int64_t job, std::optional<int> frame)>& pick);
+
+// The start of a statement, whitespace collapsed: enough to say which one failed.
+std::string sqlSummary(std::string_view sql);
 
 }  // namespace pbgi::farm

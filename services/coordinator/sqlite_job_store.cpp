@@ -1,30 +1,16 @@
 // The embedded job store: one SQLite file in WAL mode, one connection behind a mutex. Each
 // public call is one transaction, so a crash between two calls loses nothing a caller heard
 // about, and a crash inside one loses the whole call and nothing else.
-#include <algorithm>
-#include <cmath>
-#include <limits>
 #include <mutex>
-#include <set>
 #include <string_view>
 #include <unordered_map>
 #include <utility>
 
 #include <absl/strings/ascii.h>
-#include <absl/strings/numbers.h>
-#include <absl/strings/str_split.h>
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 
 #include "services/coordinator/job_store.h"
 #include "services/coordinator/sqlite_query.h"
-
-// One column list for every task query, so that readTask() and the SELECTs cannot drift apart.
-#define PBGI_TASK_COLUMNS \
-  "id, job, kind, frame, tile, state, attempt, failures, worker, last_error, progress"
-#define PBGI_JOB_COLUMNS                                                                      \
-  "id, name, shot_path, shot_text, overrides, output_pattern, priority, frames, tile_count, " \
-  "needs_bake, state, submitted"
 
 namespace pbgi::farm {
 namespace {
@@ -35,19 +21,6 @@ constexpr int kSchemaVersion = 2;
 // An operator's sqlite3 shell or a backup may hold the write lock for a moment; waiting that
 // long beats failing a lease.
 constexpr int kBusyTimeoutMs = 5000;
-
-// The SQL spells kinds and states as the enums' numbers (and the schema's CHECKs keep stored
-// values in range, which is why rows are cast back without a test).
-static_assert(static_cast<int>(TaskKind::kBake) == 0 && static_cast<int>(TaskKind::kTile) == 1 &&
-              static_cast<int>(TaskKind::kAssemble) == 2);
-static_assert(static_cast<int>(TaskState::kBlocked) == 0 &&
-              static_cast<int>(TaskState::kReady) == 1 &&
-              static_cast<int>(TaskState::kLeased) == 2 &&
-              static_cast<int>(TaskState::kDone) == 3 && static_cast<int>(TaskState::kDead) == 4 &&
-              static_cast<int>(TaskState::kCancelled) == 5);
-static_assert(static_cast<int>(JobState::kActive) == 0 && static_cast<int>(JobState::kDone) == 1 &&
-              static_cast<int>(JobState::kFailed) == 2 &&
-              static_cast<int>(JobState::kCancelled) == 3);
 
 // Schema 2 added the events table; a version 1 file gets it on opening.
 constexpr const char* kEventsSchema = R"sql(
@@ -185,11 +158,6 @@ class SqliteJobStore final : public JobStore {
   absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
                              std::string_view event, std::string_view log);
   absl::Status settleJob(int64_t job);
-  int64_t blocklistThreshold() const {
-    // No threshold means no blocklist, rather than every worker blocklisted from the start.
-    return policy_.blocklistAfter > 0 ? policy_.blocklistAfter
-                                      : std::numeric_limits<int64_t>::max();
-  }
 
   const std::string path_;
   const RetryPolicy policy_;
@@ -307,15 +275,8 @@ absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) {
   info.spec.overrides = q.text(4);
   info.spec.outputPattern = q.text(5);
   info.spec.priority = q.integer(6);
-  const std::string frames = q.text(7);
-  for (const auto word : absl::StrSplit(frames, ' ', absl::SkipEmpty())) {
-    int frame = 0;
-    if (!absl::SimpleAtoi(word, &frame)) {
-      return absl::DataLossError(
-          fmt::format("{}: job {}: frames '{}': expected numbers", path_, info.id, frames));
-    }
-    info.spec.frames.push_back(frame);
-  }
+  PBGI_ASSIGN_OR_RETURN(info.spec.frames,
+                        parseFrames(q.text(7), fmt::format("{}: job {}", path_, info.id)));
   info.spec.tileCount = q.integer(8);
   info.spec.needsBake = q.integer(9) != 0;
   info.state = static_cast<JobState>(q.integer(10));
@@ -357,11 +318,7 @@ absl::StatusOr<TaskInfo> SqliteJobStore::loadTask(int64_t task) {
 
 absl::StatusOr<TaskInfo> SqliteJobStore::currentLease(int64_t task, int attempt) {
   PBGI_ASSIGN_OR_RETURN(TaskInfo info, loadTask(task));
-  if (info.state != TaskState::kLeased || info.attempt != attempt) {
-    return absl::FailedPreconditionError(fmt::format(
-        "{} (task {}): attempt {} no longer holds the lease; the task is {} at attempt {}",
-        info.ref.toString(), task, attempt, toString(info.state), info.attempt));
-  }
+  PBGI_RETURN_IF_ERROR(checkCurrentLease(info, attempt));
   return info;
 }
 
@@ -387,22 +344,14 @@ absl::Status SqliteJobStore::touchWorker(const std::string& worker, Seconds now)
   return q.run();
 }
 
-// Bakes wait on nothing, tiles on their frame's bake, an assemble on its frame's tiles. Tiles
-// go before assembles: a tile made ready here is not done, so its assemble stays blocked.
+// kDependencies, in its order.
 absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> frame) {
-  static constexpr const char* kPromotions[] = {
-      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
-      "AND kind = 0",
-      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
-      "AND kind = 1 AND NOT EXISTS (SELECT 1 FROM tasks d WHERE d.job = tasks.job "
-      "AND d.frame = tasks.frame AND d.kind = 0 AND d.state != 3)",
-      "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
-      "AND kind = 2 AND NOT EXISTS (SELECT 1 FROM tasks d WHERE d.job = tasks.job "
-      "AND d.frame = tasks.frame AND d.kind = 1 AND d.state != 3)",
-  };
-  for (const char* sql : kPromotions) {
-    Query q = query(sql);
-    q.bind(1, job).bind(2, frame);
+  for (const Dependency& d : kDependencies) {
+    Query q = query(
+        "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
+        "AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d WHERE "
+        "d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 AND d.state != 3))");
+    q.bind(1, job).bind(2, frame).bind(3, d.kind).bind(4, d.waitsOn);
     PBGI_RETURN_IF_ERROR(q.run());
   }
   return absl::OkStatus();
@@ -411,29 +360,27 @@ absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> fram
 // A blocked task that waits on a dead one can never run: it dies too, with the reason, so that
 // the job's failure names every frame that cannot finish and why.
 absl::Status SqliteJobStore::killDependents(const TaskInfo& dead) {
-  if (dead.ref.kind == TaskKind::kAssemble) return absl::OkStatus();
-  Query q = query(
-      "UPDATE tasks SET state = 4, last_error = ?4 WHERE job = ?1 AND frame = ?2 AND state = 0 "
-      "AND (?3 = 0 OR kind = 2)");
-  q.bind(1, dead.ref.job)
-      .bind(2, dead.ref.frame)
-      .bind(3, dead.ref.kind)
-      .bind(4, fmt::format("waits on {}: {}", dead.ref.toString(), dead.lastError));
-  return q.run();
+  const std::string error = waitsOnDeadError(dead.ref, dead.lastError);
+  for (const TaskKind kind : dependentKinds(dead.ref.kind)) {
+    Query q = query(
+        "UPDATE tasks SET state = 4, last_error = ?4 WHERE job = ?1 AND frame = ?2 AND state = 0 "
+        "AND kind = ?3");
+    q.bind(1, dead.ref.job).bind(2, dead.ref.frame).bind(3, kind).bind(4, error);
+    PBGI_RETURN_IF_ERROR(q.run());
+  }
+  return absl::OkStatus();
 }
 
 absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::string& error,
                                            Seconds now, std::string_view event,
                                            std::string_view log) {
-  PBGI_RETURN_IF_ERROR(addEvent(task, task.attempt, task.worker, event,
-                                log.empty() ? error : fmt::format("{}\n{}", error, log), now));
+  PBGI_RETURN_IF_ERROR(
+      addEvent(task, task.attempt, task.worker, event, failureEventText(error, log), now));
+  const FailureOutcome outcome = failureOutcome(policy_, task.failures, now);
   TaskInfo failed = task;
-  failed.failures = task.failures + 1;
+  failed.failures = outcome.failures;
   failed.lastError = error;
-  failed.state = failed.failures >= policy_.maxAttempts ? TaskState::kDead : TaskState::kReady;
-  // ldexp saturates to infinity long before the exponent could overflow; min() caps it.
-  const Seconds notBefore =
-      now + std::min(policy_.backoffMax, std::ldexp(policy_.backoffBase, failed.failures - 1));
+  failed.state = outcome.state;
   {
     Query q = query(
         "UPDATE tasks SET state = ?2, failures = ?3, last_error = ?4, not_before = ?5, "
@@ -442,7 +389,7 @@ absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::stri
         .bind(2, failed.state)
         .bind(3, failed.failures)
         .bind(4, error)
-        .bind(5, failed.state == TaskState::kReady ? notBefore : now);
+        .bind(5, outcome.notBefore);
     PBGI_RETURN_IF_ERROR(q.run());
   }
   if (!task.worker.empty()) {
@@ -456,33 +403,19 @@ absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::stri
   return settleJob(task.ref.job);
 }
 
-// A job is active while something can still make progress; after that it is done, failed or
-// (when a retry of part of a cancelled job has finished) cancelled again.
 absl::Status SqliteJobStore::settleJob(int64_t job) {
   PBGI_ASSIGN_OR_RETURN(const JobState current, jobState(job));
   if (current == JobState::kCancelled) return absl::OkStatus();
   // Every completion settles its job: an index probe per state, not a count of every task
   // of the job (4096 a frame for a big one).
-  const auto any = [&](TaskState s) -> absl::StatusOr<bool> {
+  std::array<bool, 6> present{};
+  for (size_t s = 0; s < present.size(); ++s) {
+    if (s == static_cast<size_t>(TaskState::kDone)) continue;  // decides nothing
     Query q = query("SELECT 1 FROM tasks WHERE job = ?1 AND state = ?2 LIMIT 1");
-    q.bind(1, job).bind(2, s);
-    return q.step();
-  };
-  PBGI_ASSIGN_OR_RETURN(const bool blocked, any(TaskState::kBlocked));
-  PBGI_ASSIGN_OR_RETURN(const bool ready, any(TaskState::kReady));
-  PBGI_ASSIGN_OR_RETURN(const bool leased, any(TaskState::kLeased));
-  PBGI_ASSIGN_OR_RETURN(const bool dead, any(TaskState::kDead));
-  PBGI_ASSIGN_OR_RETURN(const bool cancelled, any(TaskState::kCancelled));
-  JobState next = JobState::kActive;
-  if (!blocked && !ready && !leased && !dead && !cancelled) {
-    next = JobState::kDone;
-  } else if (ready || leased) {
-    next = JobState::kActive;
-  } else if (dead) {
-    next = JobState::kFailed;
-  } else if (cancelled) {
-    next = JobState::kCancelled;
+    q.bind(1, job).bind(2, static_cast<int>(s));
+    PBGI_ASSIGN_OR_RETURN(present[s], q.step());
   }
+  const JobState next = settledJobState(current, present);
   if (next == current) return absl::OkStatus();
   Query q = query("UPDATE jobs SET state = ?2 WHERE id = ?1");
   q.bind(1, job).bind(2, next);
@@ -490,20 +423,7 @@ absl::Status SqliteJobStore::settleJob(int64_t job) {
 }
 
 absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now) {
-  if (spec.tileCount <= 0) {
-    return absl::InvalidArgumentError(
-        fmt::format("job '{}': tile count {}: expected at least 1", spec.name, spec.tileCount));
-  }
-  if (spec.frames.empty()) {
-    return absl::InvalidArgumentError(fmt::format("job '{}': no frames", spec.name));
-  }
-  std::set<int> seen;
-  for (int frame : spec.frames) {
-    if (!seen.insert(frame).second) {
-      return absl::InvalidArgumentError(
-          fmt::format("job '{}': frame {} is listed twice", spec.name, frame));
-    }
-  }
+  PBGI_RETURN_IF_ERROR(validateJobSpec(spec));
   return transaction(Access::kWrite, [&]() -> absl::StatusOr<int64_t> {
     {
       Query q = query(
@@ -516,7 +436,7 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
           .bind(4, spec.overrides)
           .bind(5, spec.outputPattern)
           .bind(6, spec.priority)
-          .bind(7, fmt::format("{}", fmt::join(spec.frames, " ")))
+          .bind(7, formatFrames(spec.frames))
           .bind(8, spec.tileCount)
           .bind(9, spec.needsBake ? 1 : 0)
           .bind(10, JobState::kActive)
@@ -524,21 +444,11 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
       PBGI_RETURN_IF_ERROR(q.run());
     }
     const int64_t job = sqlite3_last_insert_rowid(db_.get());
-    const auto add = [&](TaskKind kind, int frame, int tile, TaskState state) {
+    for (const PlannedTask& t : planTasks(spec)) {
       Query q =
           query("INSERT INTO tasks (job, kind, frame, tile, state) VALUES (?1, ?2, ?3, ?4, ?5)");
-      q.bind(1, job).bind(2, kind).bind(3, frame).bind(4, tile).bind(5, state);
-      return q.run();
-    };
-    const TaskState tileState = spec.needsBake ? TaskState::kBlocked : TaskState::kReady;
-    for (int frame : spec.frames) {
-      if (spec.needsBake) {
-        PBGI_RETURN_IF_ERROR(add(TaskKind::kBake, frame, -1, TaskState::kReady));
-      }
-      for (int tile = 0; tile < spec.tileCount; ++tile) {
-        PBGI_RETURN_IF_ERROR(add(TaskKind::kTile, frame, tile, tileState));
-      }
-      PBGI_RETURN_IF_ERROR(add(TaskKind::kAssemble, frame, -1, TaskState::kBlocked));
+      q.bind(1, job).bind(2, t.kind).bind(3, t.frame).bind(4, t.tile).bind(5, t.state);
+      PBGI_RETURN_IF_ERROR(q.run());
     }
     return job;
   });
@@ -644,14 +554,13 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
           "SELECT j.id FROM jobs j WHERE j.state = 0 AND NOT EXISTS (SELECT 1 FROM "
           "job_worker_failures f WHERE f.job = j.id AND f.worker = ?1 AND f.failures >= ?2) "
           "ORDER BY j.priority DESC, j.submitted, j.id");
-      jobs.bind(1, worker).bind(2, blocklistThreshold());
+      jobs.bind(1, worker).bind(2, blocklistThreshold(policy_));
       for (;;) {
         PBGI_ASSIGN_OR_RETURN(const bool row, jobs.step());
         if (!row) break;
         order.push_back(jobs.int64(0));
       }
     }
-    bool found = false;
     // The first ready task of `job`, of `frame` only when one is given.
     auto pickFrom = [&](int64_t job, std::optional<int> frame) -> absl::StatusOr<bool> {
       Query pick = query(
@@ -674,18 +583,7 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
       lease.expires = now + leaseSeconds;
       return true;
     };
-    for (const int64_t job : order) {
-      // The worker's own frames of this job first, most recently held first.
-      for (const HeldFrame& h : held) {
-        if (h.job != job) continue;
-        PBGI_ASSIGN_OR_RETURN(found, pickFrom(job, h.frame));
-        if (found) break;
-      }
-      if (!found) {
-        PBGI_ASSIGN_OR_RETURN(found, pickFrom(job, std::nullopt));
-      }
-      if (found) break;
-    }
+    PBGI_ASSIGN_OR_RETURN(const bool found, pickInLeaseOrder(order, held, pickFrom));
     if (!found) return std::optional<Lease>();
     {
       Query take = query(
@@ -705,8 +603,7 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
 
 absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progress, Seconds now,
                                        Seconds leaseSeconds) {
-  // Progress comes from the network: clamp it rather than store NaN or 7.
-  progress = std::isnan(progress) ? 0.0 : std::clamp(progress, 0.0, 1.0);
+  progress = clampProgress(progress);
   return transaction(Access::kWrite, [&]() -> absl::Status {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
     Query q = query("UPDATE tasks SET expires = ?2, progress = ?3 WHERE id = ?1");
@@ -756,9 +653,7 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
     }
     for (int64_t id : expired) {
       PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
-      PBGI_RETURN_IF_ERROR(recordFailure(
-          info, fmt::format("lease expired: worker {} stopped heartbeating", info.worker), now,
-          "expired", ""));
+      PBGI_RETURN_IF_ERROR(recordFailure(info, leaseExpiredError(info.worker), now, "expired", ""));
     }
     return static_cast<int>(expired.size());
   });
@@ -834,7 +729,7 @@ absl::StatusOr<bool> SqliteJobStore::blocklisted(int64_t job, const std::string&
     Query q = query("SELECT failures FROM job_worker_failures WHERE job = ?1 AND worker = ?2");
     q.bind(1, job).bind(2, worker);
     PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-    return row && q.int64(0) >= blocklistThreshold();
+    return row && q.int64(0) >= blocklistThreshold(policy_);
   });
 }
 
@@ -872,12 +767,7 @@ absl::StatusOr<std::vector<TaskEvent>> SqliteJobStore::events(int64_t job,
 
 absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& path,
                                                              const RetryPolicy& policy) {
-  if (policy.maxAttempts < 1 || !(policy.backoffBase >= 0) || !(policy.backoffMax >= 0)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "retry policy: max attempts {}, back-off base {} s, max {} s: expected at least one "
-        "attempt and non-negative back-offs",
-        policy.maxAttempts, policy.backoffBase, policy.backoffMax));
-  }
+  PBGI_RETURN_IF_ERROR(validateRetryPolicy(policy));
   sqlite3* raw = nullptr;
   // NOMUTEX: the store's own mutex already serializes every use of the connection.
   const int rc =

@@ -1,22 +1,8 @@
 #include "services/coordinator/sqlite_query.h"
 
-#include <absl/strings/ascii.h>
 #include <fmt/format.h>
 
 namespace pbgi::farm {
-
-std::string sqlSummary(std::string_view sql) {
-  constexpr size_t kMaxChars = 60;
-  std::string out;
-  for (char c : sql) {
-    const bool space = absl::ascii_isspace(static_cast<unsigned char>(c));
-    if (space && (out.empty() || out.back() == ' ')) continue;
-    out += space ? ' ' : c;
-    if (out.size() >= kMaxChars) return out + "...";
-  }
-  while (!out.empty() && out.back() == ' ') out.pop_back();
-  return out;
-}
 
 absl::Status sqliteStatus(int rc, std::string_view message, std::string_view path,
                           std::string_view what) {

@@ -15,6 +15,7 @@
 #include <absl/status/statusor.h>
 
 #include "core/util/status.h"
+#include "services/coordinator/job_store.h"  // sqlSummary
 
 namespace pbgi::farm {
 
@@ -27,9 +28,6 @@ struct StatementFinalizer {
   void operator()(sqlite3_stmt* stmt) const { sqlite3_finalize(stmt); }
 };
 using StatementPtr = std::unique_ptr<sqlite3_stmt, StatementFinalizer>;
-
-// The start of a statement, whitespace collapsed: enough to say which one failed.
-std::string sqlSummary(std::string_view sql);
 
 // "path: what: sqlite's message". Unavailable for busy, locked, full and cannot-open (the
 // environment's doing, which may pass); Internal for the rest (a bug or a damaged file).

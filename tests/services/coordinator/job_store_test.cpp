@@ -1,11 +1,15 @@
-// The embedded job store against the contract in job_store.h: the task graph, lease order,
-// stale attempts, retries and their back-off, dead tasks, blocklists, cancel and retry, and a
-// file that outlives the process that wrote it. The tests drive a clock of their own.
+// Both job stores against the contract in job_store.h, every case on SQLite and on PostgreSQL
+// (a throwaway cluster, tests/support/postgres_cluster.h): the task graph, lease order, stale
+// attempts, retries and their back-off, dead tasks, blocklists, cancel and retry, the event
+// log, a database that outlives the store object that wrote it, and two store objects (two
+// coordinators) leasing from one database at once. The tests drive a clock of their own.
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -13,6 +17,7 @@
 #include <fmt/format.h>
 
 #include "services/coordinator/job_store.h"
+#include "tests/support/postgres_cluster.h"
 #include "tests/support/test_paths.h"
 
 namespace pbgi::farm {
@@ -46,11 +51,27 @@ int count(const JobInfo& info, TaskState state) {
   return info.tasksByState[static_cast<size_t>(state)];
 }
 
-class SqliteJobStoreTest : public ::testing::Test {
+enum class Backend { kSqlite, kPostgres };
+void PrintTo(Backend backend, std::ostream* os) {
+  *os << (backend == Backend::kSqlite ? "sqlite" : "postgres");
+}
+
+class JobStoreFixture : public ::testing::Test {
  protected:
+  virtual Backend backend() const = 0;
+
   void SetUp() override {
     dir_ = testing::makeTempDir("job-store");
-    path_ = (dir_ / "farm.db").string();
+    if (backend() == Backend::kSqlite) {
+      spec_ = (dir_ / "farm.db").string();
+    } else {
+      PBGI_POSTGRES_CLUSTER(cluster);
+      auto database = cluster->createDatabase();
+      ASSERT_TRUE(database.ok()) << database.status();
+      cluster_ = cluster;
+      database_ = *database;
+      spec_ = cluster->uri(database_);
+    }
     open();
   }
   void TearDown() override {
@@ -58,12 +79,20 @@ class SqliteJobStoreTest : public ::testing::Test {
     fs::remove_all(dir_);
   }
 
-  // Closes the store first, so that reopening reads only what was committed to the file.
+  // Closes the store first, so that reopening reads only what was committed. Through
+  // openJobStore, the one place that picks the implementation from the spec.
   void open(const RetryPolicy& policy = {}) {
     store_.reset();
-    auto store = openSqliteJobStore(path_, policy);
+    auto store = openJobStore(spec_, policy);
     ASSERT_TRUE(store.ok()) << store.status();
     store_ = std::move(*store);
+  }
+
+  // A second store object on the same database: a second coordinator.
+  std::unique_ptr<JobStore> openAnother(const RetryPolicy& policy = {}) {
+    auto store = openJobStore(spec_, policy);
+    EXPECT_TRUE(store.ok()) << store.status();
+    return store.ok() ? std::move(*store) : nullptr;
   }
 
   int64_t submit(const JobSpec& spec, Seconds now = 0) {
@@ -107,11 +136,34 @@ class SqliteJobStoreTest : public ::testing::Test {
   }
 
   fs::path dir_;
-  std::string path_;
+  std::string spec_;  // the SQLite file or the PostgreSQL URI
+  testing::PostgresCluster* cluster_ = nullptr;
+  std::string database_;  // PostgreSQL's
   std::unique_ptr<JobStore> store_;
 };
 
-TEST_F(SqliteJobStoreTest, SubmitBuildsTheTaskGraph) {
+class JobStoreTest : public JobStoreFixture, public ::testing::WithParamInterface<Backend> {
+ protected:
+  Backend backend() const override { return GetParam(); }
+};
+
+INSTANTIATE_TEST_SUITE_P(Stores, JobStoreTest,
+                         ::testing::Values(Backend::kSqlite, Backend::kPostgres),
+                         [](const ::testing::TestParamInfo<Backend>& info) {
+                           return info.param == Backend::kSqlite ? "Sqlite" : "Postgres";
+                         });
+
+class SqliteJobStoreTest : public JobStoreFixture {
+ protected:
+  Backend backend() const override { return Backend::kSqlite; }
+};
+
+class PostgresJobStoreTest : public JobStoreFixture {
+ protected:
+  Backend backend() const override { return Backend::kPostgres; }
+};
+
+TEST_P(JobStoreTest, SubmitBuildsTheTaskGraph) {
   JobSpec spec = makeSpec({10, 11}, 3, /*bake=*/true);
   spec.shotText = std::string("bytes\0with a NUL\n", 17);
   const int64_t baked = submit(spec, 100);
@@ -148,7 +200,7 @@ TEST_F(SqliteJobStoreTest, SubmitBuildsTheTaskGraph) {
   EXPECT_EQ(count((*all)[1], TaskState::kReady), 2);
 }
 
-TEST_F(SqliteJobStoreTest, SubmitRejectsMalformedJobsAndUnknownIdsAreNotFound) {
+TEST_P(JobStoreTest, SubmitRejectsMalformedJobsAndUnknownIdsAreNotFound) {
   EXPECT_EQ(store_->submit(makeSpec({1}, 0, false), 0).status().code(),
             absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(store_->submit(makeSpec({}, 2, false), 0).status().code(),
@@ -165,7 +217,7 @@ TEST_F(SqliteJobStoreTest, SubmitRejectsMalformedJobsAndUnknownIdsAreNotFound) {
   EXPECT_TRUE(jobs->empty());
 }
 
-TEST_F(SqliteJobStoreTest, LeasesByPriorityThenJobAgeThenFrame) {
+TEST_P(JobStoreTest, LeasesByPriorityThenJobAgeThenFrame) {
   const int64_t older = submit(makeSpec({2, 1}, 1, false, /*priority=*/0), 1);
   const int64_t urgent = submit(makeSpec({3}, 2, false, /*priority=*/5), 2);
   const int64_t newer = submit(makeSpec({0}, 1, false, /*priority=*/0), 3);
@@ -189,7 +241,7 @@ TEST_F(SqliteJobStoreTest, LeasesByPriorityThenJobAgeThenFrame) {
   EXPECT_EQ(leased.attempt, 1);
 }
 
-TEST_F(SqliteJobStoreTest, BakeUnblocksTilesWhichUnblockTheAssembleAndTheJobIsDone) {
+TEST_P(JobStoreTest, BakeUnblocksTilesWhichUnblockTheAssembleAndTheJobIsDone) {
   const int64_t id = submit(makeSpec({7}, 2, true));
   auto bake = lease("w1", 0);
   ASSERT_TRUE(bake.has_value());
@@ -221,7 +273,7 @@ TEST_F(SqliteJobStoreTest, BakeUnblocksTilesWhichUnblockTheAssembleAndTheJobIsDo
   EXPECT_EQ(task(id, TaskKind::kAssemble, 7).progress, 1.0);
 }
 
-TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
+TEST_P(JobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   RetryPolicy policy;
   policy.backoffBase = 0;
   open(policy);
@@ -245,7 +297,8 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   EXPECT_EQ(store_->heartbeat(first->task, 1, 0.9, 32, kLease).code(),
             absl::StatusCode::kFailedPrecondition);
   EXPECT_EQ(store_->fail(first->task, 1, "late", 32).code(), absl::StatusCode::kFailedPrecondition);
-  EXPECT_EQ(store_->complete(first->task, 3, 32).status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->complete(first->task, 3, 32).status().code(),
+            absl::StatusCode::kFailedPrecondition);
 
   const TaskInfo after = task(id, TaskKind::kTile, 1, 0);
   EXPECT_EQ(after.state, TaskState::kLeased);
@@ -259,13 +312,14 @@ TEST_F(SqliteJobStoreTest, StaleAttemptsAreRejectedAndChangeNothing) {
   EXPECT_FALSE(*blocklisted);
 
   ASSERT_TRUE(store_->complete(second->task, 2, 33).ok());
-  EXPECT_EQ(store_->complete(second->task, 2, 34).status().code(), absl::StatusCode::kFailedPrecondition)
+  EXPECT_EQ(store_->complete(second->task, 2, 34).status().code(),
+            absl::StatusCode::kFailedPrecondition)
       << "a done task takes no second completion";
 }
 
 // Locality: a worker gets the tasks of the frames it holds first, most recent first, but only
 // within the job it would be leased from anyway (no job waits on another's frames).
-TEST_F(SqliteJobStoreTest, AWorkerGetsTheTasksOfFramesItHoldsWithinTheMostUrgentJob) {
+TEST_P(JobStoreTest, AWorkerGetsTheTasksOfFramesItHoldsWithinTheMostUrgentJob) {
   const int64_t a = submit(makeSpec({1, 2, 3}, 2, false), 0);
   auto leaseHolding = [&](const std::string& worker, std::vector<HeldFrame> held) {
     auto l = store_->lease(worker, 1, kLease, held);
@@ -289,7 +343,7 @@ TEST_F(SqliteJobStoreTest, AWorkerGetsTheTasksOfFramesItHoldsWithinTheMostUrgent
   EXPECT_EQ(leaseHolding("w2", {{a, 2}}).ref.frame, 2);
 }
 
-TEST_F(SqliteJobStoreTest, ATaskDeadAtTheCapTakesItsDependentsAndFailsTheJob) {
+TEST_P(JobStoreTest, ATaskDeadAtTheCapTakesItsDependentsAndFailsTheJob) {
   RetryPolicy policy;
   policy.maxAttempts = 2;
   policy.backoffBase = 1;
@@ -327,7 +381,7 @@ TEST_F(SqliteJobStoreTest, ATaskDeadAtTheCapTakesItsDependentsAndFailsTheJob) {
   EXPECT_EQ(failed.dead[3].lastError, waits);
 }
 
-TEST_F(SqliteJobStoreTest, AFailedTaskWaitsOutItsDoublingBackoff) {
+TEST_P(JobStoreTest, AFailedTaskWaitsOutItsDoublingBackoff) {
   RetryPolicy policy;
   policy.maxAttempts = 10;
   policy.backoffBase = 2;
@@ -351,7 +405,7 @@ TEST_F(SqliteJobStoreTest, AFailedTaskWaitsOutItsDoublingBackoff) {
   EXPECT_EQ(info.lastError, "crashed");
 }
 
-TEST_F(SqliteJobStoreTest, ExpiredLeasesCountAsFailures) {
+TEST_P(JobStoreTest, ExpiredLeasesCountAsFailures) {
   const int64_t id = submit(makeSpec({1}, 1, false));
   auto l = lease("w1", 0);
   ASSERT_TRUE(l.has_value());
@@ -372,7 +426,7 @@ TEST_F(SqliteJobStoreTest, ExpiredLeasesCountAsFailures) {
   EXPECT_EQ(store_->expireLeases(1000).value_or(-1), 0);
 }
 
-TEST_F(SqliteJobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnly) {
+TEST_P(JobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnly) {
   RetryPolicy policy;
   policy.maxAttempts = 10;
   policy.backoffBase = 0;
@@ -400,7 +454,23 @@ TEST_F(SqliteJobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnl
   EXPECT_EQ(w1Other->ref.job, other);
 }
 
-TEST_F(SqliteJobStoreTest, CancelStopsEverythingAndRetryRevivesByFrame) {
+TEST_P(JobStoreTest, ABlocklistThresholdOfZeroNeverBlocklists) {
+  RetryPolicy policy;
+  policy.maxAttempts = 10;
+  policy.backoffBase = 0;
+  policy.blocklistAfter = 0;
+  open(policy);
+  const int64_t id = submit(makeSpec({1}, 1, false));
+  for (int attempt = 1; attempt <= 4; ++attempt) {
+    auto l = lease("w1", 0);
+    ASSERT_TRUE(l.has_value()) << "attempt " << attempt;
+    EXPECT_EQ(l->attempt, attempt);
+    ASSERT_TRUE(store_->fail(l->task, l->attempt, "segfault", 0).ok());
+  }
+  EXPECT_FALSE(store_->blocklisted(id, "w1").value_or(true));
+}
+
+TEST_P(JobStoreTest, CancelStopsEverythingAndRetryRevivesByFrame) {
   const int64_t id = submit(makeSpec({1, 2}, 2, true));
   auto bake = lease("w1", 0);
   ASSERT_TRUE(bake.has_value());
@@ -433,7 +503,7 @@ TEST_F(SqliteJobStoreTest, CancelStopsEverythingAndRetryRevivesByFrame) {
   EXPECT_EQ(store_->cancel(id).code(), absl::StatusCode::kFailedPrecondition);
 }
 
-TEST_F(SqliteJobStoreTest, RetryingADeadTileRevivesTheAssembleThatWaitedOnIt) {
+TEST_P(JobStoreTest, RetryingADeadTileRevivesTheAssembleThatWaitedOnIt) {
   RetryPolicy policy;
   policy.maxAttempts = 1;
   open(policy);
@@ -464,7 +534,9 @@ TEST_F(SqliteJobStoreTest, RetryingADeadTileRevivesTheAssembleThatWaitedOnIt) {
   EXPECT_EQ(job(id).state, JobState::kDone);
 }
 
-TEST_F(SqliteJobStoreTest, AReopenedFileKeepsJobsWorkersAndLeases) {
+// What one store object committed, a second one on the same database sees at once, and so
+// does a store opened after the first is gone.
+TEST_P(JobStoreTest, AReopenedStoreKeepsJobsWorkersAndLeases) {
   const JobSpec spec = makeSpec({4}, 2, true, 3);
   const int64_t id = submit(spec, 5);
   WorkerInfo worker{"w1", "render-01", 64, 256ull << 30, 100ull << 30, 5};
@@ -473,7 +545,15 @@ TEST_F(SqliteJobStoreTest, AReopenedFileKeepsJobsWorkersAndLeases) {
   ASSERT_TRUE(store_->registerWorker(worker).ok()) << "registering again updates";
   auto bake = lease("w1", 6);
   ASSERT_TRUE(bake.has_value());
-  EXPECT_TRUE(fs::exists(path_ + "-wal")) << "the store journals in WAL mode";
+  if (GetParam() == Backend::kSqlite) {
+    EXPECT_TRUE(fs::exists(spec_ + "-wal")) << "the store journals in WAL mode";
+  }
+  std::unique_ptr<JobStore> other = openAnother();
+  ASSERT_NE(other, nullptr);
+  auto seen = other->job(id);
+  ASSERT_TRUE(seen.ok()) << seen.status();
+  EXPECT_EQ(count(*seen, TaskState::kLeased), 1);
+  other.reset();
 
   open();
   const JobInfo info = job(id);
@@ -500,25 +580,27 @@ TEST_F(SqliteJobStoreTest, OpenRefusesWhatIsNotAJobStore) {
   store_.reset();
   const fs::path garbage = dir_ / "garbage.db";
   std::ofstream(garbage) << std::string(4096, 'x');
-  auto store = openSqliteJobStore(garbage.string(), {});
+  auto store = openJobStore(garbage.string(), {});
   ASSERT_FALSE(store.ok());
   EXPECT_NE(store.status().message().find(garbage.string()), std::string::npos) << store.status();
 
-  auto missing = openSqliteJobStore((dir_ / "no/such/dir/farm.db").string(), {});
+  auto missing = openJobStore((dir_ / "no/such/dir/farm.db").string(), {});
   EXPECT_EQ(missing.status().code(), absl::StatusCode::kUnavailable) << missing.status();
-
-  RetryPolicy policy;
-  policy.maxAttempts = 0;
-  EXPECT_EQ(openSqliteJobStore(path_, policy).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
-// Two stores on one file stand for two coordinators by mistake, two threads each for the
-// server's handlers: every task is leased and completed exactly once.
-TEST_F(SqliteJobStoreTest, ConcurrentLeasesNeverHandOutATaskTwice) {
+TEST_P(JobStoreTest, OpenRejectsARetryPolicyWithoutAttempts) {
+  RetryPolicy policy;
+  policy.maxAttempts = 0;
+  EXPECT_EQ(openJobStore(spec_, policy).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// Two stores on one database stand for two coordinators (by mistake, for SQLite), two threads
+// each for the server's handlers: every task is leased and completed exactly once.
+TEST_P(JobStoreTest, ConcurrentLeasesNeverHandOutATaskTwice) {
   const int64_t id = submit(makeSpec({1, 2, 3}, 12, false));
-  auto second = openSqliteJobStore(path_, {});
-  ASSERT_TRUE(second.ok()) << second.status();
-  std::vector<JobStore*> stores = {store_.get(), second->get()};
+  std::unique_ptr<JobStore> second = openAnother();
+  ASSERT_NE(second, nullptr);
+  std::vector<JobStore*> stores = {store_.get(), second.get()};
 
   std::mutex mutex;
   std::multiset<int64_t> completed;
@@ -553,6 +635,236 @@ TEST_F(SqliteJobStoreTest, ConcurrentLeasesNeverHandOutATaskTwice) {
   EXPECT_EQ(completed.size(), 39u);
   EXPECT_EQ(std::set<int64_t>(completed.begin(), completed.end()).size(), 39u);
   EXPECT_EQ(job(id).state, JobState::kDone);
+}
+
+// The log keeps what workers printed byte for byte (a NUL, bytes that are not UTF-8), in order,
+// and filters by frame and tile.
+TEST_P(JobStoreTest, TheEventLogKeepsEveryLeaseAndOutcomeInOrder) {
+  RetryPolicy policy;
+  policy.backoffBase = 0;
+  open(policy);
+  const int64_t id = submit(makeSpec({1, 2}, 1, false));
+  const std::string log("stderr: \0\xff\xfe done", 16);
+  auto first = lease("w1", 0);
+  ASSERT_TRUE(first.has_value());
+  ASSERT_TRUE(store_->fail(first->task, first->attempt, "crashed", 1, log).ok());
+  auto second = lease("w2", 2);
+  ASSERT_TRUE(second.has_value());
+  ASSERT_EQ(second->task, first->task);
+  ASSERT_EQ(store_->expireLeases(2 + kLease).value_or(-1), 1);
+  auto third = lease("w3", 40);
+  ASSERT_TRUE(third.has_value());
+  ASSERT_EQ(third->task, first->task);
+  ASSERT_TRUE(store_->complete(third->task, third->attempt, 41, log).ok());
+  auto assemble = lease("w1", 42);
+  ASSERT_TRUE(assemble.has_value());
+  EXPECT_EQ(assemble->ref.kind, TaskKind::kAssemble);
+  auto other = lease("w1", 43);
+  ASSERT_TRUE(other.has_value());
+  EXPECT_EQ(other->ref.frame, 2);
+
+  auto frame1 = store_->events(id, 1, 0);
+  ASSERT_TRUE(frame1.ok()) << frame1.status();
+  std::vector<std::string> seen;
+  for (const TaskEvent& e : *frame1) {
+    seen.push_back(fmt::format("{} {} {} {}", e.event, e.worker, e.attempt, e.time));
+    EXPECT_EQ(e.ref.toString(), fmt::format("job {} frame 1 tile 0", id));
+  }
+  EXPECT_EQ(seen, (std::vector<std::string>{"leased w1 1 0", "failed w1 1 1", "leased w2 2 2",
+                                            "expired w2 2 32", "leased w3 3 40", "done w3 3 41"}));
+  ASSERT_EQ(frame1->size(), 6u);
+  EXPECT_EQ((*frame1)[1].text, "crashed\n" + log);
+  EXPECT_EQ((*frame1)[3].text, "lease expired: worker w2 stopped heartbeating");
+  EXPECT_EQ((*frame1)[5].text, log);
+  auto wholeFrame1 = store_->events(id, 1, std::nullopt);
+  ASSERT_TRUE(wholeFrame1.ok()) << wholeFrame1.status();
+  EXPECT_EQ(wholeFrame1->size(), 7u) << "the tile's six and the assemble's lease";
+  auto all = store_->events(id, std::nullopt, std::nullopt);
+  ASSERT_TRUE(all.ok()) << all.status();
+  EXPECT_EQ(all->size(), 8u);
+  EXPECT_EQ(all->back().ref.frame, 2);
+  EXPECT_EQ(store_->events(id + 1, std::nullopt, std::nullopt).status().code(),
+            absl::StatusCode::kNotFound);
+}
+
+// Two coordinators, one thread each, share one database: leases race on every task of a big
+// job, and each is leased exactly once.
+TEST_F(PostgresJobStoreTest, TwoCoordinatorsLeaseEveryTaskOfABigJobExactlyOnce) {
+  constexpr int kTiles = 200;
+  const int64_t id = submit(makeSpec({1}, kTiles, false));
+  std::unique_ptr<JobStore> second = openAnother();
+  ASSERT_NE(second, nullptr);
+  std::vector<JobStore*> stores = {store_.get(), second.get()};
+
+  std::mutex mutex;
+  std::multiset<int64_t> leased;
+  std::vector<int> perStore(2, 0);
+  std::vector<std::string> errors;
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 2; ++t) {
+    threads.emplace_back([&, t] {
+      JobStore& store = *stores[t];
+      const std::string worker = fmt::format("coordinator{}-worker", t);
+      for (int spins = 0; spins < 100000; ++spins) {
+        auto l = store.lease(worker, 0, kLease);
+        if (!l.ok() || !*l) {
+          auto info = store.job(id);
+          std::lock_guard lock(mutex);
+          if (!l.ok()) errors.push_back(std::string(l.status().message()));
+          if (!l.ok() || !info.ok() || info->state != JobState::kActive) return;
+          continue;  // the assemble waits on a tile the other coordinator holds
+        }
+        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
+        std::lock_guard lock(mutex);
+        if (!s.ok()) errors.push_back(std::string(s.message()));
+        EXPECT_EQ((*l)->attempt, 1) << (*l)->ref.toString();
+        leased.insert((*l)->task);
+        ++perStore[t];
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  EXPECT_TRUE(errors.empty()) << errors.front();
+  EXPECT_EQ(leased.size(), kTiles + 1u);
+  EXPECT_EQ(std::set<int64_t>(leased.begin(), leased.end()).size(), kTiles + 1u)
+      << "a task was leased twice";
+  EXPECT_GT(perStore[0], 0);
+  EXPECT_GT(perStore[1], 0);
+  const JobInfo done = job(id);
+  EXPECT_EQ(done.state, JobState::kDone);
+  EXPECT_EQ(count(done, TaskState::kDone), kTiles + 1);
+  auto events = store_->events(id, std::nullopt, std::nullopt);
+  ASSERT_TRUE(events.ok()) << events.status();
+  std::map<int64_t, int> leases;
+  for (const TaskEvent& e : *events) leases[e.task] += e.event == "leased" ? 1 : 0;
+  EXPECT_EQ(leases.size(), kTiles + 1u);
+  for (const auto& [task, n] : leases) EXPECT_EQ(n, 1) << "task " << task;
+}
+
+// A coordinator that goes away mid-job (its store object destroyed, its workers' leases left
+// behind): the other one's expiry sweep takes those leases back and hands the tasks out again,
+// and a stale attempt from before can no longer commit.
+TEST_F(PostgresJobStoreTest, LeasesOfACoordinatorThatWentAwayExpireToTheOther) {
+  constexpr int kTiles = 200;
+  constexpr int kLost = 10;
+  RetryPolicy policy;
+  policy.backoffBase = 0;  // what expires is ready again at once
+  open(policy);
+  const int64_t id = submit(makeSpec({1}, kTiles, false));
+  std::unique_ptr<JobStore> departing = openAnother(policy);
+  ASSERT_NE(departing, nullptr);
+  // Leased through the departing coordinator, never finished.
+  std::map<int64_t, int> lost;
+  for (int i = 0; i < kLost; ++i) {
+    auto l = departing->lease(fmt::format("b{}", i % 3), 0, kLease);
+    ASSERT_TRUE(l.ok() && l->has_value()) << l.status();
+    lost[(*l)->task] = (*l)->attempt;
+  }
+
+  std::mutex mutex;
+  std::multiset<int64_t> completed;
+  std::vector<std::string> errors;
+  std::atomic<bool> gone = false;
+  auto note = [&](const absl::Status& s) {
+    std::lock_guard lock(mutex);
+    if (!s.ok()) errors.push_back(std::string(s.message()));
+  };
+  // The departing coordinator works on for a while, then stops without a word.
+  std::thread b([&] {
+    for (int i = 0; i < 40; ++i) {
+      auto l = departing->lease("b-busy", 1, kLease);
+      if (!l.ok()) return note(l.status());
+      if (!*l) break;
+      note(departing->complete((*l)->task, (*l)->attempt, 1).status());
+      std::lock_guard lock(mutex);
+      completed.insert((*l)->task);
+    }
+    departing.reset();
+    gone = true;
+  });
+  // The remaining coordinator: everything ready, then, once the other is gone, a sweep.
+  std::thread a([&] {
+    Seconds now = 1;
+    int sweeps = 0;
+    for (int spins = 0; spins < 100000; ++spins) {
+      auto l = store_->lease("a", now, kLease);
+      if (!l.ok()) return note(l.status());
+      if (*l) {
+        note(store_->complete((*l)->task, (*l)->attempt, now).status());
+        std::lock_guard lock(mutex);
+        completed.insert((*l)->task);
+        continue;
+      }
+      auto info = store_->job(id);
+      if (!info.ok()) return note(info.status());
+      if (info->state != JobState::kActive) return;
+      if (!gone || sweeps > 0) {
+        std::this_thread::yield();
+        continue;
+      }
+      now = 1 + kLease;
+      auto expired = store_->expireLeases(now);
+      if (!expired.ok()) return note(expired.status());
+      std::lock_guard lock(mutex);
+      EXPECT_EQ(*expired, kLost) << "only the departed coordinator's leases had expired";
+      ++sweeps;
+    }
+  });
+  b.join();
+  a.join();
+  EXPECT_TRUE(errors.empty()) << errors.front();
+  EXPECT_EQ(completed.size(), kTiles + 1u);
+  EXPECT_EQ(std::set<int64_t>(completed.begin(), completed.end()).size(), kTiles + 1u)
+      << "a task completed twice";
+  EXPECT_EQ(job(id).state, JobState::kDone);
+  auto tasks = store_->tasks(id);
+  ASSERT_TRUE(tasks.ok()) << tasks.status();
+  for (const TaskInfo& t : *tasks) {
+    if (!lost.contains(t.id)) continue;
+    EXPECT_EQ(t.attempt, 2) << t.ref.toString();
+    EXPECT_EQ(t.failures, 1) << t.ref.toString();
+    EXPECT_EQ(t.worker, "a") << t.ref.toString();
+    EXPECT_NE(t.lastError.find("lease expired: worker b"), std::string::npos) << t.lastError;
+  }
+  const auto [task, attempt] = *lost.begin();
+  EXPECT_EQ(store_->complete(task, attempt, 100).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+}
+
+TEST_F(PostgresJobStoreTest, OpenRefusesAServerItCannotReachAndASchemaFromANewerCoordinator) {
+  // A socket folder nobody listens in; the password must not reach the message.
+  const std::string unreachable =
+      fmt::format("postgresql://pbgi:hunter2@/farm?host={}&port=1", dir_.string());
+  auto store = openJobStore(unreachable, {});
+  EXPECT_EQ(store.status().code(), absl::StatusCode::kUnavailable) << store.status();
+  EXPECT_NE(store.status().message().find(dir_.string()), std::string::npos) << store.status();
+  EXPECT_EQ(store.status().message().find("hunter2"), std::string::npos) << store.status();
+
+  store_.reset();
+  ASSERT_TRUE(cluster_->execute(database_, "UPDATE pbgi_schema SET version = 99").ok());
+  auto newer = openJobStore(spec_, {});
+  EXPECT_EQ(newer.status().code(), absl::StatusCode::kFailedPrecondition) << newer.status();
+  EXPECT_NE(newer.status().message().find("schema version 99"), std::string::npos)
+      << newer.status();
+}
+
+TEST(JobStoreRulesTest, AStoreSpecPicksItsImplementationAndErrorsShowNoPassword) {
+  EXPECT_TRUE(isPostgresUri("postgresql://farm-db/farm"));
+  EXPECT_TRUE(isPostgresUri("postgres://farm-db/farm"));
+  EXPECT_FALSE(isPostgresUri("/var/lib/pbgi/jobs.db"));
+  EXPECT_FALSE(isPostgresUri("postgresql.db"));
+  EXPECT_EQ(redactedUri("postgresql://pbgi:s3cret@db.farm:5432/farm?sslmode=require&password=x"),
+            "postgresql://pbgi@db.farm:5432/farm?sslmode=require");
+  EXPECT_EQ(redactedUri("postgresql:///farm?password=x&host=/run/pg"),
+            "postgresql:///farm?host=/run/pg");
+  EXPECT_EQ(redactedUri("postgresql://pbgi@db/farm"), "postgresql://pbgi@db/farm");
+}
+
+TEST(JobStoreRulesTest, ADeadTaskTakesWhatWaitsOnItInItsFrame) {
+  EXPECT_EQ(dependentKinds(TaskKind::kBake),
+            (std::vector<TaskKind>{TaskKind::kTile, TaskKind::kAssemble}));
+  EXPECT_EQ(dependentKinds(TaskKind::kTile), std::vector<TaskKind>{TaskKind::kAssemble});
+  EXPECT_TRUE(dependentKinds(TaskKind::kAssemble).empty());
 }
 
 }  // namespace
