@@ -19,7 +19,7 @@
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
 #include "services/render/frame_render.h"
-#include "tests/support/farm_fixtures.h"
+#include "tests/support/worker_farm.h"
 
 namespace pbgi::farm {
 namespace {
@@ -60,100 +60,7 @@ int expectPagesIntact(const fs::path& dir, const std::vector<std::unique_ptr<Tre
   return held;
 }
 
-class WorkerTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = pbgi::testing::makeTempDir("worker");
-    options_.stateDir = (dir_ / "state").string();
-    options_.outputRoot = dir_.string();
-    options_.token = "worker-test-token";
-    options_.tileSize = 32;
-    options_.leaseSeconds = 1.0;
-    options_.expiryIntervalSeconds = 0.1;
-    options_.retry.backoffBase = 0.0;
-  }
-  void TearDown() override {
-    workers_.clear();
-    coordinator_.reset();
-    fs::remove_all(dir_);
-  }
-  void start() {
-    auto c = Coordinator::start(options_);
-    ASSERT_TRUE(c.ok()) << c.status();
-    coordinator_ = *std::move(c);
-    client_ = std::make_unique<FarmClient>(coordinator_->address(), options_.token, 10.0);
-  }
-  // `launcher`: words before the worker's own (a wrapper that runs it).
-  Process& startWorker(const std::string& id, std::vector<std::string> extra = {},
-                       const std::string& address = {}, std::vector<std::string> launcher = {}) {
-    std::vector<std::string> argv = launcher;
-    const std::vector<std::string> own = {pbgi::testing::binary("pbgi-worker").string(),
-                                     "--coordinator",
-                                     address.empty() ? coordinator_->address() : address,
-                                     "--id", id, "--threads", "1", "--poll-seconds", "0.05"};
-    argv.insert(argv.end(), own.begin(), own.end());
-    if (std::find(extra.begin(), extra.end(), "--cache-dir") == extra.end()) {
-      extra.insert(extra.end(), {"--cache-dir", (dir_ / ("cache-" + id)).string()});
-    }
-    argv.insert(argv.end(), extra.begin(), extra.end());
-    workers_.emplace_back(argv, dir_ / (id + ".log"),
-                          std::vector<std::string>{"PBGI_TOKEN=" + options_.token});
-    return workers_.back();
-  }
-  int64_t submit(const pbgi::testing::SmallShot& shot, std::vector<int> frames = {}) {
-    shotPath_ = pbgi::testing::writeSmallShot(dir_, shot);
-    v1::SubmitJobRequest request;
-    request.set_shot_path(shotPath_.string());
-    request.set_shot_text(pbgi::testing::slurpFile(shotPath_));
-    for (int f : frames) request.add_frames(f);
-    auto id = client_->submitJob(request);
-    EXPECT_TRUE(id.ok()) << id.status();
-    return id.ok() ? id->job() : 0;
-  }
-  absl::StatusOr<v1::JobStatus> jobStatus(int64_t job) {
-    v1::GetStatusRequest request;
-    request.set_job(job);
-    request.set_with_tasks(true);
-    auto s = client_->getStatus(request);
-    if (!s.ok()) return s.status();
-    return s->jobs(0);
-  }
-  bool settled(int64_t job, std::string* state = nullptr) {
-    auto s = jobStatus(job);
-    if (state != nullptr && s.ok()) *state = s->state();
-    return s.ok() && s->state() != "active";
-  }
-  // The frame as `pbgi render` makes it: the whole frame, in this process.
-  void expectFrameEqualsWholeRender(int frame) {
-    auto shot = loadShotFile(shotPath_.string());
-    ASSERT_TRUE(shot.ok()) << shot.status();
-    FrameRenderRequest request;
-    request.frame = frame;
-    request.threads = 2;
-    request.preview = false;
-    request.outPath = (dir_ / fmt::format("whole.{}.exr", frame)).string();
-    request.bakeDir = (dir_ / "whole-bake").string();
-    ASSERT_TRUE(renderShotFrame(*shot, request).ok());
-    auto whole = readImage(request.outPath);
-    auto farm = readImage(
-        outputPathForFrame(shot->output, frame, shot->lastFrame > shot->firstFrame));
-    ASSERT_TRUE(whole.ok() && farm.ok()) << whole.status() << farm.status();
-    std::string why;
-    EXPECT_TRUE(pbgi::testing::samePixels(*farm, *whole, &why)) << "frame " << frame << ": " << why;
-  }
-  std::string workerLogs() {
-    std::string all;
-    for (const Process& w : workers_) all += w.log();
-    return all;
-  }
-
-  fs::path dir_;
-  fs::path shotPath_;
-  CoordinatorOptions options_;
-  std::unique_ptr<Coordinator> coordinator_;
-  std::unique_ptr<FarmClient> client_;
-  std::vector<Process> workers_;
-};
+using WorkerTest = pbgi::testing::WorkerFarmTest;
 
 TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
   // Two 64 x 64 tiles of a second or two each on one thread.
