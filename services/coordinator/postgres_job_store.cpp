@@ -1,6 +1,7 @@
 // The shared job store: PostgreSQL through libpqxx, so that several coordinators (and the
-// operators' tools) can work on one farm's jobs. One connection per store object behind a
-// mutex (postgres_query.h), like the SQLite store; each public call is one transaction.
+// operators' tools) can work on one farm's jobs. A pool of kConnections connections per store
+// object (postgres_query.h), so that concurrent calls overlap on the server and share its WAL
+// flushes; each public call is one transaction.
 //
 // Concurrency, with every write transaction at READ COMMITTED:
 // - lease takes its task with SELECT ... FOR UPDATE SKIP LOCKED, re-checked under the lock, so
@@ -28,6 +29,9 @@ namespace {
 
 // Bumped with every schema change: a database written by a newer coordinator is refused.
 constexpr int kSchemaVersion = 1;
+// Connections per store object: calls beyond this many at once wait for one. The locking
+// below is what lets two coordinators share a database; it is also what lets these share it.
+constexpr int kConnections = 8;
 // pg_advisory_xact_lock key ("pbgi") that serializes coordinators creating the schema at once.
 constexpr int64_t kSchemaLockKey = 0x70626769;
 
@@ -124,7 +128,7 @@ TaskInfo readTask(const pqxx::row& r) {
 class PostgresJobStore final : public JobStore {
  public:
   PostgresJobStore(std::string uri, const RetryPolicy& policy)
-      : session_(std::move(uri)), policy_(policy) {}
+      : sessions_(uri, kConnections), policy_(policy) {}
 
   absl::Status initialize();
 
@@ -154,7 +158,7 @@ class PostgresJobStore final : public JobStore {
  private:
   template <typename Body>
   auto transaction(PgAccess access, Body&& body) {
-    return session_.transaction(access, std::forward<Body>(body));
+    return sessions_.transaction(access, std::forward<Body>(body));
   }
   absl::StatusOr<JobState> jobState(PgTx& tx, int64_t job, bool lock = false);
   absl::StatusOr<JobInfo> readJob(const pqxx::row& r) const;
@@ -170,7 +174,7 @@ class PostgresJobStore final : public JobStore {
                              std::string_view event, std::string_view log);
   absl::Status settleJob(PgTx& tx, int64_t job);
 
-  PgSession session_;
+  PgPool sessions_;
   const RetryPolicy policy_;
 };
 
@@ -184,7 +188,7 @@ absl::Status PostgresJobStore::initialize() {
       if (found == kSchemaVersion) return absl::OkStatus();
       return absl::FailedPreconditionError(
           fmt::format("{}: schema version {}; this coordinator reads version {}",
-                      session_.shownUri(), found, kSchemaVersion));
+                      sessions_.shownUri(), found, kSchemaVersion));
     }
     tx.script(kSchema);
     tx.exec("INSERT INTO pbgi_schema (version) VALUES ($1)", kSchemaVersion);
@@ -211,7 +215,7 @@ absl::StatusOr<JobInfo> PostgresJobStore::readJob(const pqxx::row& r) const {
   info.spec.priority = r[6].as<int>();
   PBGI_ASSIGN_OR_RETURN(
       info.spec.frames,
-      parseFrames(r[7].as<std::string>(), fmt::format("{}: job {}", session_.shownUri(), info.id)));
+      parseFrames(r[7].as<std::string>(), fmt::format("{}: job {}", sessions_.shownUri(), info.id)));
   info.spec.tileCount = r[8].as<int>();
   info.spec.needsBake = r[9].as<bool>();
   info.state = static_cast<JobState>(r[10].as<int>());
@@ -486,7 +490,7 @@ absl::StatusOr<std::optional<Lease>> PostgresJobStore::lease(const std::string& 
         lease.task, worker, lease.expires);
     if (taken.empty()) {
       return absl::InternalError(fmt::format("{}: {} (task {}) was ready under its lock, then not",
-                                             session_.shownUri(), lease.ref.toString(),
+                                             sessions_.shownUri(), lease.ref.toString(),
                                              lease.task));
     }
     lease.attempt = taken[0][0].as<int>();

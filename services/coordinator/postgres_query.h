@@ -1,8 +1,9 @@
 #pragma once
-// PostgreSQL plumbing for the job store, private to services/coordinator: one connection with
-// its prepared statements, transactions retried when the server asks for it (serialization
+// PostgreSQL plumbing for the job store, private to services/coordinator: connections with
+// their prepared statements (a pool of them), transactions retried when the server asks for it (serialization
 // failures, deadlocks), and errors that name the database, without its password, and the
 // statement. libpqxx's exceptions stop here; callers see absl::Status.
+#include <condition_variable>
 #include <cstdint>
 #include <memory>
 #include <mutex>
@@ -11,6 +12,7 @@
 #include <string>
 #include <unordered_map>
 #include <utility>
+#include <vector>
 
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
@@ -113,6 +115,45 @@ class PgSession {
   std::unique_ptr<pqxx::connection> connection_;
   std::unordered_map<std::string, std::string> statementNames_;  // of connection_
   std::minstd_rand jitter_;
+};
+
+// Connections to one database, each used by one transaction at a time: concurrent calls run
+// on different connections, so the server overlaps them and flushes their commits together
+// (one connection would serialize every call behind one WAL flush). Connections open on first
+// use; a call waits when all are busy.
+class PgPool {
+ public:
+  PgPool(const std::string& uri, int size) {
+    for (int i = 0; i < size; ++i) {
+      all_.push_back(std::make_unique<PgSession>(uri));
+      idle_.push_back(all_.back().get());
+    }
+  }
+  const std::string& shownUri() const { return all_.front()->shownUri(); }
+
+  template <typename Body>
+  auto transaction(PgAccess access, Body&& body) -> decltype(body(std::declval<PgTx&>())) {
+    PgSession* session = nullptr;
+    {
+      std::unique_lock lock(mutex_);
+      freed_.wait(lock, [&] { return !idle_.empty(); });
+      session = idle_.back();
+      idle_.pop_back();
+    }
+    auto result = session->transaction(access, std::forward<Body>(body));
+    {
+      std::lock_guard lock(mutex_);
+      idle_.push_back(session);
+    }
+    freed_.notify_one();
+    return result;
+  }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable freed_;
+  std::vector<std::unique_ptr<PgSession>> all_;
+  std::vector<PgSession*> idle_;
 };
 
 template <typename... Args>

@@ -1,7 +1,17 @@
 // The embedded job store: one SQLite file in WAL mode, one connection behind a mutex. Each
 // public call is one transaction, so a crash between two calls loses nothing a caller heard
 // about, and a crash inside one loses the whole call and nothing else.
+//
+// Group commit: writes that arrive while another batch commits wait, then commit together,
+// each inside a savepoint of one transaction (one fsync for all of them instead of one each).
+// A call still returns only after its changes are durable; a call that fails rolls back to its
+// savepoint, undoing only itself; a commit that fails fails every call of its batch.
+#include <condition_variable>
+#include <functional>
 #include <mutex>
+#include <optional>
+#include <type_traits>
+#include <vector>
 #include <string_view>
 #include <unordered_map>
 #include <utility>
@@ -146,6 +156,17 @@ class SqliteJobStore final : public JobStore {
   template <typename Body>
   auto transaction(Access access, Body&& body) -> decltype(body());
 
+  // One write call waiting for its group commit.
+  struct GroupedCall {
+    std::function<absl::Status()> run;  // the call's body; its status
+    absl::Status committed;             // how its batch's commit went (ok: durable)
+    bool done = false;
+  };
+  // Queues the call and returns once a batch holding it committed (or failed).
+  absl::Status commitGrouped(GroupedCall* call);
+  // Runs a batch in one transaction, each call in a savepoint, and commits it.
+  void runBatch(std::span<GroupedCall* const> batch);
+
   absl::StatusOr<JobState> jobState(int64_t job);
   absl::StatusOr<JobInfo> readJob(const Query& q);
   absl::Status addTaskSummary(JobInfo& info);
@@ -161,7 +182,11 @@ class SqliteJobStore final : public JobStore {
 
   const std::string path_;
   const RetryPolicy policy_;
-  std::mutex mutex_;
+  std::mutex mutex_;  // the connection
+  std::mutex groupMutex_;  // the queue below
+  std::condition_variable groupDone_;
+  std::vector<GroupedCall*> pending_;
+  bool committing_ = false;  // a batch is being committed (its leader holds mutex_)
   DatabasePtr db_;
   // Prepared once per SQL text; declared after db_ so that they are finalized before it closes.
   std::unordered_map<std::string, StatementPtr> statements_;
@@ -196,18 +221,99 @@ Query SqliteJobStore::query(const char* sql) {
 
 template <typename Body>
 auto SqliteJobStore::transaction(Access access, Body&& body) -> decltype(body()) {
-  std::lock_guard lock(mutex_);
-  // Writers take the write lock up front: a deferred transaction that meets a lock at its
-  // first write can only fail, since busy_timeout cannot wait out a reader's upgrade. Readers
-  // stay deferred so that status queries never hold up a lease.
-  PBGI_RETURN_IF_ERROR(exec(access == Access::kWrite ? "BEGIN IMMEDIATE" : "BEGIN"));
-  auto result = body();
-  absl::Status committed = result.ok() ? exec("COMMIT") : absl::OkStatus();
-  if (result.ok() && committed.ok()) return result;
-  // A failed call changes nothing; sqlite may already have rolled back on its own.
-  if (sqlite3_get_autocommit(db_.get()) == 0) (void)exec("ROLLBACK");
+  using Result = decltype(body());
+  if (access == Access::kRead) {
+    // Readers stay deferred so that status queries never hold up a lease.
+    std::lock_guard lock(mutex_);
+    PBGI_RETURN_IF_ERROR(exec("BEGIN"));
+    Result result = body();
+    absl::Status committed = result.ok() ? exec("COMMIT") : absl::OkStatus();
+    if (result.ok() && committed.ok()) return result;
+    if (sqlite3_get_autocommit(db_.get()) == 0) (void)exec("ROLLBACK");
+    if (!committed.ok()) return committed;
+    return result;
+  }
+  std::optional<Result> result;
+  GroupedCall call;
+  call.run = [&]() -> absl::Status {
+    result.emplace(body());
+    if constexpr (std::is_same_v<Result, absl::Status>) {
+      return *result;
+    } else {
+      return result->status();
+    }
+  };
+  const absl::Status committed = commitGrouped(&call);
   if (!committed.ok()) return committed;
-  return result;
+  return std::move(*result);
+}
+
+absl::Status SqliteJobStore::commitGrouped(GroupedCall* call) {
+  std::unique_lock lock(groupMutex_);
+  pending_.push_back(call);
+  while (!call->done) {
+    if (committing_) {
+      groupDone_.wait(lock);
+      continue;
+    }
+    // This call leads the next batch: everything queued so far, its own call among them.
+    committing_ = true;
+    std::vector<GroupedCall*> batch;
+    batch.swap(pending_);
+    lock.unlock();
+    runBatch(batch);
+    lock.lock();
+    for (GroupedCall* c : batch) c->done = true;
+    committing_ = false;
+    groupDone_.notify_all();
+  }
+  return call->committed;
+}
+
+void SqliteJobStore::runBatch(std::span<GroupedCall* const> batch) {
+  std::lock_guard lock(mutex_);
+  std::vector<GroupedCall*> open;  // calls whose changes wait for the commit
+  auto inTransaction = [&] { return sqlite3_get_autocommit(db_.get()) == 0; };
+  for (GroupedCall* call : batch) {
+    // Writers take the write lock up front: a deferred transaction that meets a lock at its
+    // first write can only fail, since busy_timeout cannot wait out a reader's upgrade.
+    if (!inTransaction()) {
+      if (absl::Status begun = exec("BEGIN IMMEDIATE"); !begun.ok()) {
+        call->committed = begun;
+        continue;
+      }
+    }
+    if (absl::Status saved = exec("SAVEPOINT pbgi_call"); !saved.ok()) {
+      call->committed = saved;
+      continue;
+    }
+    const absl::Status ran = call->run();
+    if (!inTransaction()) {
+      // SQLite rolled the whole transaction back (a full disk, an I/O error): the calls
+      // before this one in it are lost with it; this one returns its own error.
+      for (GroupedCall* lost : open) {
+        lost->committed = absl::AbortedError(fmt::format(
+            "job store {}: rolled back with another call of its group commit: {}", path_,
+            ran.ToString()));
+      }
+      open.clear();
+      if (ran.ok()) call->committed = absl::InternalError("job store: transaction lost");
+      continue;
+    }
+    if (ran.ok()) {
+      call->committed = exec("RELEASE pbgi_call");
+      if (call->committed.ok()) open.push_back(call);
+    } else {
+      // A failed call changes nothing: back to its savepoint; its result is its error.
+      (void)exec("ROLLBACK TO pbgi_call");
+      (void)exec("RELEASE pbgi_call");
+    }
+  }
+  if (!inTransaction()) return;
+  const absl::Status committed = exec("COMMIT");
+  if (committed.ok()) return;
+  if (inTransaction()) (void)exec("ROLLBACK");
+  for (GroupedCall* c : open) c->committed = committed;
 }
 
 absl::Status SqliteJobStore::initialize() {

@@ -1,16 +1,19 @@
 // The farm's throughput, measured in one run (these machines are noisy; compare within a run):
 //   1. lease round trips per second (LeaseTask + CompleteTask over gRPC, every state change
-//      committed to SQLite with synchronous=FULL) with 200 simulated workers;
+//      committed) with 200 simulated workers: SQLite (group commit), PostgreSQL (a throwaway
+//      cluster), and two coordinators on one PostgreSQL database; then the dispatch query's
+//      time as the task table grows from 10 k to 1 M tasks, on each store;
 //   2. 1 against 2 pbgi-worker processes on a 4-frame Cornell box job through `pbgi run`;
 //   3. the page service: every page of a baked tree fetched over loopback, MB/s and pages/s.
 //   4. locality-aware dispatch against plain: 2 workers streaming pages, bytes sent and time.
 // Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|
-//   --stream-only|--dispatch-only]
+//   --scaling-only|--stream-only|--dispatch-only]
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -23,6 +26,7 @@
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
 #include "tests/support/farm_fixtures.h"
+#include "tests/support/postgres_cluster.h"
 
 namespace pbgi::farm {
 namespace {
@@ -32,13 +36,15 @@ using Clock = std::chrono::steady_clock;
 
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-std::unique_ptr<Coordinator> startCoordinator(const fs::path& dir, int tileSize) {
+std::unique_ptr<Coordinator> startCoordinator(const fs::path& dir, int tileSize,
+                                              const std::string& store = {}) {
   CoordinatorOptions o;
   o.stateDir = (dir / "state").string();
   o.outputRoot = dir.string();
   o.token = "bench";
   o.tileSize = tileSize;
   o.leaseSeconds = 600;
+  o.store = store;
   auto c = Coordinator::start(o);
   if (!c.ok()) {
     std::fprintf(stderr, "farm_bench: %s\n", std::string(c.status().message()).c_str());
@@ -54,31 +60,50 @@ v1::SubmitJobRequest jobRequest(const fs::path& shot) {
   return r;
 }
 
-void leaseRoundTrips() {
+// A fresh PostgreSQL database of the bench's throwaway cluster, or nullopt (said why) when no
+// cluster can be started here.
+std::optional<std::string> postgresDatabase() {
+  auto cluster = pbgi::testing::PostgresCluster::shared();
+  if (!cluster.ok()) {
+    std::printf("PostgreSQL: skipped, no cluster: %s\n", cluster.status().ToString().c_str());
+    return std::nullopt;
+  }
+  auto db = (*cluster)->createDatabase();
+  if (!db.ok()) {
+    std::printf("PostgreSQL: skipped: %s\n", db.status().ToString().c_str());
+    return std::nullopt;
+  }
+  return (*cluster)->uri(*db);
+}
+
+// 200 simulated workers, each a thread of its own that leases a task and completes it over
+// gRPC as fast as the coordinators answer, for 5 s; the workers take the coordinators in turn.
+// Every state change is committed (SQLite: synchronous=FULL, grouped; PostgreSQL: its default
+// synchronous_commit) before its call returns.
+void leaseRoundTrips(const std::string& label, const std::string& store, int coordinators) {
   const fs::path dir = pbgi::testing::makeTempDir("farm-bench-lease");
   pbgi::testing::SmallShot big;
   big.width = 2048;
   big.height = 2048;
   big.lastFrame = 4;
   const fs::path shot = pbgi::testing::writeSmallShot(dir, big);
-  auto coordinator = startCoordinator(dir, 32);  // 4096 tiles a frame
-  FarmClient client(coordinator->address(), "bench");
+  std::vector<std::unique_ptr<Coordinator>> farm;
+  for (int c = 0; c < coordinators; ++c) farm.push_back(startCoordinator(dir, 32, store));
+  FarmClient client(farm[0]->address(), "bench");  // 4 frames of 4096 tiles
   if (!client.submitJob(jobRequest(shot)).ok()) std::exit(1);
   constexpr int kWorkers = 200;
-  constexpr int kThreads = 16;  // each drives kWorkers / kThreads simulated workers in turn
   constexpr double kSeconds = 5.0;
   std::atomic<uint64_t> trips{0};
   std::atomic<uint64_t> errors{0};
   std::atomic<bool> stop{false};
   std::vector<std::thread> threads;
   const auto t0 = Clock::now();
-  for (int t = 0; t < kThreads; ++t) {
-    threads.emplace_back([&, t] {
-      FarmClient own(coordinator->address(), "bench");
-      for (int i = 0; !stop.load(); ++i) {
-        const int worker = t + kThreads * (i % (kWorkers / kThreads));
+  for (int w = 0; w < kWorkers; ++w) {
+    threads.emplace_back([&, w] {
+      FarmClient own(farm[w % coordinators]->address(), "bench");
+      while (!stop.load()) {
         v1::LeaseTaskRequest ask;
-        ask.set_worker(fmt::format("sim-{}", worker));
+        ask.set_worker(fmt::format("sim-{}", w));
         auto lease = own.leaseTask(ask);
         if (!lease.ok() || !lease->has_task()) {
           errors.fetch_add(1);
@@ -97,12 +122,66 @@ void leaseRoundTrips() {
   stop.store(true);
   for (auto& th : threads) th.join();
   const double seconds = since(t0);
-  std::printf("lease round trips: %d simulated workers on %d client threads, %.1f s: %llu round "
-              "trips (lease + complete), %.0f per second, %.2f ms each; %llu empty or failed\n",
-              kWorkers, kThreads, seconds, static_cast<unsigned long long>(trips.load()),
-              trips.load() / seconds, 1000.0 * seconds * kThreads / std::max<uint64_t>(trips.load(), 1),
+  std::printf("lease round trips, %s: %d simulated workers, %d coordinator%s, %.1f s: %llu round "
+              "trips (lease + complete), %.0f per second, %.1f ms each; %llu empty or failed\n",
+              label.c_str(), kWorkers, coordinators, coordinators > 1 ? "s" : "", seconds,
+              static_cast<unsigned long long>(trips.load()), trips.load() / seconds,
+              1000.0 * seconds * kWorkers / std::max<uint64_t>(trips.load(), 1),
               static_cast<unsigned long long>(errors.load()));
-  coordinator.reset();
+  farm.clear();
+  fs::remove_all(dir);
+}
+
+void leaseThroughput() {
+  leaseRoundTrips("SQLite", "", 1);
+  if (const auto postgres = postgresDatabase()) leaseRoundTrips("PostgreSQL", *postgres, 1);
+  if (const auto postgres = postgresDatabase()) leaseRoundTrips("PostgreSQL", *postgres, 2);
+}
+
+// The dispatch query as the task table grows (OpenCue's users see theirs slow down): a job of
+// N tile tasks is submitted straight to the store, then 2,000 lease + complete pairs are timed
+// on it, for N from 10 k to 1 M, on each store.
+void dispatchScaling() {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-scaling");
+  for (const bool postgres : {false, true}) {
+    for (const int frames : {10, 100, 1000}) {
+      std::string spec = (dir / fmt::format("scale-{}.db", frames)).string();
+      if (postgres) {
+        const auto uri = postgresDatabase();
+        if (!uri) return;
+        spec = *uri;
+      }
+      auto store = openJobStore(spec, RetryPolicy{});
+      if (!store.ok()) {
+        std::fprintf(stderr, "farm_bench: %s\n", store.status().ToString().c_str());
+        std::exit(1);
+      }
+      JobSpec job;
+      job.name = "scale";
+      job.shotPath = "/shots/scale.toml";
+      job.shotText = "[camera]\n";
+      job.outputPattern = "/renders/scale.####.exr";
+      for (int f = 1; f <= frames; ++f) job.frames.push_back(f);
+      job.tileCount = 1000;  // 10 k, 100 k, 1 M tile tasks (and one assemble a frame)
+      auto t0 = Clock::now();
+      if (auto id = (*store)->submit(job, 0.0); !id.ok()) {
+        std::fprintf(stderr, "farm_bench: %s\n", id.status().ToString().c_str());
+        std::exit(1);
+      }
+      const double submitSeconds = since(t0);
+      constexpr int kPairs = 2000;
+      t0 = Clock::now();
+      for (int i = 0; i < kPairs; ++i) {
+        auto lease = (*store)->lease("bench", 1.0, 600.0);
+        if (!lease.ok() || !lease->has_value()) std::exit(1);
+        if (!(*store)->complete((*lease)->task, (*lease)->attempt, 1.0).ok()) std::exit(1);
+      }
+      const double seconds = since(t0);
+      std::printf("dispatch, %s, %7d tasks: %.3f ms a lease + complete (submitted in %.1f s)\n",
+                  postgres ? "PostgreSQL" : "SQLite", frames * 1001, 1000.0 * seconds / kPairs,
+                  submitSeconds);
+    }
+  }
   fs::remove_all(dir);
 }
 
@@ -279,9 +358,11 @@ void localityDispatch() {
 int main(int argc, char** argv) {
   const std::string only = argc > 1 ? argv[1] : "";
   pbgi::log::setLevel(pbgi::log::Level::kError);
-  if (only.empty() || only == "--leases-only") pbgi::farm::leaseRoundTrips();
+  if (only.empty() || only == "--leases-only") pbgi::farm::leaseThroughput();
+  if (only.empty() || only == "--scaling-only") pbgi::farm::dispatchScaling();
   if (only.empty() || only == "--workers-only") pbgi::farm::workerScaling();
   if (only.empty() || only == "--stream-only") pbgi::farm::pageStream();
   if (only.empty() || only == "--dispatch-only") pbgi::farm::localityDispatch();
+  pbgi::testing::PostgresCluster::stopShared();
   return 0;
 }
