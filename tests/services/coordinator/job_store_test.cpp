@@ -637,6 +637,50 @@ TEST_P(JobStoreTest, ConcurrentLeasesNeverHandOutATaskTwice) {
   EXPECT_EQ(job(id).state, JobState::kDone);
 }
 
+// Many callers at once on one store object (the SQLite store commits their writes in groups,
+// each call in a savepoint): a stale completion that fails between good calls of the same
+// group undoes only itself, and every good call is durable when it returns (a second store
+// object sees it).
+TEST_P(JobStoreTest, CallsCommittedTogetherStillSucceedOrFailAlone) {
+  const int64_t id = submit(makeSpec({1, 2}, 40, false));
+  std::mutex mutex;
+  std::multiset<int64_t> completed;
+  std::vector<std::string> errors;
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 8; ++t) {
+    threads.emplace_back([&, t] {
+      const std::string worker = fmt::format("w{}", t);
+      for (int spins = 0; spins < 100000; ++spins) {
+        auto l = store_->lease(worker, 0, kLease);
+        if (!l.ok() || !*l) {
+          auto info = store_->job(id);
+          if (!l.ok() || !info.ok() || info->state != JobState::kActive) return;
+          std::this_thread::yield();
+          continue;
+        }
+        const absl::Status stale = store_->complete((*l)->task, (*l)->attempt + 1, 0).status();
+        const absl::Status good = store_->complete((*l)->task, (*l)->attempt, 0).status();
+        std::lock_guard lock(mutex);
+        if (stale.code() != absl::StatusCode::kFailedPrecondition) {
+          errors.push_back("stale completion: " + stale.ToString());
+        }
+        if (!good.ok()) errors.push_back(good.ToString());
+        completed.insert((*l)->task);
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  ASSERT_TRUE(errors.empty()) << errors.front();
+  EXPECT_EQ(completed.size(), 82u);
+  EXPECT_EQ(std::set<int64_t>(completed.begin(), completed.end()).size(), 82u);
+  std::unique_ptr<JobStore> second = openAnother();
+  ASSERT_NE(second, nullptr);
+  auto seen = second->job(id);
+  ASSERT_TRUE(seen.ok()) << seen.status();
+  EXPECT_EQ(seen->state, JobState::kDone);
+  EXPECT_EQ(count(*seen, TaskState::kDone), 82);
+}
+
 // The log keeps what workers printed byte for byte (a NUL, bytes that are not UTF-8), in order,
 // and filters by frame and tile.
 TEST_P(JobStoreTest, TheEventLogKeepsEveryLeaseAndOutcomeInOrder) {
