@@ -32,6 +32,8 @@ constexpr int kSchemaVersion = 1;
 // Connections per store object: calls beyond this many at once wait for one. The locking
 // below is what lets two coordinators share a database; it is also what lets these share it.
 constexpr int kConnections = 8;
+// Tasks a submission adds beyond which it refreshes the table's statistics.
+constexpr size_t kAnalyzeAfterTasks = 10000;
 // pg_advisory_xact_lock key ("pbgi") that serializes coordinators creating the schema at once.
 constexpr int64_t kSchemaLockKey = 0x70626769;
 
@@ -372,6 +374,9 @@ absl::StatusOr<int64_t> PostgresJobStore::submit(const JobSpec& spec, Seconds no
         arrayLiteral(planned, [](const PlannedTask& t) { return t.frame; }),
         arrayLiteral(planned, [](const PlannedTask& t) { return t.tile; }),
         arrayLiteral(planned, [](const PlannedTask& t) { return number(t.state); }));
+    // A job that grows the table by much: fresh statistics now, not at autovacuum's next
+    // pass, so that the lease and completion plans keep to the indexes.
+    if (planned.size() >= kAnalyzeAfterTasks) tx.script("ANALYZE tasks");
     return job;
   });
 }

@@ -57,6 +57,9 @@ absl::Status PgSession::connectLocked() {
     connection->set_variable("client_min_messages", "warning");
     // An operator's session that holds a row for long fails the call rather than hanging it.
     connection->set_variable("lock_timeout", "'5s'");
+    // Plans for each call's own values: a generic plan made once for `frame = $2 OR $2 IS
+    // NULL` and the like cannot use the indexes, and the task table grows by millions.
+    connection->set_variable("plan_cache_mode", "force_custom_plan");
     connection_ = std::move(connection);
     return absl::OkStatus();
   } catch (const std::exception& e) {

@@ -337,6 +337,9 @@ absl::Status SqliteJobStore::initialize() {
     // same attempt number could be handed to a second worker after the restart.
     PBGI_RETURN_IF_ERROR(exec("PRAGMA synchronous = FULL"));
     PBGI_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
+    // 64 MiB of pages (the default is 2): a farm's million-task table keeps its indexes'
+    // upper levels in memory, so a lease costs the same at 10 k tasks as at 1 M.
+    PBGI_RETURN_IF_ERROR(exec("PRAGMA cache_size = -65536"));
   }
   // Inside a write transaction, so that two coordinators creating one file cannot both see
   // version 0.
@@ -453,11 +456,18 @@ absl::Status SqliteJobStore::touchWorker(const std::string& worker, Seconds now)
 // kDependencies, in its order.
 absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> frame) {
   for (const Dependency& d : kDependencies) {
-    Query q = query(
-        "UPDATE tasks SET state = 1 WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 0 "
-        "AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d WHERE "
-        "d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 AND d.state != 3))");
-    q.bind(1, job).bind(2, frame).bind(3, d.kind).bind(4, d.waitsOn);
+    // Two statements, not `(?2 IS NULL OR frame = ?2)`: with the OR, SQLite's plan walks every
+    // blocked task of the job (a frame's assemble each: thousands in a long shot) per call.
+    Query q = frame ? query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
+                            "frame = ?2 AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 "
+                            "FROM tasks d WHERE d.job = tasks.job AND d.frame = tasks.frame AND "
+                            "d.kind = ?4 AND d.state != 3))")
+                    : query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
+                            "kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d "
+                            "WHERE d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 "
+                            "AND d.state != 3))");
+    q.bind(1, job).bind(3, d.kind).bind(4, d.waitsOn);
+    if (frame) q.bind(2, *frame);
     PBGI_RETURN_IF_ERROR(q.run());
   }
   return absl::OkStatus();

@@ -50,8 +50,8 @@ class WorkerFarmTest : public ::testing::Test {
     coordinator_ = *std::move(c);
     client_ = std::make_unique<FarmClient>(coordinator_->address(), options_.token, 10.0);
   }
-  // `launcher`: words before the worker's own (a wrapper that runs it).
-  Process& startWorker(const std::string& id, std::vector<std::string> extra = {},
+  // A pbgi-worker process named `id` (its log in dir_/ID.log), owned by the caller.
+  Process launchWorker(const std::string& id, std::vector<std::string> extra = {},
                        const std::string& address = {}, std::vector<std::string> launcher = {}) {
     std::vector<std::string> argv = launcher;
     const std::vector<std::string> own = {pbgi::testing::binary("pbgi-worker").string(),
@@ -63,10 +63,17 @@ class WorkerFarmTest : public ::testing::Test {
       extra.insert(extra.end(), {"--cache-dir", (dir_ / ("cache-" + id)).string()});
     }
     argv.insert(argv.end(), extra.begin(), extra.end());
-    workers_.emplace_back(argv, dir_ / (id + ".log"),
-                          std::vector<std::string>{"PBGI_TOKEN=" + options_.token});
+    return Process(argv, dir_ / (id + ".log"),
+                   std::vector<std::string>{"PBGI_TOKEN=" + options_.token});
+  }
+  // The same, kept (and killed) by the fixture; `launcher`: words before the worker's own (a
+  // wrapper that runs it).
+  Process& startWorker(const std::string& id, std::vector<std::string> extra = {},
+                       const std::string& address = {}, std::vector<std::string> launcher = {}) {
+    workers_.push_back(launchWorker(id, std::move(extra), address, std::move(launcher)));
     return workers_.back();
   }
+
   int64_t submit(const pbgi::testing::SmallShot& shot, std::vector<int> frames = {}) {
     shotPath_ = pbgi::testing::writeSmallShot(dir_, shot);
     v1::SubmitJobRequest request;
