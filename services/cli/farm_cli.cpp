@@ -13,6 +13,7 @@
 #include "core/util/status.h"
 #include "services/cli/cli.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/farm_wire.h"
 
 namespace pbgi::cli {
 
@@ -93,19 +94,18 @@ absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags&
 }
 
 JobProgress jobProgress(const farm::v1::JobStatus& job) {
+  const auto counts = farm::taskCounts(job);
   JobProgress p;
-  for (const auto& [state, count] : job.tasks_by_state()) {
-    p.total += count;
-    if (state == "done") p.done += count;
-  }
+  for (const int count : counts) p.total += count;
+  p.done = counts[farm::v1::TASK_STATE_DONE];
   return p;
 }
 
 std::string describeJob(const farm::v1::JobStatus& job) {
   const JobProgress p = jobProgress(job);
   std::string out = fmt::format("job {} {} {}: {} of {} tasks done, {} frames x {} tiles\n",
-                                job.job(), job.name(), job.state(), p.done, p.total,
-                                job.frames_size(), job.tiles_per_frame());
+                                job.job(), job.name(), farm::wireWord(farm::jobStateOf(job)),
+                                p.done, p.total, job.frames_size(), job.tiles_per_frame());
   struct FrameLine {
     std::string bake = "-";
     int tilesDone = 0;
@@ -117,17 +117,26 @@ std::string describeJob(const farm::v1::JobStatus& job) {
   std::map<int, FrameLine> frames;
   for (const auto& t : job.tasks()) {
     FrameLine& f = frames[t.frame()];
-    if (t.kind() == "bake") {
-      f.bake = t.state() == "leased" ? fmt::format("leased ({:.0f} %)", 100 * t.progress()) : t.state();
-    } else if (t.kind() == "assemble") {
-      f.assemble = t.state();
-    } else {
-      f.tilesDone += t.state() == "done";
-      f.tilesDead += t.state() == "dead";
-      if (t.state() == "leased") {
-        ++f.tilesLeased;
-        f.tileProgress += t.progress();
-      }
+    const farm::v1::TaskState state = farm::taskStateOf(t);
+    switch (farm::taskKindOf(t)) {
+      case farm::v1::TASK_KIND_BAKE:
+        f.bake = state == farm::v1::TASK_STATE_LEASED
+                     ? fmt::format("leased ({:.0f} %)", 100 * t.progress())
+                     : farm::wireWord(state);
+        break;
+      case farm::v1::TASK_KIND_ASSEMBLE:
+        f.assemble = farm::wireWord(state);
+        break;
+      case farm::v1::TASK_KIND_TILE:
+        f.tilesDone += state == farm::v1::TASK_STATE_DONE;
+        f.tilesDead += state == farm::v1::TASK_STATE_DEAD;
+        if (state == farm::v1::TASK_STATE_LEASED) {
+          ++f.tilesLeased;
+          f.tileProgress += t.progress();
+        }
+        break;
+      default:  // a kind newer than this client
+        break;
     }
   }
   for (const auto& [frame, f] : frames) {
@@ -141,9 +150,11 @@ std::string describeJob(const farm::v1::JobStatus& job) {
     out += fmt::format(", assemble {}\n", f.assemble);
   }
   for (const auto& d : job.dead()) {
-    out += fmt::format("  dead: frame {} {}{} after {} attempt(s): {}\n", d.frame(), d.kind(),
-                       d.kind() == "tile" ? fmt::format(" {}", d.tile()) : "", d.attempt(),
-                       d.last_error());
+    const farm::v1::TaskKind kind = farm::taskKindOf(d);
+    out += fmt::format("  dead: frame {} {}{} after {} attempt(s): {}\n", d.frame(),
+                       farm::wireWord(kind),
+                       kind == farm::v1::TASK_KIND_TILE ? fmt::format(" {}", d.tile()) : "",
+                       d.attempt(), d.last_error());
   }
   for (const auto& o : job.outputs()) out += fmt::format("  wrote {}\n", o);
   return out;

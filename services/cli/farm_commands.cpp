@@ -9,11 +9,12 @@
 #include <fmt/format.h>
 #include <google/protobuf/util/json_util.h>
 
+#include "core/util/status.h"
 #include "formats/shot/shot_file.h"
 #include "services/cli/cli.h"
-#include "core/util/status.h"
 #include "services/cli/farm_cli.h"
 #include "services/cli/progress.h"
+#include "services/coordinator/farm_wire.h"
 
 namespace pbgi::cli {
 
@@ -83,7 +84,8 @@ int runStatus(const StatusOptions& o) {
     } else {
       const JobProgress p = jobProgress(job);
       std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s\n",
-                  static_cast<long long>(job.job()), job.name().c_str(), job.state().c_str(),
+                  static_cast<long long>(job.job()), job.name().c_str(),
+                  farm::wireWord(farm::jobStateOf(job)).c_str(),
                   p.total > 0 ? 100 * p.done / p.total : 0, p.done, p.total, job.frames_size(),
                   job.tiles_per_frame(),
                   job.dead().empty() ? "" : fmt::format(", {} dead", job.dead_size()).c_str());
@@ -131,9 +133,11 @@ int runLogs(const JobOptions& o) {
   auto response = (*client)->getLogs(request);
   if (!response.ok()) return reportError(response.status());
   for (const v1::LogEntry& e : response->entries()) {
+    const v1::TaskKind kind = farm::taskKindOf(e);
     std::printf("%s frame %d %s%s attempt %d %s on %s\n", timeText(e.time()).c_str(), e.frame(),
-                e.kind().c_str(), e.kind() == "tile" ? fmt::format(" {}", e.tile()).c_str() : "",
-                e.attempt(), e.event().c_str(), e.worker().c_str());
+                farm::wireWord(kind).c_str(),
+                kind == v1::TASK_KIND_TILE ? fmt::format(" {}", e.tile()).c_str() : "", e.attempt(),
+                e.event().c_str(), e.worker().c_str());
     if (!e.text().empty()) {
       std::string text = e.text();
       if (text.back() != '\n') text += '\n';

@@ -26,6 +26,7 @@
 #include "services/cli/progress.h"
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/farm_wire.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::cli {
@@ -175,7 +176,7 @@ int runEmbedded(const RunOptions& o) {
     const farm::v1::JobStatus& js = status->jobs(0);
     const JobProgress p = jobProgress(js);
     progress.update(static_cast<uint64_t>(p.done), static_cast<uint64_t>(p.total));
-    if (js.state() != "active") break;
+    if (farm::jobStateOf(js) != farm::v1::JOB_STATE_ACTIVE) break;
     // A worker that died (a crash, the OOM killer) is started again, a few times.
     for (Child& c : children) {
       int wstatus = 0;
@@ -221,9 +222,10 @@ int runEmbedded(const RunOptions& o) {
   if (!status.ok()) return reportError(status.status());
   const farm::v1::JobStatus& js = status->jobs(0);
   std::printf("%s", describeJob(js).c_str());
-  if (js.state() != "done") {
+  if (farm::jobStateOf(js) != farm::v1::JOB_STATE_DONE) {
     std::fprintf(stderr, "pbgi: error: job %lld %s; the workers' logs are in %s\n",
-                 static_cast<long long>(*job), js.state().c_str(), logDir.c_str());
+                 static_cast<long long>(*job), farm::wireWord(farm::jobStateOf(js)).c_str(),
+                 logDir.c_str());
     return kExitFailed;
   }
   return kExitOk;

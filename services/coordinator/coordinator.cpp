@@ -25,6 +25,7 @@
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/farm_wire.h"
 #include "services/render/frame_assembly.h"
 
 namespace pbgi::farm {
@@ -70,10 +71,9 @@ struct Histogram {
 
 void fillTask(const TaskInfo& t, v1::TaskStatus* out) {
   out->set_task(t.id);
-  out->set_kind(toString(t.ref.kind));
+  setKindAndState(t.ref.kind, t.state, out);
   out->set_frame(t.ref.frame);
   out->set_tile(t.ref.tile);
-  out->set_state(toString(t.state));
   out->set_attempt(t.attempt);
   out->set_failures(t.failures);
   out->set_worker(t.worker);
@@ -233,14 +233,10 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
       v1::JobStatus* job = response.add_jobs();
       job->set_job(info.id);
       job->set_name(info.spec.name);
-      job->set_state(toString(info.state));
+      setState(info.state, info.tasksByState, job);
       job->set_priority(info.spec.priority);
       for (int f : info.spec.frames) job->add_frames(f);
       job->set_tiles_per_frame(info.spec.tileCount);
-      for (size_t s = 0; s < info.tasksByState.size(); ++s) {
-        (*job->mutable_tasks_by_state())[toString(static_cast<TaskState>(s))] =
-            info.tasksByState[s];
-      }
       for (const TaskInfo& t : info.dead) fillTask(t, job->add_dead());
       // Every task of a job is a large read: only for callers that ask for them.
       if (!request.with_tasks()) continue;
@@ -304,7 +300,7 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
       v1::LogEntry* entry = response->add_entries();
       entry->set_time(e.time);
       entry->set_task(e.task);
-      entry->set_kind(toString(e.ref.kind));
+      setKind(e.ref.kind, entry);
       entry->set_frame(e.ref.frame);
       entry->set_tile(e.ref.tile);
       entry->set_attempt(e.attempt);
@@ -377,7 +373,7 @@ struct Coordinator::Impl final : public v1::Coordinator::Service {
       response->set_has_task(true);
       response->set_task(l.task);
       response->set_attempt(l.attempt);
-      response->set_kind(toString(l.ref.kind));
+      setKind(l.ref.kind, response);
       response->set_job(l.ref.job);
       response->set_frame(l.ref.frame);
       response->set_tile(l.ref.tile);

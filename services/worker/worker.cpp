@@ -24,6 +24,7 @@
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/farm_wire.h"
 #include "services/coordinator/job_store.h"
 #include "services/render/frame_assembly.h"
 #include "services/render/frame_render.h"
@@ -116,6 +117,12 @@ uint64_t physicalMemory() {
   const long pages = ::sysconf(_SC_PHYS_PAGES);
   const long pageSize = ::sysconf(_SC_PAGESIZE);
   return pages > 0 && pageSize > 0 ? uint64_t(pages) * uint64_t(pageSize) : 0;
+}
+
+// "tile=7", "bake", "assemble": for log lines.
+std::string taskLabel(const v1::LeaseTaskResponse& task) {
+  const v1::TaskKind kind = taskKindOf(task);
+  return kind == v1::TASK_KIND_TILE ? fmt::format("tile={}", task.tile()) : wireWord(kind);
 }
 
 void sleepUnlessStopped(double seconds, const std::atomic<bool>& stop) {
@@ -405,11 +412,18 @@ absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& task, He
   const std::vector<std::string> overrides(task.overrides().begin(), task.overrides().end());
   PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
                         jobShot(task.shot_text(), task.shot_path(), overrides));
-  if (task.kind() == "bake") return bake(shot, task, beat);
-  if (task.kind() == "tile") return tile(shot, task, beat);
-  if (task.kind() == "assemble") return assemble(shot, task);
-  return absl::InvalidArgumentError(
-      fmt::format("task kind '{}': this worker runs bake, tile and assemble", task.kind()));
+  switch (taskKindOf(task)) {
+    case v1::TASK_KIND_BAKE:
+      return bake(shot, task, beat);
+    case v1::TASK_KIND_TILE:
+      return tile(shot, task, beat);
+    case v1::TASK_KIND_ASSEMBLE:
+      return assemble(shot, task);
+    default:
+      return absl::InvalidArgumentError(
+          fmt::format("task kind {} ('{}'): this worker runs bake, tile and assemble",
+                      static_cast<int>(task.task_kind()), task.kind()));
+  }
 }
 
 void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
@@ -431,13 +445,11 @@ void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<Task
                .status();
     if (sent.ok()) {
       log::info("done job={} frame={} {} task={} attempt={} seconds={:.2f}", task.job(),
-                task.frame(), task.kind() == "tile" ? fmt::format("tile={}", task.tile()) : task.kind(),
-                task.task(), task.attempt(), seconds);
+                task.frame(), taskLabel(task), task.task(), task.attempt(), seconds);
     }
   } else {
     log::warn("failed job={} frame={} {} task={} attempt={}: {}", task.job(), task.frame(),
-              task.kind() == "tile" ? fmt::format("tile={}", task.tile()) : task.kind(),
-              task.task(), task.attempt(), result.status().message());
+              taskLabel(task), task.task(), task.attempt(), result.status().message());
     v1::FailTaskRequest request;
     request.set_worker(id_);
     request.set_task(task.task());
@@ -507,9 +519,10 @@ int Worker::run(const std::atomic<bool>& stop) {
       Heartbeat beat(client_, id_, *task);
       result = execute(*task, beat);
     }
-    if (result.ok() && (task->kind() == "bake" || task->kind() == "tile")) {
+    const v1::TaskKind kind = taskKindOf(*task);
+    if (result.ok() && (kind == v1::TASK_KIND_BAKE || kind == v1::TASK_KIND_TILE)) {
       hold(task->job(), task->frame());
-    } else if (!result.ok() && task->kind() == "tile") {
+    } else if (!result.ok() && kind == v1::TASK_KIND_TILE) {
       remoteTrees_.erase({task->job(), task->frame()});  // the frame baked again, say
     }
     report(*task, result, std::chrono::duration<double>(Clock::now() - started).count());

@@ -44,6 +44,57 @@ TEST(FarmApi, CompletionCarriesTheAttempt) {
   EXPECT_EQ(hex(c.SerializeAsString()), "0a01771009" "1804");
 }
 
+// Kinds and states became enums in new fields beside the strings v1 readers from before them
+// read; both numbers and the enums' values are pinned.
+TEST(FarmApi, EnumFieldsHaveNewNumbersBesideTheStrings) {
+  farm::v1::LeaseTaskResponse lease;
+  lease.set_kind("tile");                         // 4, still there
+  lease.set_task_kind(farm::v1::TASK_KIND_TILE);  // 17
+  EXPECT_EQ(hex(lease.SerializeAsString()),
+            "220474696c65"
+            "880102");
+
+  farm::v1::TaskStatus task;
+  task.set_task_kind(farm::v1::TASK_KIND_BAKE);      // 11
+  task.set_task_state(farm::v1::TASK_STATE_LEASED);  // 12
+  EXPECT_EQ(hex(task.SerializeAsString()),
+            "5801"
+            "6003");
+
+  farm::v1::JobStatus job;
+  job.set_job_state(farm::v1::JOB_STATE_FAILED);      // 11
+  farm::v1::TaskCount* done = job.add_task_counts();  // 12: {state 1, count 2}
+  done->set_state(farm::v1::TASK_STATE_DONE);
+  done->set_count(5);
+  EXPECT_EQ(hex(job.SerializeAsString()),
+            "5803"
+            "6204"
+            "08041005");
+
+  farm::v1::LogEntry entry;
+  entry.set_task_kind(farm::v1::TASK_KIND_ASSEMBLE);  // 10
+  EXPECT_EQ(hex(entry.SerializeAsString()), "5003");
+}
+
+TEST(FarmApi, EnumValuesAreStable) {
+  EXPECT_EQ(farm::v1::TASK_KIND_UNSPECIFIED, 0);
+  EXPECT_EQ(farm::v1::TASK_KIND_BAKE, 1);
+  EXPECT_EQ(farm::v1::TASK_KIND_TILE, 2);
+  EXPECT_EQ(farm::v1::TASK_KIND_ASSEMBLE, 3);
+  EXPECT_EQ(farm::v1::TASK_STATE_UNSPECIFIED, 0);
+  EXPECT_EQ(farm::v1::TASK_STATE_BLOCKED, 1);
+  EXPECT_EQ(farm::v1::TASK_STATE_READY, 2);
+  EXPECT_EQ(farm::v1::TASK_STATE_LEASED, 3);
+  EXPECT_EQ(farm::v1::TASK_STATE_DONE, 4);
+  EXPECT_EQ(farm::v1::TASK_STATE_DEAD, 5);
+  EXPECT_EQ(farm::v1::TASK_STATE_CANCELLED, 6);
+  EXPECT_EQ(farm::v1::JOB_STATE_UNSPECIFIED, 0);
+  EXPECT_EQ(farm::v1::JOB_STATE_ACTIVE, 1);
+  EXPECT_EQ(farm::v1::JOB_STATE_DONE, 2);
+  EXPECT_EQ(farm::v1::JOB_STATE_FAILED, 3);
+  EXPECT_EQ(farm::v1::JOB_STATE_CANCELLED, 4);
+}
+
 TEST(FarmApi, ServiceIsVersionedAndHasItsMethods) {
   const auto* service = farm::v1::Coordinator::service_full_name();
   EXPECT_STREQ(service, "pbgi.farm.v1.Coordinator");

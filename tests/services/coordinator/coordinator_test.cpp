@@ -165,7 +165,8 @@ TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   auto first = client_->leaseTask(asA);
   ASSERT_TRUE(first.ok() && first->has_task()) << first.status();
   EXPECT_EQ(first->attempt(), 1);
-  EXPECT_EQ(first->kind(), "tile");
+  EXPECT_EQ(first->kind(), "tile");  // for v1 workers from before the enums
+  EXPECT_EQ(first->task_kind(), v1::TASK_KIND_TILE);
   EXPECT_EQ(first->tile_size(), 32);
   EXPECT_EQ(first->tiles_per_frame(), 4);
   // worker-a goes silent; its lease expires and the tile goes to worker-b.
@@ -208,7 +209,11 @@ TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   auto entries = client_->getLogs(logs);
   ASSERT_TRUE(entries.ok());
   std::vector<std::string> events;
-  for (const auto& e : entries->entries()) events.push_back(e.event() + "/" + e.worker());
+  for (const auto& e : entries->entries()) {
+    events.push_back(e.event() + "/" + e.worker());
+    EXPECT_EQ(e.task_kind(), v1::TASK_KIND_TILE);
+    EXPECT_EQ(e.kind(), "tile");
+  }
   EXPECT_EQ(events, (std::vector<std::string>{"leased/worker-a", "expired/worker-a",
                                               "leased/worker-b", "done/worker-b"}));
 }
@@ -221,9 +226,16 @@ TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
   ASSERT_TRUE(status);
   EXPECT_EQ(status->status, 200);
   EXPECT_NE(status->body.find("\"tilesPerFrame\":4"), std::string::npos) << status->body;
+  // States both ways: the enum, and v1's word.
+  EXPECT_NE(status->body.find("\"jobState\":\"JOB_STATE_ACTIVE\""), std::string::npos)
+      << status->body;
+  EXPECT_NE(status->body.find("\"state\":\"active\""), std::string::npos) << status->body;
+  EXPECT_NE(status->body.find("{\"state\":\"TASK_STATE_READY\",\"count\":8}"), std::string::npos)
+      << status->body;
   const std::string text = metrics();
   EXPECT_NE(text.find("pbgi_tasks{state=\"ready\"} 8"), std::string::npos) << text;
   EXPECT_NE(text.find("pbgi_tasks{state=\"blocked\"} 2"), std::string::npos) << text;
+  EXPECT_NE(text.find("pbgi_jobs{state=\"active\"} 1"), std::string::npos) << text;
   EXPECT_NE(text.find("# TYPE pbgi_task_seconds histogram"), std::string::npos) << text;
 }
 

@@ -1,0 +1,136 @@
+#include "services/coordinator/farm_wire.h"
+
+#include <utility>
+
+namespace pbgi::farm {
+
+namespace {
+
+// Each set once: the store's value, the wire's. The words are the store's toString.
+constexpr std::pair<TaskKind, v1::TaskKind> kKinds[] = {
+    {TaskKind::kBake, v1::TASK_KIND_BAKE},
+    {TaskKind::kTile, v1::TASK_KIND_TILE},
+    {TaskKind::kAssemble, v1::TASK_KIND_ASSEMBLE},
+};
+constexpr std::pair<TaskState, v1::TaskState> kTaskStates[] = {
+    {TaskState::kBlocked, v1::TASK_STATE_BLOCKED},
+    {TaskState::kReady, v1::TASK_STATE_READY},
+    {TaskState::kLeased, v1::TASK_STATE_LEASED},
+    {TaskState::kDone, v1::TASK_STATE_DONE},
+    {TaskState::kDead, v1::TASK_STATE_DEAD},
+    {TaskState::kCancelled, v1::TASK_STATE_CANCELLED},
+};
+constexpr std::pair<JobState, v1::JobState> kJobStates[] = {
+    {JobState::kActive, v1::JOB_STATE_ACTIVE},
+    {JobState::kDone, v1::JOB_STATE_DONE},
+    {JobState::kFailed, v1::JOB_STATE_FAILED},
+    {JobState::kCancelled, v1::JOB_STATE_CANCELLED},
+};
+
+template <typename Store, typename Wire, size_t N>
+Wire toWireIn(const std::pair<Store, Wire> (&table)[N], Store value) {
+  for (const auto& [store, wire] : table) {
+    if (store == value) return wire;
+  }
+  return Wire{};  // UNSPECIFIED; the store has no value the tables miss
+}
+
+template <typename Store, typename Wire, size_t N>
+std::optional<Store> fromWireIn(const std::pair<Store, Wire> (&table)[N], Wire value) {
+  for (const auto& [store, wire] : table) {
+    if (wire == value) return store;
+  }
+  return std::nullopt;
+}
+
+// The word of a message from before the enums.
+template <typename Store, typename Wire, size_t N>
+Wire named(const std::pair<Store, Wire> (&table)[N], const std::string& word) {
+  for (const auto& [store, wire] : table) {
+    if (toString(store) == word) return wire;
+  }
+  return Wire{};
+}
+
+template <typename Store, typename Wire, size_t N>
+std::string wordIn(const std::pair<Store, Wire> (&table)[N], Wire value) {
+  const std::optional<Store> store = fromWireIn(table, value);
+  return store ? toString(*store) : "unknown";
+}
+
+template <typename Message>
+v1::TaskKind kindOf(const Message& m) {
+  return m.task_kind() != v1::TASK_KIND_UNSPECIFIED ? m.task_kind() : named(kKinds, m.kind());
+}
+
+}  // namespace
+
+v1::TaskKind toWire(TaskKind kind) { return toWireIn(kKinds, kind); }
+v1::TaskState toWire(TaskState state) { return toWireIn(kTaskStates, state); }
+v1::JobState toWire(JobState state) { return toWireIn(kJobStates, state); }
+std::optional<TaskKind> fromWire(v1::TaskKind kind) { return fromWireIn(kKinds, kind); }
+std::optional<TaskState> fromWire(v1::TaskState state) { return fromWireIn(kTaskStates, state); }
+std::optional<JobState> fromWire(v1::JobState state) { return fromWireIn(kJobStates, state); }
+
+std::string wireWord(v1::TaskKind kind) { return wordIn(kKinds, kind); }
+std::string wireWord(v1::TaskState state) { return wordIn(kTaskStates, state); }
+std::string wireWord(v1::JobState state) { return wordIn(kJobStates, state); }
+
+v1::TaskKind taskKindOf(const v1::LeaseTaskResponse& task) { return kindOf(task); }
+v1::TaskKind taskKindOf(const v1::TaskStatus& task) { return kindOf(task); }
+v1::TaskKind taskKindOf(const v1::LogEntry& entry) { return kindOf(entry); }
+
+v1::TaskState taskStateOf(const v1::TaskStatus& task) {
+  return task.task_state() != v1::TASK_STATE_UNSPECIFIED ? task.task_state()
+                                                         : named(kTaskStates, task.state());
+}
+
+v1::JobState jobStateOf(const v1::JobStatus& job) {
+  return job.job_state() != v1::JOB_STATE_UNSPECIFIED ? job.job_state()
+                                                      : named(kJobStates, job.state());
+}
+
+std::array<int, v1::TaskState_ARRAYSIZE> taskCounts(const v1::JobStatus& job) {
+  std::array<int, v1::TaskState_ARRAYSIZE> counts{};
+  if (job.task_counts_size() > 0) {
+    for (const v1::TaskCount& c : job.task_counts()) {
+      if (v1::TaskState_IsValid(c.state())) counts[static_cast<size_t>(c.state())] += c.count();
+    }
+    return counts;
+  }
+  for (const auto& [word, count] : job.tasks_by_state()) {
+    counts[static_cast<size_t>(named(kTaskStates, word))] += count;
+  }
+  return counts;
+}
+
+void setKind(TaskKind kind, v1::LeaseTaskResponse* out) {
+  out->set_task_kind(toWire(kind));
+  out->set_kind(toString(kind));
+}
+
+void setKind(TaskKind kind, v1::LogEntry* out) {
+  out->set_task_kind(toWire(kind));
+  out->set_kind(toString(kind));
+}
+
+void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out) {
+  out->set_task_kind(toWire(kind));
+  out->set_kind(toString(kind));
+  out->set_task_state(toWire(state));
+  out->set_state(toString(state));
+}
+
+void setState(JobState state, const std::array<int, 6>& tasksByState, v1::JobStatus* out) {
+  out->set_job_state(toWire(state));
+  out->set_state(toString(state));
+  for (const auto& [store, wire] : kTaskStates) {
+    const int count = tasksByState[static_cast<size_t>(store)];
+    (*out->mutable_tasks_by_state())[toString(store)] = count;
+    v1::TaskCount* c = out->add_task_counts();
+    c->set_state(wire);
+    c->set_count(count);
+  }
+}
+
+}  // namespace pbgi::farm

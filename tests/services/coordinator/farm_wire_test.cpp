@@ -1,0 +1,77 @@
+// The wire's enums against the store's, and messages from a coordinator older than the enums
+// (only the words set) read the same.
+
+#include <gtest/gtest.h>
+
+#include "services/coordinator/farm_wire.h"
+
+namespace pbgi::farm {
+namespace {
+
+TEST(FarmWire, EveryStoreValueHasAnEnumAndItsWord) {
+  for (const TaskKind k : {TaskKind::kBake, TaskKind::kTile, TaskKind::kAssemble}) {
+    EXPECT_NE(toWire(k), v1::TASK_KIND_UNSPECIFIED) << toString(k);
+    EXPECT_EQ(fromWire(toWire(k)), k);
+    EXPECT_EQ(wireWord(toWire(k)), toString(k));
+  }
+  for (int s = 0; s < 6; ++s) {
+    const TaskState state = static_cast<TaskState>(s);
+    EXPECT_NE(toWire(state), v1::TASK_STATE_UNSPECIFIED) << toString(state);
+    EXPECT_EQ(fromWire(toWire(state)), state);
+    EXPECT_EQ(wireWord(toWire(state)), toString(state));
+  }
+  for (int s = 0; s < 4; ++s) {
+    const JobState state = static_cast<JobState>(s);
+    EXPECT_NE(toWire(state), v1::JOB_STATE_UNSPECIFIED) << toString(state);
+    EXPECT_EQ(fromWire(toWire(state)), state);
+  }
+  EXPECT_EQ(fromWire(v1::TASK_KIND_UNSPECIFIED), std::nullopt);
+  EXPECT_EQ(fromWire(static_cast<v1::TaskKind>(99)), std::nullopt);  // a newer sender's
+  EXPECT_EQ(wireWord(v1::TASK_KIND_UNSPECIFIED), "unknown");
+}
+
+TEST(FarmWire, BothFormsAreWrittenAndTheEnumIsRead) {
+  v1::TaskStatus task;
+  setKindAndState(TaskKind::kTile, TaskState::kLeased, &task);
+  EXPECT_EQ(task.kind(), "tile");  // what a v1 reader from before the enums reads
+  EXPECT_EQ(task.state(), "leased");
+  EXPECT_EQ(taskKindOf(task), v1::TASK_KIND_TILE);
+  EXPECT_EQ(taskStateOf(task), v1::TASK_STATE_LEASED);
+  // The enum wins over the word.
+  task.set_kind("bake");
+  EXPECT_EQ(taskKindOf(task), v1::TASK_KIND_TILE);
+
+  v1::JobStatus job;
+  setState(JobState::kActive, {1, 2, 3, 4, 0, 0}, &job);
+  EXPECT_EQ(job.state(), "active");
+  EXPECT_EQ(job.tasks_by_state().at("done"), 4);
+  EXPECT_EQ(jobStateOf(job), v1::JOB_STATE_ACTIVE);
+  const auto counts = taskCounts(job);
+  EXPECT_EQ(counts[v1::TASK_STATE_BLOCKED], 1);
+  EXPECT_EQ(counts[v1::TASK_STATE_DONE], 4);
+  EXPECT_EQ(counts[v1::TASK_STATE_CANCELLED], 0);
+}
+
+TEST(FarmWire, AnOlderCoordinatorsWordsAreRead) {
+  v1::LeaseTaskResponse lease;
+  lease.set_kind("assemble");
+  EXPECT_EQ(taskKindOf(lease), v1::TASK_KIND_ASSEMBLE);
+  lease.set_kind("photon");
+  EXPECT_EQ(taskKindOf(lease), v1::TASK_KIND_UNSPECIFIED);
+
+  v1::JobStatus job;
+  job.set_state("failed");
+  (*job.mutable_tasks_by_state())["done"] = 3;
+  (*job.mutable_tasks_by_state())["dead"] = 2;
+  EXPECT_EQ(jobStateOf(job), v1::JOB_STATE_FAILED);
+  const auto counts = taskCounts(job);
+  EXPECT_EQ(counts[v1::TASK_STATE_DONE], 3);
+  EXPECT_EQ(counts[v1::TASK_STATE_DEAD], 2);
+
+  v1::LogEntry entry;
+  entry.set_kind("bake");
+  EXPECT_EQ(taskKindOf(entry), v1::TASK_KIND_BAKE);
+}
+
+}  // namespace
+}  // namespace pbgi::farm
