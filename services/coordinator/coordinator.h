@@ -1,12 +1,20 @@
 #pragma once
-// The coordinator: the farm's gRPC service (pbgi.farm.v1) over the durable job store, a
-// lease-expiry loop, and an HTTP endpoint with Prometheus metrics and a JSON status. The
-// `pbgi-coordinator` daemon runs one; `pbgi run` runs one in-process.
+// The coordinator: the farm's gRPC service (pbgi.farm.v1) over the durable job store, and an
+// HTTP endpoint with Prometheus metrics and a JSON status. The `pbgi-coordinator` daemon runs
+// one; `pbgi run` runs one in-process. Its parts, each in its own file:
+//   coordinator.cpp        the RPCs (requests into store calls), start and shutdown
+//   farm_auth.h            the token check on every call, before any RPC runs
+//   job_views.h            each job's parsed shot, kept
+//   status_report.h        a job's status for GetStatus and /status
+//   page_service.h         trees a page at a time for workers that cannot see the job folder
+//   lease_reaper.h         expired leases reclaimed
+//   coordinator_metrics.h  every metric, declared once (metrics.h writes Prometheus text)
 //
 // Every RPC must carry "authorization: Bearer <token>"; others are refused (and counted).
-// A job's frames are written only under the output root. The coordinator keeps running
-// through any bad job: a shot that does not parse is refused at submission with the reader's
-// message, and a task that fails on a worker is retried, then dead, by the store's policy.
+// A job's frames are written only under the output root. The
+// coordinator keeps running through any bad job: a shot that does not parse is refused at
+// submission with the reader's message, and a task that fails on a worker is retried, then
+// dead, by the store's policy.
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -34,9 +42,6 @@ struct CoordinatorOptions {
   // false: plain order (priority, job age, frame, kind, tile).
   bool localityDispatch = true;
 };
-
-// Counters since this coordinator started (Prometheus counters reset with the process).
-struct CoordinatorMetrics;
 
 class Coordinator {
  public:

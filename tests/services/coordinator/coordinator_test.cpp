@@ -237,6 +237,20 @@ TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
   EXPECT_NE(text.find("pbgi_tasks{state=\"blocked\"} 2"), std::string::npos) << text;
   EXPECT_NE(text.find("pbgi_jobs{state=\"active\"} 1"), std::string::npos) << text;
   EXPECT_NE(text.find("# TYPE pbgi_task_seconds histogram"), std::string::npos) << text;
+  // Every metric the README and dashboards name, each declared once with its type.
+  for (const char* counter :
+       {"pbgi_leases_total", "pbgi_task_failures_total", "pbgi_leases_expired_total",
+        "pbgi_stale_completions_total", "pbgi_rpc_refused_total",
+        "pbgi_page_cache_hits_total",
+        "pbgi_page_cache_misses_total", "pbgi_trees_opened_total", "pbgi_tree_pages_served_total",
+        "pbgi_tree_bytes_served_total", "pbgi_tree_bytes_streamed_total"}) {
+    EXPECT_NE(text.find(fmt::format("# TYPE {} counter\n{} ", counter, counter)), std::string::npos)
+        << counter << "\n"
+        << text;
+  }
+  for (const char* gauge : {"pbgi_tasks", "pbgi_jobs", "pbgi_page_cache_hit_rate"}) {
+    EXPECT_NE(text.find(fmt::format("# TYPE {} gauge\n", gauge)), std::string::npos) << gauge;
+  }
 }
 
 // The page service: a frame's tree opened, single pages sent as stored; a page damaged on the

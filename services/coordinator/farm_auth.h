@@ -1,0 +1,34 @@
+#pragma once
+// Who may call the coordinator: every call carries the farm token ("authorization: Bearer
+// <token>"), checked in one place, an auth metadata processor on the server's credentials. gRPC runs it on a call's metadata before any handler, so a refused call
+// reaches no RPC (it gets UNAUTHENTICATED, is counted and logged).
+//
+// Why not a server interceptor (grpc::experimental::ServerInterceptorFactoryInterface): in
+// gRPC 1.51 an interceptor can rewrite the status a call ends with, but the handler runs
+// anyway (a refused SubmitJob would still submit; tried). And grpc::AuthMetadataProcessor
+// through ServerCredentials::SetAuthMetadataProcessor aborts on InsecureServerCredentials
+// ("assertion failed" in insecure_server_credentials.cc), while plaintext farms stay. So the
+// processor is installed with gRPC's C API on the core insecure credentials, which support
+// it; coordinatorCredentials() hands them to the ServerBuilder.
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "services/coordinator/metrics.h"
+
+namespace grpc {
+class ServerCredentials;
+}
+
+namespace pbgi::farm {
+
+// "authorization: Bearer <token>" with this token; tokens of equal length compare in a time
+// that does not depend on where they differ.
+bool bearsToken(std::string_view authorization, std::string_view token);
+
+// The coordinator's listening credentials: every call must bear `token`. A refused call adds
+// one to `refused` (shared: gRPC may hold the credentials after the coordinator).
+std::shared_ptr<grpc::ServerCredentials> coordinatorCredentials(
+    std::string token, std::shared_ptr<metrics::Counter> refused);
+
+}  // namespace pbgi::farm

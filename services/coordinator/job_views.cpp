@@ -1,0 +1,32 @@
+#include "services/coordinator/job_views.h"
+
+#include "core/util/status.h"
+#include "services/coordinator/farm_job.h"
+
+namespace pbgi::farm {
+
+JobViews::JobViews(JobStore& store, std::string stateDir, int tileSize)
+    : store_(store), stateDir_(std::move(stateDir)), tileSize_(tileSize) {}
+
+absl::StatusOr<std::shared_ptr<const JobView>> JobViews::get(int64_t job) {
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = views_.find(job); it != views_.end()) return it->second;
+  }
+  PBGI_ASSIGN_OR_RETURN(JobInfo info, store_.job(job));
+  auto view = std::make_shared<JobView>();
+  view->spec = std::move(info.spec);
+  PBGI_ASSIGN_OR_RETURN(view->shot, jobShot(view->spec.shotText, view->spec.shotPath,
+                                            splitOverrides(view->spec.overrides)));
+  std::lock_guard lock(mutex_);
+  return views_.emplace(job, std::move(view)).first->second;
+}
+
+std::string JobViews::workDir(int64_t job) const { return jobWorkDir(stateDir_, job); }
+
+std::string JobViews::frameOutput(const JobView& view, int frame) {
+  return outputPathForFrame(view.spec.outputPattern, frame,
+                            view.shot.lastFrame > view.shot.firstFrame);
+}
+
+}  // namespace pbgi::farm

@@ -1,0 +1,45 @@
+#pragma once
+// The coordinator's view of a job's shot: its spec parsed (the shot text with its overrides)
+// once and kept, since a spec never changes after submission; and where the job's files go.
+// Shared by the RPCs, the status report and the page service.
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+
+#include <absl/status/statusor.h>
+
+#include "core/scene/shot.h"
+#include "services/coordinator/job_store.h"
+
+namespace pbgi::farm {
+
+struct JobView {
+  JobSpec spec;
+  ShotDesc shot;
+};
+
+class JobViews {
+ public:
+  // `stateDir` absolute; tileSize > 0.
+  JobViews(JobStore& store, std::string stateDir, int tileSize);
+
+  // The job's view, read from the store and parsed at the first call.
+  absl::StatusOr<std::shared_ptr<const JobView>> get(int64_t job);
+
+  int tileSize() const { return tileSize_; }
+  // <state>/jobs/<job>: its bakes and tiles.
+  std::string workDir(int64_t job) const;
+  // The frame's EXR under the output root.
+  static std::string frameOutput(const JobView& view, int frame);
+
+ private:
+  JobStore& store_;
+  const std::string stateDir_;
+  const int tileSize_;
+  std::mutex mutex_;
+  std::unordered_map<int64_t, std::shared_ptr<const JobView>> views_;
+};
+
+}  // namespace pbgi::farm

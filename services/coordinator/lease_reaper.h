@@ -1,0 +1,44 @@
+#pragma once
+// Reclaims expired leases: a thread that asks the store to expire them every interval, so
+// that a task whose worker died or hung is retried (after its back-off) or dead. After a
+// start it waits one lease period first: leases from before it belong to workers that may
+// only have lost sight of this coordinator and will heartbeat again.
+#include <condition_variable>
+#include <mutex>
+#include <thread>
+
+#include "services/coordinator/job_store.h"
+#include "services/coordinator/metrics.h"
+
+namespace pbgi::farm {
+
+class LeaseReaper {
+ public:
+  // Starts the thread. `expired` counts the leases reclaimed.
+  LeaseReaper(JobStore& store, metrics::Counter& expired, Seconds leaseSeconds,
+              Seconds intervalSeconds);
+  ~LeaseReaper();  // stop()
+  LeaseReaper(const LeaseReaper&) = delete;
+  LeaseReaper& operator=(const LeaseReaper&) = delete;
+
+  // Stops the thread after the sweep in progress, if any. Idempotent.
+  void stop();
+
+ private:
+  void loop();
+
+  JobStore& store_;
+  metrics::Counter& expired_;
+  const Seconds leaseSeconds_;
+  const Seconds intervalSeconds_;
+  const Seconds started_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
+// Seconds since the Unix epoch: the store's clock.
+Seconds wallClock();
+
+}  // namespace pbgi::farm

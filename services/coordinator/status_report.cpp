@@ -1,0 +1,53 @@
+#include "services/coordinator/status_report.h"
+
+#include "core/util/status.h"
+#include "services/coordinator/farm_wire.h"
+
+namespace pbgi::farm {
+
+void fillTask(const TaskInfo& t, v1::TaskStatus* out) {
+  out->set_task(t.id);
+  setKindAndState(t.ref.kind, t.state, out);
+  out->set_frame(t.ref.frame);
+  out->set_tile(t.ref.tile);
+  out->set_attempt(t.attempt);
+  out->set_failures(t.failures);
+  out->set_worker(t.worker);
+  out->set_last_error(t.lastError);
+  out->set_progress(t.progress);
+}
+
+absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& views,
+                                                   const v1::GetStatusRequest& request) {
+  std::vector<JobInfo> infos;
+  if (request.job() != 0) {
+    PBGI_ASSIGN_OR_RETURN(JobInfo one, store.job(request.job()));
+    infos.push_back(std::move(one));
+  } else {
+    PBGI_ASSIGN_OR_RETURN(infos, store.jobs());
+  }
+  v1::GetStatusResponse response;
+  for (const JobInfo& info : infos) {
+    v1::JobStatus* job = response.add_jobs();
+    job->set_job(info.id);
+    job->set_name(info.spec.name);
+    setState(info.state, info.tasksByState, job);
+    job->set_priority(info.spec.priority);
+    for (int f : info.spec.frames) job->add_frames(f);
+    job->set_tiles_per_frame(info.spec.tileCount);
+    for (const TaskInfo& t : info.dead) fillTask(t, job->add_dead());
+    // Every task of a job is a large read: only for callers that ask for them.
+    if (!request.with_tasks()) continue;
+    PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, store.tasks(info.id));
+    auto view = views.get(info.id);
+    for (const TaskInfo& t : tasks) {
+      fillTask(t, job->add_tasks());
+      if (view.ok() && t.ref.kind == TaskKind::kAssemble && t.state == TaskState::kDone) {
+        job->add_outputs(JobViews::frameOutput(**view, t.ref.frame));
+      }
+    }
+  }
+  return response;
+}
+
+}  // namespace pbgi::farm
