@@ -475,8 +475,9 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
     int& material = remap.at(src.mMaterialIndex);
     if (material < 0) {
       material = static_cast<int>(out.materials.size());
-      out.materials.push_back(
-          mapper.map(*scene->mMaterials[src.mMaterialIndex], src.mMaterialIndex, &out.warnings));
+      out.materialWarnings.emplace_back();
+      out.materials.push_back(mapper.map(*scene->mMaterials[src.mMaterialIndex],
+                                         src.mMaterialIndex, &out.materialWarnings.back()));
     }
     mesh.materials.assign(mesh.triangleCount(), static_cast<uint32_t>(material));
 
@@ -487,7 +488,7 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
     if (mesh.triangleCount() > 0) out.meshes.push_back(std::move(mesh));
   }
   for (const std::string& lib : mapper.missingLibraries()) {
-    out.warnings.push_back(fmt::format("{}: material library '{}' not found", path, lib));
+    out.libraryWarnings.push_back(fmt::format("{}: material library '{}' not found", path, lib));
   }
   if (droppedPoints + droppedLines > 0) {
     out.warnings.push_back(

@@ -16,7 +16,21 @@ struct LoadedGeometry {
   // The file's materials mapped to our types (OBJ: Kd/map_Kd to diffuse albedo, Ke to
   // emissive radiance; glTF metallic-roughness to conductor/diffuse). Texture paths resolved.
   std::vector<MaterialDesc> materials;
-  std::vector<std::string> warnings;  // e.g. a material the loader could not map, by name
+  std::vector<std::string> warnings;  // about the file's geometry (cleaned meshes, dropped lines)
+  // Per entry of `materials`: what the loader could not map (not in any MTL file, ignored
+  // features). Moot when the shot defines a material of that name: loadFrameScene drops them.
+  std::vector<std::vector<std::string>> materialWarnings;
+  // Material libraries the file names but that are not there: moot when the shot defines
+  // every material the file uses.
+  std::vector<std::string> libraryWarnings;
+
+  // All of the above, as the file alone would warn.
+  std::vector<std::string> everyWarning() const {
+    std::vector<std::string> all = warnings;
+    for (const auto& m : materialWarnings) all.insert(all.end(), m.begin(), m.end());
+    all.insert(all.end(), libraryWarnings.begin(), libraryWarnings.end());
+    return all;
+  }
 };
 
 absl::StatusOr<LoadedGeometry> loadGeometry(const std::string& path);

@@ -1,6 +1,7 @@
 #include "formats/scene/frame_scene.h"
 
 #include <map>
+#include <set>
 
 #include <Imath/ImathMatrix.h>
 #include <fmt/format.h>
@@ -91,10 +92,12 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
     }
     return builder.addMaterial(std::move(m));
   };
+  std::set<std::string> shotMaterials;
   for (const MaterialDesc& d : shot.materials) {
     auto index = addMaterial(d);
     if (!index.ok()) return index.status();
     materialIndex[d.name] = *index;
+    shotMaterials.insert(d.name);
   }
 
   for (const GeometryDesc& g : shot.geometry) {
@@ -103,10 +106,17 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
       return withContext(loaded.status(), g.where.toString());
     }
     for (std::string& w : loaded->warnings) warnings.push_back(std::move(w));
-    // Map the file's material indices to the scene's.
+    // Map the file's material indices to the scene's. What the loader could not map of a
+    // material warns only where the shot does not define that material itself.
     std::vector<uint32_t> remap(loaded->materials.size());
+    bool usesFileMaterials = false;
     for (size_t i = 0; i < loaded->materials.size(); ++i) {
       const MaterialDesc& fileMaterial = loaded->materials[i];
+      const bool shotDefines = shotMaterials.contains(fileMaterial.name);
+      usesFileMaterials = usesFileMaterials || !shotDefines;
+      if (!shotDefines) {
+        for (std::string& w : loaded->materialWarnings[i]) warnings.push_back(std::move(w));
+      }
       if (auto it = materialIndex.find(fileMaterial.name); it != materialIndex.end()) {
         remap[i] = it->second;
         continue;
@@ -128,6 +138,9 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
         }
       }
       builder.addMesh(std::move(mesh));
+    }
+    if (usesFileMaterials) {
+      for (std::string& w : loaded->libraryWarnings) warnings.push_back(std::move(w));
     }
   }
 

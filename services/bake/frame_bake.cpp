@@ -136,7 +136,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
                        request.memoryBudget / 4 / kGroupBytes);
   if (request.progress) {
     bounce.progress = [&](uint64_t done, uint64_t total) {
-      request.progress(fmt::format("bounce {}", bounce.bounce), done, total);
+      request.progress(fmt::format("bounce {} of {}", bounce.bounce, request.bounces), done, total);
     };
   }
   auto reflected = bounceSurfels(bounce, &report->bounceCut);
@@ -291,7 +291,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
       }
       shadedSoFar += chunk.size();
       chunk.clear();
-      if (request.progress) request.progress("shade", shadedSoFar, plan.surfels);
+      if (request.progress) request.progress("sample and shade surfels", shadedSoFar, plan.surfels);
       return absl::OkStatus();
     };
     absl::Status sampled = sampleSurfels(
@@ -359,8 +359,11 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         }
       }
       if (request.progress && (++built & 0xffff) == 0) {
-        request.progress("build", built, report.sampling.surfels);
+        request.progress("merge the sorted runs and build the tree", built, report.sampling.surfels);
       }
+    }
+    if (request.progress) {
+      request.progress("merge the sorted runs and build the tree", built, report.sampling.surfels);
     }
     report.sort = sorter.stats();
     auto tree = (*writer)->finish();

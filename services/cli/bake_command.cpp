@@ -80,8 +80,8 @@ int runBake(const BakeOptions& o) {
   request.threads = o.threads;
   request.tempDir = o.tempDir;
   Progress progress(fmt::format("bake {} frame {}", shot->name, request.frame));
-  request.progress = [&](const std::string&, uint64_t done, uint64_t total) {
-    progress.update(done, total);
+  request.progress = [&](const std::string& stage, uint64_t done, uint64_t total) {
+    progress.update(stage, done, total);
   };
   auto report = bakeShotFrame(*shot, request);
   progress.finish();

@@ -74,12 +74,12 @@ int runRender(const RenderOptions& o) {
   request.rebake = o.rebake;
   Progress progress(fmt::format("render {} frame {}", shot->name, request.frame));
   Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, request.frame));
-  request.bakeProgress = [&](const std::string&, uint64_t done, uint64_t total) {
-    bakeProgress.update(done, total);
+  request.bakeProgress = [&](const std::string& stage, uint64_t done, uint64_t total) {
+    bakeProgress.update(stage, done, total);
   };
   request.progress = [&](int done, int total) {
     if (done == 1) bakeProgress.finish();
-    progress.update(done, total);
+    progress.update("tiles", done, total);
   };
 
   auto report = renderShotFrame(*shot, request);

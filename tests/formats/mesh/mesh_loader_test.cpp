@@ -40,7 +40,7 @@ const MeshData* findMesh(const LoadedGeometry& g, const std::string& name) {
 // The warnings that mention `needle`.
 std::vector<std::string> warningsWith(const LoadedGeometry& g, const std::string& needle) {
   std::vector<std::string> out;
-  for (const std::string& w : g.warnings) {
+  for (const std::string& w : g.everyWarning()) {
     if (w.find(needle) != std::string::npos) out.push_back(w);
   }
   return out;
@@ -48,7 +48,7 @@ std::vector<std::string> warningsWith(const LoadedGeometry& g, const std::string
 
 std::string allWarnings(const LoadedGeometry& g) {
   std::string s;
-  for (const std::string& w : g.warnings) s += "\n  " + w;
+  for (const std::string& w : g.everyWarning()) s += "\n  " + w;
   return s;
 }
 
@@ -116,7 +116,7 @@ TEST(LoadGeometry, MapsObjMaterials) {
   EXPECT_NE(shinyWarnings[0].find("Ns 100"), std::string::npos) << shinyWarnings[0];
   EXPECT_NE(shinyWarnings[0].find("d 0.5"), std::string::npos) << shinyWarnings[0];
 
-  EXPECT_EQ(g->warnings.size(), 2u) << allWarnings(*g);
+  EXPECT_EQ(g->everyWarning().size(), 2u) << allWarnings(*g);
 
   // Each mesh points at its own material; uvs come through with v = 0 at the bottom.
   const MeshData* quad = findMesh(*g, "textured_quad");
@@ -170,13 +170,13 @@ TEST(LoadGeometry, KeepsVertexNormals) {
     EXPECT_NEAR((mesh.normals[v] - want).length(), 0.0f, 1e-6f)
         << "vertex " << mesh.positions[v] << ": " << mesh.normals[v] << " vs " << want;
   }
-  EXPECT_TRUE(g->warnings.empty()) << allWarnings(*g);
+  EXPECT_TRUE(g->everyWarning().empty()) << allWarnings(*g);
 }
 
 TEST(LoadGeometry, AppliesGltfNodeTransformsAndMapsMetallicRoughness) {
   const auto g = loadGeometry(meshPath("transformed.gltf"));
   ASSERT_TRUE(g.ok()) << g.status();
-  EXPECT_TRUE(g->warnings.empty()) << allWarnings(*g);
+  EXPECT_TRUE(g->everyWarning().empty()) << allWarnings(*g);
 
   // gold_node: scale 2, then translate (10, 20, 30).
   const MeshData* gold = findMesh(*g, "gold_mesh");
@@ -248,7 +248,7 @@ TEST(LoadGeometry, EmbeddedTexturesWarnAndFallBackToTheFactor) {
     const auto w = warningsWith(*g, fmt::format("material '{}'", material));
     ASSERT_EQ(w.size(), 1u) << allWarnings(*g);
     EXPECT_NE(w[0].find("embedded"), std::string::npos) << w[0];
-    EXPECT_EQ(g->warnings.size(), 1u) << allWarnings(*g);
+    EXPECT_EQ(g->everyWarning().size(), 1u) << allWarnings(*g);
   }
 }
 
@@ -259,8 +259,8 @@ TEST(LoadGeometry, GltfPartsThatCannotBeMappedAreOneWarningNamingTheMaterial) {
   ASSERT_NE(glass, nullptr);
   EXPECT_EQ(glass->type, MaterialType::kDiffuse);  // metallicFactor 0.3 < 0.5
   expectRgb(glass->albedo, {0.9f, 0.9f, 0.9f});
-  ASSERT_EQ(g->warnings.size(), 1u) << allWarnings(*g);
-  const std::string& w = g->warnings[0];
+  ASSERT_EQ(g->everyWarning().size(), 1u) << allWarnings(*g);
+  const std::string w = g->everyWarning()[0];
   EXPECT_NE(w.find("material 'glass'"), std::string::npos) << w;
   for (const char* part :
        {"KHR_materials_transmission", "normalTexture", "alphaMode BLEND", "metallicFactor 0.3"}) {

@@ -37,6 +37,34 @@ TEST(FrameScene, EveryShippedSceneLoadsWithoutWarnings) {
   }
 }
 
+// What the loader could not map of a file's material (here: no MTL file defines 'ghost', and
+// the file's library is missing) warns only where the shot does not define that material.
+TEST(FrameScene, AMaterialTheShotDefinesDoesNotWarnAboutTheFilesVersion) {
+  const std::string mesh = (testing::sourceDir() / "tests/data/meshes/no_mtl.obj").string();
+  const std::string head = "version = 1\n[shot]\nname = \"ghost\"\nframes = [1, 1]\n"
+                           "resolution = [8, 8]\noutput = \"out/g.exr\"\n[camera]\n"
+                           "position = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov_y_deg = 40.0\n"
+                           "[[light]]\ntype = \"sphere\"\ncenter = [0, 2, 2]\nradius = 0.1\n"
+                           "radiance = [1, 1, 1]\n[[geometry]]\nfile = \"" + mesh + "\"\n";
+  const std::string ghost = "[[material]]\nname = \"ghost\"\ntype = \"diffuse\"\n"
+                            "albedo = [0.5, 0.5, 0.5]\n";
+  for (const bool defined : {false, true}) {
+    auto shot = parseShot(head + (defined ? ghost : ""), "ghost.shot.toml");
+    ASSERT_TRUE(shot.ok()) << shot.status();
+    auto scene = loadFrameScene(*shot, 1);
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    std::string all;
+    for (const std::string& w : scene->warnings) all += "\n  " + w;
+    if (defined) {
+      EXPECT_TRUE(scene->warnings.empty()) << all;
+    } else {
+      EXPECT_NE(all.find("material 'ghost': not defined in any MTL file"), std::string::npos)
+          << all;
+      EXPECT_NE(all.find("material library 'not_here.mtl' not found"), std::string::npos) << all;
+    }
+  }
+}
+
 // The materials of a shipped shot's first frame that `is` holds for (-1 when it does not load,
 // which fails the test).
 template <typename Predicate>

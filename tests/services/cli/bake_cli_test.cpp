@@ -53,6 +53,22 @@ TEST(BakeCli, WritesATreeAndAPointCloudThatInspectAccepts) {
 
 // A scene whose glossy light the tree cannot carry yet says so, naming each material and what
 // SH miss of its lobes; a diffuse scene says nothing of it.
+// Progress names each stage, bounces counted out of their number, in plain lines when stderr
+// is not a terminal (as here).
+TEST(BakeCli, ProgressNamesItsStages) {
+  const fs::path dir = testing::makeTempDir("bake-cli-progress");
+  const testing::RunResult r =
+      runPbgi("bake " + shellQuote(kShot.string()) + " --frame 2 --out " +
+              shellQuote(dir.string()) + " --points 30000 --bounces 2");
+  ASSERT_EQ(r.exitCode, 0) << r.output();
+  for (const char* stage : {"bake cornell frame 2: sample and shade surfels 100%",
+                            "bake cornell frame 2: bounce 1 of 2 ",
+                            "bake cornell frame 2: bounce 2 of 2 ",
+                            "bake cornell frame 2: merge the sorted runs and build the tree 100%"}) {
+    EXPECT_NE(r.err.find(stage), std::string::npos) << stage << " not in:\n" << r.err;
+  }
+}
+
 TEST(BakeCli, BakesWaveletsOnlyForScenesWithGlossyMaterials) {
   const fs::path dir = testing::makeTempDir("bake-cli-glossy");
   const fs::path plates = testing::sourceDir() / "config/scenes/glossy-plates/plates.shot.toml";
