@@ -86,11 +86,23 @@ void addConnectionFlags(CLI::App& cmd, ConnectionFlags& flags) {
                  "Coordinator host:port (default: $PBGI_COORDINATOR, else 127.0.0.1:7411)");
   cmd.add_option("--token-file", flags.tokenFile,
                  "The farm token (default: $PBGI_TOKEN; the coordinator writes <state>/token)");
+  cmd.add_option("--tls-ca", flags.tls.ca,
+                 "TLS: the CA that signed the coordinator's certificate (default: $PBGI_TLS_CA, "
+                 "else plaintext)")
+      ->envname("PBGI_TLS_CA");
+  cmd.add_option("--tls-cert", flags.tls.cert,
+                 "TLS: this client's certificate, for a coordinator that asks for one (default: "
+                 "$PBGI_TLS_CERT)")
+      ->envname("PBGI_TLS_CERT");
+  cmd.add_option("--tls-key", flags.tls.key, "TLS: the key of --tls-cert (default: $PBGI_TLS_KEY)")
+      ->envname("PBGI_TLS_KEY");
 }
 
 absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags) {
   PBGI_ASSIGN_OR_RETURN(std::string token, farm::loadClientToken(flags.tokenFile));
-  return std::make_unique<farm::FarmClient>(flags.coordinator, std::move(token));
+  PBGI_ASSIGN_OR_RETURN(std::optional<farm::TlsPem> tls, farm::readClientTls(flags.tls));
+  return std::make_unique<farm::FarmClient>(flags.coordinator, std::move(token), 30.0,
+                                            std::move(tls));
 }
 
 JobProgress jobProgress(const farm::v1::JobStatus& job) {

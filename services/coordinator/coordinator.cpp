@@ -314,7 +314,7 @@ struct Coordinator::Impl {
   std::unique_ptr<FarmService> service;
   std::unique_ptr<grpc::Server> server;
   std::string address;
-  std::string transport;  // for the log
+  std::string transport;  // for the log: "plaintext", "TLS", ...
 
   httplib::Server http;
   std::string httpAddress;
@@ -330,12 +330,14 @@ struct Coordinator::Impl {
 };
 
 absl::Status Coordinator::Impl::listen() {
-  transport = "plaintext";
+  PBGI_ASSIGN_OR_RETURN(const std::optional<TlsPem> tls, readServerTls(options.tls));
+  if (tls) watchTlsHandshakes();
+  transport = !tls ? "plaintext" : tls->ca.empty() ? "TLS" : "TLS, client certificates required";
   grpc::ServerBuilder builder;
   int port = 0;
   builder.AddListeningPort(
       options.listen,
-      coordinatorCredentials(options.token,
+      coordinatorCredentials(tls, options.token,
                              std::shared_ptr<metrics::Counter>(metrics, metrics->refused)),
       &port);
   builder.RegisterService(service.get());

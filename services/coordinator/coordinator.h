@@ -4,6 +4,7 @@
 // one; `pbgi run` runs one in-process. Its parts, each in its own file:
 //   coordinator.cpp        the RPCs (requests into store calls), start and shutdown
 //   farm_auth.h            the token check on every call, before any RPC runs
+//   farm_tls.h             TLS: the certificates, the clients' trust, handshake failures
 //   job_views.h            each job's parsed shot, kept
 //   status_report.h        a job's status for GetStatus and /status
 //   page_service.h         trees a page at a time for workers that cannot see the job folder
@@ -11,7 +12,8 @@
 //   coordinator_metrics.h  every metric, declared once (metrics.h writes Prometheus text)
 //
 // Every RPC must carry "authorization: Bearer <token>"; others are refused (and counted).
-// A job's frames are written only under the output root. The
+// With TLS files the gRPC port speaks TLS only (and may require client certificates);
+// without them, plaintext. A job's frames are written only under the output root. The
 // coordinator keeps running through any bad job: a shot that does not parse is refused at
 // submission with the reader's message, and a task that fails on a worker is retried, then
 // dead, by the store's policy.
@@ -22,6 +24,7 @@
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
 
+#include "services/coordinator/farm_tls.h"
 #include "services/coordinator/job_store.h"
 
 namespace pbgi::farm {
@@ -34,6 +37,9 @@ struct CoordinatorOptions {
   std::string store;
   std::string outputRoot;              // every job's frames must lie under it
   std::string token;                   // required on every RPC (not empty)
+  // TLS: cert and key, the coordinator's certificate; ca, the CA that must have signed every
+  // client's certificate (empty: none asked). All empty: plaintext.
+  TlsFiles tls;
   double leaseSeconds = 30.0;          // a worker heartbeats well within this
   double expiryIntervalSeconds = 1.0;  // how often expired leases are reclaimed
   int tileSize = 0;                    // farm tile edge; 0: kDefaultFarmTileSize

@@ -36,6 +36,11 @@ int coordinatorDaemonMain(int argc, char** argv) {
                  "Every job's frames must lie under this folder (default: <state>/output)");
   app.add_option("--token-file", tokenFile,
                  "The farm token; created with a random token when missing (default: <state>/token)");
+  app.add_option("--tls-cert", o.tls.cert,
+                 "TLS: the coordinator's certificate (PEM; default: plaintext)");
+  app.add_option("--tls-key", o.tls.key, "TLS: the key of --tls-cert");
+  app.add_option("--tls-client-ca", o.tls.ca,
+                 "TLS: every client must present a certificate signed by this CA");
   app.add_option("--address-file", addressFile,
                  "Where the bound address is written (default: <state>/coordinator.addr)");
   app.add_option("--lease-seconds", o.leaseSeconds, "Lease length; workers heartbeat within it")
@@ -93,7 +98,8 @@ int coordinatorDaemonMain(int argc, char** argv) {
   if (!coordinator.ok()) {
     std::fprintf(stderr, "pbgi-coordinator: error: %s\n",
                  std::string(coordinator.status().message()).c_str());
-    return 1;
+    // A bad option (TLS files that do not fit) as on the command line; anything else failed.
+    return absl::IsInvalidArgument(coordinator.status()) ? 2 : 1;
   }
   const std::string addressPath =
       addressFile.empty() ? (fs::path(stateDir) / "coordinator.addr").string() : addressFile;

@@ -2,6 +2,7 @@
 
 #include <array>
 
+#include "services/coordinator/farm_tls.h"
 
 namespace pbgi::farm {
 
@@ -51,6 +52,9 @@ CoordinatorMetrics::CoordinatorMetrics(JobStore& store) {
   staleCompletions = &r.counter("pbgi_stale_completions_total",
                                 "Completions dropped because their attempt had lost the lease.");
   refused = &r.counter("pbgi_rpc_refused_total", "Calls refused for a missing or wrong token.");
+  r.counter("pbgi_tls_handshake_failures_total",
+            "Connections refused because their TLS handshake failed (over this process).",
+            [] { return tlsHandshakeFailures(); });
   cacheHits = &r.counter("pbgi_page_cache_hits_total",
                          "Tree page cache hits reported with completed tasks.");
   cacheMisses = &r.counter("pbgi_page_cache_misses_total",

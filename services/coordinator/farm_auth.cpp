@@ -59,11 +59,22 @@ void checkToken(void* state, grpc_auth_context* context, const grpc_metadata* md
 
 // A ServerCredentials over core credentials that carry the token check. gRPC 1.51's own
 // ServerCredentials subclasses are private; this one only binds ports with the C API.
+grpc_server_credentials* coreCredentials(const std::optional<TlsPem>& tls) {
+  if (!tls) return grpc_insecure_server_credentials_create();
+  grpc_ssl_pem_key_cert_pair pair{tls->key.c_str(), tls->cert.c_str()};
+  return grpc_ssl_server_credentials_create_ex(
+      tls->ca.empty() ? nullptr : tls->ca.c_str(), &pair, 1,
+      tls->ca.empty() ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                      : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY,
+      nullptr);
+}
+
 class CheckedCredentials final : public grpc::ServerCredentials {
  public:
   // The core credentials are made here, after the base class has initialised gRPC.
-  CheckedCredentials(std::string token, std::shared_ptr<metrics::Counter> refused)
-      : core_(grpc_insecure_server_credentials_create()) {
+  CheckedCredentials(const std::optional<TlsPem>& tls, std::string token,
+                     std::shared_ptr<metrics::Counter> refused)
+      : core_(coreCredentials(tls)) {
     PBGI_CHECK(core_ != nullptr);
     auto* check = new TokenCheck{std::move(token), std::move(refused)};
     grpc_server_credentials_set_auth_metadata_processor(
@@ -97,8 +108,9 @@ bool bearsToken(std::string_view authorization, std::string_view token) {
 }
 
 std::shared_ptr<grpc::ServerCredentials> coordinatorCredentials(
-    std::string token, std::shared_ptr<metrics::Counter> refused) {
-  return std::make_shared<CheckedCredentials>(std::move(token), std::move(refused));
+    const std::optional<TlsPem>& tls, std::string token,
+    std::shared_ptr<metrics::Counter> refused) {
+  return std::make_shared<CheckedCredentials>(tls, std::move(token), std::move(refused));
 }
 
 }  // namespace pbgi::farm

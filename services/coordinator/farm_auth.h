@@ -1,6 +1,7 @@
 #pragma once
 // Who may call the coordinator: every call carries the farm token ("authorization: Bearer
-// <token>"), checked in one place, an auth metadata processor on the server's credentials. gRPC runs it on a call's metadata before any handler, so a refused call
+// <token>"), checked in one place, an auth metadata processor on the server's credentials
+// (plaintext or TLS). gRPC runs it on a call's metadata before any handler, so a refused call
 // reaches no RPC (it gets UNAUTHENTICATED, is counted and logged).
 //
 // Why not a server interceptor (grpc::experimental::ServerInterceptorFactoryInterface): in
@@ -8,12 +9,13 @@
 // anyway (a refused SubmitJob would still submit; tried). And grpc::AuthMetadataProcessor
 // through ServerCredentials::SetAuthMetadataProcessor aborts on InsecureServerCredentials
 // ("assertion failed" in insecure_server_credentials.cc), while plaintext farms stay. So the
-// processor is installed with gRPC's C API on the core insecure credentials, which support
-// it; coordinatorCredentials() hands them to the ServerBuilder.
+// processor is installed with gRPC's C API on the core credentials, TLS or insecure, which
+// both support it; coordinatorCredentials() hands them to the ServerBuilder.
 #include <memory>
 #include <optional>
 #include <string>
 
+#include "services/coordinator/farm_tls.h"
 #include "services/coordinator/metrics.h"
 
 namespace grpc {
@@ -26,9 +28,10 @@ namespace pbgi::farm {
 // that does not depend on where they differ.
 bool bearsToken(std::string_view authorization, std::string_view token);
 
-// The coordinator's listening credentials: every call must bear `token`. A refused call adds
-// one to `refused` (shared: gRPC may hold the credentials after the coordinator).
+// The coordinator's listening credentials: TLS with `tls` (client certificates required when
+// it names a CA), plaintext without; either way every call must bear `token`. A refused call
+// adds one to `refused` (shared: gRPC may hold the credentials after the coordinator).
 std::shared_ptr<grpc::ServerCredentials> coordinatorCredentials(
-    std::string token, std::shared_ptr<metrics::Counter> refused);
+    const std::optional<TlsPem>& tls, std::string token, std::shared_ptr<metrics::Counter> refused);
 
 }  // namespace pbgi::farm

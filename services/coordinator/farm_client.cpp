@@ -30,6 +30,16 @@ absl::Status fromGrpc(const grpc::Status& s, const std::string& address, const c
   return absl::Status(static_cast<absl::StatusCode>(s.error_code()), message);
 }
 
+// How gRPC 1.51 words a connection that TLS refused: a failed handshake on this side, or the
+// other side hanging up (a TLS coordinator and a plaintext client, a client certificate
+// refused, or a coordinator going away).
+bool mayBeTls(const grpc::Status& s) {
+  if (s.error_code() != grpc::StatusCode::UNAVAILABLE) return false;
+  const std::string& m = s.error_message();
+  return m.find("andshake") != std::string::npos || m.find("Socket closed") != std::string::npos ||
+         m.find("Connection reset") != std::string::npos;
+}
+
 }  // namespace
 
 absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile) {
@@ -46,9 +56,24 @@ bool isTransient(const absl::Status& status) {
 }
 
 struct FarmClient::Impl {
+  std::string address;
   std::string token;
   double deadlineSeconds;
+  std::optional<TlsPem> tls;
   std::unique_ptr<v1::Coordinator::Stub> stub;
+
+  // A refusal by TLS says why (farm_tls.h diagnoses it with a handshake of its own); anything
+  // else as fromGrpc.
+  absl::Status failed(const grpc::Status& s, const char* call) const {
+    if (mayBeTls(s)) {
+      if (std::optional<std::string> why = diagnoseTls(address, tls)) {
+        return absl::UnauthenticatedError(
+            fmt::format("coordinator {}: {} failed at TLS: {} (gRPC: {})", address, call, *why,
+                        s.error_message()));
+      }
+    }
+    return fromGrpc(s, address, call);
+  }
 
   void prepare(grpc::ClientContext& context) const {
     context.AddMetadata("authorization", "Bearer " + token);
@@ -57,10 +82,13 @@ struct FarmClient::Impl {
   }
 };
 
-FarmClient::FarmClient(const std::string& address, std::string token, double deadlineSeconds)
+FarmClient::FarmClient(const std::string& address, std::string token, double deadlineSeconds,
+                       std::optional<TlsPem> tls)
     : address_(address), impl_(std::make_unique<Impl>()) {
+  impl_->address = address;
   impl_->token = std::move(token);
   impl_->deadlineSeconds = deadlineSeconds;
+  impl_->tls = std::move(tls);
   grpc::ChannelArguments args;
   // A tree's head holds its codebooks (sections of at most 256 MiB); a page is at most
   // 16 MiB; status of a large job is large too.
@@ -69,19 +97,19 @@ FarmClient::FarmClient(const std::string& address, std::string token, double dea
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 200);
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 2000);
   impl_->stub = v1::Coordinator::NewStub(
-      grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
+      grpc::CreateCustomChannel(address, channelCredentials(impl_->tls), args));
 }
 
 FarmClient::~FarmClient() = default;
 
-#define PBGI_FARM_CALL(method, Rpc)                                                    \
+#define PBGI_FARM_CALL(method, Rpc)                                                       \
   absl::StatusOr<v1::Rpc##Response> FarmClient::method(const v1::Rpc##Request& request) { \
-    grpc::ClientContext context;                                                       \
-    impl_->prepare(context);                                                           \
-    v1::Rpc##Response response;                                                        \
-    const grpc::Status s = impl_->stub->Rpc(&context, request, &response);             \
-    if (!s.ok()) return fromGrpc(s, address_, #Rpc);                                   \
-    return response;                                                                   \
+    grpc::ClientContext context;                                                          \
+    impl_->prepare(context);                                                              \
+    v1::Rpc##Response response;                                                           \
+    const grpc::Status s = impl_->stub->Rpc(&context, request, &response);                \
+    if (!s.ok()) return impl_->failed(s, #Rpc);                                           \
+    return response;                                                                      \
   }
 
 PBGI_FARM_CALL(submitJob, SubmitJob)
@@ -106,7 +134,7 @@ absl::StatusOr<PageFileHead> FarmClient::openTree(int64_t job, int frame) {
   request.set_frame(frame);
   v1::OpenTreeResponse response;
   const grpc::Status s = impl_->stub->OpenTree(&context, request, &response);
-  if (!s.ok()) return fromGrpc(s, address_, "OpenTree");
+  if (!s.ok()) return impl_->failed(s, "OpenTree");
   PageFileHead head;
   head.header.assign(response.header().begin(), response.header().end());
   head.tailOffset = response.tail_offset();
@@ -140,7 +168,7 @@ absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(
     out.emplace_back(chunk.data().begin(), chunk.data().end());
   }
   const grpc::Status finished = reader->Finish();
-  if (failed.ok() && !finished.ok()) failed = fromGrpc(finished, address_, "FetchPages");
+  if (failed.ok() && !finished.ok()) failed = impl_->failed(finished, "FetchPages");
   if (failed.ok() && out.size() != pages.size()) {
     failed = absl::DataLossError(fmt::format("tree of job {} frame {} from {}: {} of {} pages arrived",
                                              job, frame, address_, out.size(), pages.size()));

@@ -1,7 +1,9 @@
 #pragma once
 // A connection to a coordinator, for workers and for `pbgi submit/status/...`. Every call
 // carries the farm's token and a deadline, and comes back as a Status whose message says
-// which coordinator did not answer or what it refused. gRPC itself stays inside the .cpp.
+// which coordinator did not answer or what it refused. Over TLS when given a CA (farm_tls.h);
+// a connection that TLS refuses (either way) comes back UNAUTHENTICATED saying why, not as a
+// coordinator that is away. gRPC itself stays inside the .cpp.
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
@@ -17,6 +19,7 @@
 
 #include "formats/pbgi/remote_page_file.h"
 #include "pbgi/farm/v1/farm.pb.h"
+#include "services/coordinator/farm_tls.h"
 
 namespace pbgi::farm {
 
@@ -28,7 +31,9 @@ absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile);
 
 class FarmClient {
  public:
-  FarmClient(const std::string& address, std::string token, double deadlineSeconds = 30.0);
+  // `tls`: from readClientTls; nullopt: plaintext.
+  FarmClient(const std::string& address, std::string token, double deadlineSeconds = 30.0,
+             std::optional<TlsPem> tls = std::nullopt);
   ~FarmClient();
   FarmClient(const FarmClient&) = delete;
   FarmClient& operator=(const FarmClient&) = delete;

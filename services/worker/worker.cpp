@@ -200,7 +200,7 @@ class Worker {
   Worker(const WorkerOptions& options, std::string id)
       : options_(options),
         id_(std::move(id)),
-        client_(options.coordinator, options.token),
+        client_(options.coordinator, options.token, 30.0, options.tls),
         scenes_(options.sceneCacheBytes) {
     cacheDir_ = options.cacheDir.empty()
                     ? (fs::temp_directory_path() / fmt::format("pbgi-worker-{}", sanitized(id_)))
@@ -483,7 +483,11 @@ int Worker::run(const std::atomic<bool>& stop) {
     log::warn("worker={}: {}; trying again", id_, answer.status().message());
     sleepUnlessStopped(wait, stop);
   }
-  log::info("worker={} registered with {} (tree source {}, disk cache {})", id_, options_.coordinator,
+  log::info("worker={} registered with {} over {} (tree source {}, disk cache {})", id_,
+            options_.coordinator,
+            !options_.tls                ? "plaintext"
+            : options_.tls->cert.empty() ? "TLS"
+                                         : "TLS with a client certificate",
             options_.treeSource == TreeSource::kAuto     ? "auto"
             : options_.treeSource == TreeSource::kShared ? "shared"
                                                          : "stream",

@@ -13,7 +13,10 @@
 // does not answer is waited for: the task's result is reported when it is back.
 #include <atomic>
 #include <cstddef>
+#include <optional>
 #include <string>
+
+#include "services/coordinator/farm_tls.h"
 
 namespace pbgi::farm {
 
@@ -26,6 +29,7 @@ enum class TreeSource {
 struct WorkerOptions {
   std::string coordinator;   // host:port
   std::string token;
+  std::optional<TlsPem> tls;  // readClientTls; nullopt: plaintext
   std::string id;            // empty: <host>:<pid>
   int threads = 0;           // 0: all cores
   size_t cacheBytes = 0;     // tree page cache budget; 0: the shot's cache_mb

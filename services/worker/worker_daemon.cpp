@@ -23,6 +23,12 @@ int workerDaemonMain(int argc, char** argv) {
   int sceneCacheMb = 2048;
   app.add_option("--coordinator", o.coordinator, "The coordinator's host:port")->required();
   app.add_option("--token-file", tokenFile, "The farm token (default: $PBGI_TOKEN)");
+  TlsFiles tls;
+  app.add_option("--tls-ca", tls.ca,
+                 "TLS: the CA that signed the coordinator's certificate (default: plaintext)");
+  app.add_option("--tls-cert", tls.cert,
+                 "TLS: this worker's certificate, for a coordinator that asks for one");
+  app.add_option("--tls-key", tls.key, "TLS: the key of --tls-cert");
   app.add_option("--id", o.id, "Worker name (default: host:pid)");
   app.add_option("--threads", o.threads, "Render threads (default: all cores)")
       ->check(CLI::PositiveNumber);
@@ -69,6 +75,12 @@ int workerDaemonMain(int argc, char** argv) {
     return 2;
   }
   o.token = *token;
+  auto pem = readClientTls(tls);
+  if (!pem.ok()) {
+    std::fprintf(stderr, "pbgi-worker: error: %s\n", std::string(pem.status().message()).c_str());
+    return 2;
+  }
+  o.tls = *std::move(pem);
   blockStopSignals();
   static std::atomic<bool> stop{false};
   // SIGTERM: finish the task in hand, report it, then exit.

@@ -241,7 +241,7 @@ TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
   for (const char* counter :
        {"pbgi_leases_total", "pbgi_task_failures_total", "pbgi_leases_expired_total",
         "pbgi_stale_completions_total", "pbgi_rpc_refused_total",
-        "pbgi_page_cache_hits_total",
+        "pbgi_tls_handshake_failures_total", "pbgi_page_cache_hits_total",
         "pbgi_page_cache_misses_total", "pbgi_trees_opened_total", "pbgi_tree_pages_served_total",
         "pbgi_tree_bytes_served_total", "pbgi_tree_bytes_streamed_total"}) {
     EXPECT_NE(text.find(fmt::format("# TYPE {} counter\n{} ", counter, counter)), std::string::npos)
