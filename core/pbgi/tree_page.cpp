@@ -95,6 +95,19 @@ float halfBits(uint16_t bits) {
   return h;
 }
 
+// Set in a page's encoding byte (quantized pages written since): surfel radii are stored
+// over their leaf's largest side, so that a half float keeps them in any unit (absolute, a
+// radius below 6e-5 lost its precision and one above 65504 was clamped). Pages without it
+// read as before.
+constexpr uint8_t kRelativeRadiiFlag = 0x80;
+
+// What a quantized surfel's radius is stored relative to: its leaf's decoded bounds' largest
+// side (1 for a leaf of one point, whose bounds have no size).
+float radiusScale(const Bounds3f& leaf) {
+  const float side = maxAbsComponent(leaf.max - leaf.min);
+  return side > 0.0f && std::isfinite(side) ? side : 1.0f;
+}
+
 half toHalf(float v) {
   // Finite, within half's range: radiance beyond 65504 is clamped by the caller, who counts it.
   return half(std::clamp(v, -static_cast<float>(HALF_MAX), static_cast<float>(HALF_MAX)));
@@ -613,7 +626,7 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
   w.u32(counts.refs);
   w.u32(counts.surfels);
   w.u32(counts.exact);
-  w.u8(static_cast<uint8_t>(encoding));
+  w.u8(static_cast<uint8_t>(encoding) | (quantized(encoding) ? kRelativeRadiiFlag : 0));
   writeVec3(w, pageBounds.min);
   writeVec3(w, pageBounds.max);
 
@@ -710,7 +723,7 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
       octEncode(s.normal, &u, &v);
       w.u16(u);
       w.u16(v);
-      w.u16(toHalf(s.radius).bits());
+      w.u16(toHalf(s.radius / radiusScale(lb)).bits());
       for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.radiance[ch]).bits());
       for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.backRadiance[ch]).bits());
       for (int ch = 0; ch < 3; ++ch) {
@@ -772,9 +785,14 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
   counts.refs = header.u32();
   counts.surfels = header.u32();
   counts.exact = header.u32();
-  const uint8_t encodingByte = header.u8();
-  if (encodingByte > static_cast<uint8_t>(TreeEncoding::kQuantized8)) {
-    return fail(fmt::format("encoding {}, expected 0 (float), 1 or 2 (quantized)", encodingByte));
+  const uint8_t flaggedEncoding = header.u8();
+  const bool relativeRadii = (flaggedEncoding & kRelativeRadiiFlag) != 0;
+  const uint8_t encodingByte = flaggedEncoding & ~kRelativeRadiiFlag;
+  if (encodingByte > static_cast<uint8_t>(TreeEncoding::kQuantized8) ||
+      (relativeRadii && encodingByte == static_cast<uint8_t>(TreeEncoding::kFloat))) {
+    return fail(fmt::format("encoding {}, expected 0 (float), 1 or 2 (quantized; 129 or 130 "
+                            "with surfel radii relative to their leaf)",
+                            flaggedEncoding));
   }
   const auto encoding = static_cast<TreeEncoding>(encodingByte);
   // Counts are checked against the size in 64 bits before anything is allocated.
@@ -961,7 +979,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
                        dequantizeIn(pz, lb.min.z, lb.max.z));
     const uint16_t u = r.u16(), v = r.u16();
     s.normal = octDecode(u, v);
-    s.radius = halfBits(r.u16());
+    s.radius = halfBits(r.u16()) * (relativeRadii ? radiusScale(lb) : 1.0f);
     for (int ch = 0; ch < 3; ++ch) s.radiance[ch] = halfBits(r.u16());
     for (int ch = 0; ch < 3; ++ch) s.backRadiance[ch] = halfBits(r.u16());
     for (int ch = 0; ch < 3; ++ch) s.albedo[ch] = r.u8() / 255.0f;

@@ -26,7 +26,9 @@
 // Payload layout, version 3 (little-endian, fixed width, no padding; version 1 had no back
 // radiance or back power, version 2 no ghosts):
 //   u32 node count, u32 child-reference count, u32 surfel count, u32 exact count, u8 encoding (0 float,
-//   1 quantized, 2 quantized with 8-bit indices), 6 x f32 page bounds (min xyz, max xyz),
+//   1 quantized, 2 quantized with 8-bit indices; plus 0x80 when quantized surfel radii are
+//   over their leaf's largest side, as every quantized page written since the stability
+//   suite found absolute half radii lost below 6e-5 units), 6 x f32 page bounds (min xyz, max xyz),
 //   then the node records, the child references (u32 page, u32 index each), the surfel
 //   records, and the float SH of exact nodes (area 9 x f32, power 27 x f32 each, in node
 //   order). Record sizes below.
@@ -60,7 +62,8 @@
 //   float:     position 3 x f32, normal 3 x f32, radius f32, radiance 3 x f32, back
 //              radiance 3 x f32, albedo 3 x f32, material class u8                    =  65
 //   quantized: position 3 x u16 (in the leaf's bounds), normal 2 x u16 (octahedral),
-//              radius f16, radiance 3 x f16, back radiance 3 x f16, albedo 3 x u8,
+//              radius f16 (absolute, or over the leaf's largest side: see the encoding
+//              byte), radiance 3 x f16, back radiance 3 x f16, albedo 3 x u8,
 //              material class u8                                                      =  28
 #include <cstdint>
 #include <memory>

@@ -1,7 +1,11 @@
 #include "core/scene/mesh.h"
 
 #include <algorithm>
+#include <array>
+#include <bit>
 #include <cmath>
+#include <unordered_map>
+#include <unordered_set>
 
 #include <fmt/format.h>
 
@@ -139,6 +143,89 @@ MeshCleanReport cleanMesh(MeshData& mesh) {
     if (used[v]) ++report.badUvs;
   }
   return report;
+}
+
+size_t joinIdenticalVertices(MeshData& mesh) {
+  using Key = std::array<uint32_t, 8>;
+  struct KeyHash {
+    size_t operator()(const Key& k) const {
+      uint64_t h = 1469598103934665603ull;  // FNV-1a over the words
+      for (const uint32_t w : k) h = (h ^ w) * 1099511628211ull;
+      return static_cast<size_t>(h);
+    }
+  };
+  const size_t count = mesh.positions.size();
+  auto bits = [](float f) { return std::bit_cast<uint32_t>(f); };
+  std::unordered_map<Key, uint32_t, KeyHash> first;
+  first.reserve(count);
+  std::vector<uint32_t> remap(count);
+  size_t kept = 0;
+  for (size_t v = 0; v < count; ++v) {
+    Key k{};
+    const Vec3f& p = mesh.positions[v];
+    k[0] = bits(p.x), k[1] = bits(p.y), k[2] = bits(p.z);
+    if (!mesh.normals.empty()) {
+      const Vec3f& n = mesh.normals[v];
+      k[3] = bits(n.x), k[4] = bits(n.y), k[5] = bits(n.z);
+    }
+    if (!mesh.uvs.empty()) k[6] = bits(mesh.uvs[v].x), k[7] = bits(mesh.uvs[v].y);
+    const auto [it, added] = first.try_emplace(k, static_cast<uint32_t>(kept));
+    remap[v] = it->second;
+    if (!added) continue;
+    if (kept != v) {
+      mesh.positions[kept] = mesh.positions[v];
+      if (!mesh.normals.empty()) mesh.normals[kept] = mesh.normals[v];
+      if (!mesh.uvs.empty()) mesh.uvs[kept] = mesh.uvs[v];
+    }
+    ++kept;
+  }
+  for (uint32_t& i : mesh.indices) {
+    if (i < count) i = remap[i];  // an out-of-range index stays so for cleanMesh to report
+  }
+  mesh.positions.resize(kept);
+  if (!mesh.normals.empty()) mesh.normals.resize(kept);
+  if (!mesh.uvs.empty()) mesh.uvs.resize(kept);
+  return count - kept;
+}
+
+struct TriangleSet::Impl {
+  using Key = std::array<uint32_t, 9>;
+  struct KeyHash {
+    size_t operator()(const Key& k) const {
+      uint64_t h = 1469598103934665603ull;
+      for (const uint32_t w : k) h = (h ^ w) * 1099511628211ull;
+      return static_cast<size_t>(h);
+    }
+  };
+  std::unordered_set<Key, KeyHash> seen;
+};
+
+TriangleSet::TriangleSet() : impl_(std::make_unique<Impl>()) {}
+TriangleSet::~TriangleSet() = default;
+
+size_t TriangleSet::dropCoincident(MeshData& mesh) {
+  const size_t triangles = mesh.triangleCount();
+  size_t kept = 0;
+  for (size_t t = 0; t < triangles; ++t) {
+    std::array<std::array<uint32_t, 3>, 3> corners;
+    for (int c = 0; c < 3; ++c) {
+      const Vec3f& p = mesh.positions.at(mesh.indices[3 * t + c]);
+      corners[c] = {std::bit_cast<uint32_t>(p.x), std::bit_cast<uint32_t>(p.y),
+                    std::bit_cast<uint32_t>(p.z)};
+    }
+    std::sort(corners.begin(), corners.end());
+    Impl::Key key;
+    for (int c = 0; c < 3; ++c) std::copy_n(corners[c].begin(), 3, key.begin() + 3 * c);
+    if (!impl_->seen.insert(key).second) continue;
+    if (kept != t) {
+      std::copy_n(mesh.indices.begin() + 3 * t, 3, mesh.indices.begin() + 3 * kept);
+      mesh.materials[kept] = mesh.materials[t];
+    }
+    ++kept;
+  }
+  mesh.indices.resize(3 * kept);
+  mesh.materials.resize(kept);
+  return triangles - kept;
 }
 
 }  // namespace pbgi

@@ -3,6 +3,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -46,5 +47,26 @@ struct MeshCleanReport {
 // `indices` must hold whole triangles and `materials` one entry per triangle; `normals` and
 // `uvs` are empty or one per vertex (programmer errors otherwise).
 MeshCleanReport cleanMesh(MeshData& mesh);
+
+// Merges vertices whose position, normal and uv are bit for bit the same, remapping `indices`;
+// returns how many vertices went. (Assimp's JoinIdenticalVertices merges within an absolute
+// 1e-5, which collapses whole triangles of a model built in micrometres.)
+size_t joinIdenticalVertices(MeshData& mesh);
+
+// The triangles of a scene seen so far, by their three vertex positions (in any order, bit for
+// bit), for dropping coincident copies: a surface modelled twice in one place renders once
+// in the path tracer but would count its area twice in a point cloud.
+class TriangleSet {
+ public:
+  TriangleSet();
+  ~TriangleSet();
+  // Drops the triangles of `mesh` that one seen before (in this mesh or an earlier one)
+  // coincides with, keeping `materials` in step; returns how many.
+  size_t dropCoincident(MeshData& mesh);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 }  // namespace pbgi

@@ -69,7 +69,17 @@ Ray Scene::spawnShadowRay(const Vec3f& p, const Vec3f& ng, const Vec3f& wi, floa
   return ray;
 }
 
+namespace {
+// Embree asserts on a ray with a NaN or Inf in it (and would return garbage without the
+// assertion): such a ray, from whatever arithmetic overflowed upstream, meets nothing.
+bool traceable(const Ray& ray) {
+  return isFinite(ray.origin) && isFinite(ray.dir) && !std::isnan(ray.tMin) &&
+         !std::isnan(ray.tMax);
+}
+}  // namespace
+
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
+  if (!traceable(ray)) return false;
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRayHit rh;
@@ -144,6 +154,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
 }
 
 bool Scene::occluded(const Ray& ray) const {
+  if (!traceable(ray)) return false;
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRay r;
@@ -232,9 +243,10 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
       }
     }
     if (mesh.triangleCount() == 0) continue;
-    for (const Vec3f& p : mesh.positions) {
-      if (isFinite(p)) scene->bounds_.extend(p);
-    }
+    // The bounds of what renders: a vertex only dropped triangles used (one of a triangle
+    // too large to represent, at 1e30) would set every ray offset and cube from the scene's
+    // size.
+    for (const uint32_t i : mesh.indices) scene->bounds_.extend(mesh.positions[i]);
     const uint32_t meshIndex = static_cast<uint32_t>(impl.meshes.size());
     // Emissive triangles are lights too.
     std::vector<int> triLights;

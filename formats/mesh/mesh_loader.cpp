@@ -426,9 +426,10 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
   // No normal generation: files without normals shade with face normals (spec). No UV flip:
   // Assimp already hands out v = 0 at the bottom for both formats, as Texture expects.
   // Points and lines are sorted into their own meshes and dropped below with a warning.
-  const unsigned flags = aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
-                         aiProcess_PreTransformVertices | aiProcess_SortByPType |
-                         aiProcess_ValidateDataStructure;
+  // Not aiProcess_JoinIdenticalVertices: it merges vertices within an absolute 1e-5, which
+  // collapses a model built in micrometres; joinIdenticalVertices (exact) does it below.
+  const unsigned flags = aiProcess_Triangulate | aiProcess_PreTransformVertices |
+                         aiProcess_SortByPType | aiProcess_ValidateDataStructure;
   const aiScene* scene = importer.ReadFile(path, flags);
   if (scene == nullptr) {
     return absl::InvalidArgumentError(fmt::format("geometry file '{}': Assimp cannot read it: {}",
@@ -481,6 +482,7 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
     }
     mesh.materials.assign(mesh.triangleCount(), static_cast<uint32_t>(material));
 
+    joinIdenticalVertices(mesh);
     const MeshCleanReport report = cleanMesh(mesh);
     if (report.total() > 0) {
       out.warnings.push_back(fmt::format("{}: mesh '{}': {}", path, mesh.name, report.toString()));

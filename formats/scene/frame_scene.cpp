@@ -100,6 +100,8 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
     shotMaterials.insert(d.name);
   }
 
+  TriangleSet triangles;  // of every geometry file, transformed: coincident copies go
+  size_t coincident = 0;
   for (const GeometryDesc& g : shot.geometry) {
     auto loaded = loadGeometry(g.file);
     if (!loaded.ok()) {
@@ -137,11 +139,19 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
           n = len > 0.0f ? r / len : Vec3f(0.0f);
         }
       }
+      coincident += triangles.dropCoincident(mesh);
       builder.addMesh(std::move(mesh));
     }
     if (usesFileMaterials) {
       for (std::string& w : loaded->libraryWarnings) warnings.push_back(std::move(w));
     }
+  }
+
+  if (coincident > 0) {
+    warnings.push_back(fmt::format(
+        "dropped {} triangle{} that coincide{} with another (the same three vertices): a "
+        "surface modelled twice in one place renders once",
+        coincident, coincident == 1 ? "" : "s", coincident == 1 ? "s" : ""));
   }
 
   for (const LightDesc& l : shot.lights) {
