@@ -4,6 +4,7 @@
 #include <netinet/in.h>
 #include <pwd.h>
 #include <spawn.h>
+#include <sys/file.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -156,7 +157,44 @@ absl::Status PostgresCluster::start() {
   auto bin = findServerBinaries();
   if (!bin.ok()) return bin.status();
   bin_ = *bin;
-  dir_ = makeTempDir("postgres");
+  const char* sharedDir = std::getenv("PBGI_POSTGRES_SHARED_DIR");
+  int lock = -1;
+  if (sharedDir != nullptr && *sharedDir != '\0') {
+    // One cluster for every test process: the first starts it, under the folder's lock.
+    dir_ = sharedDir;
+    std::error_code ec;
+    fs::create_directories(dir_, ec);
+    lock = ::open((dir_ / "lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);  // not the server's
+    if (lock < 0 || ::flock(lock, LOCK_EX) != 0) {
+      return absl::InternalError(fmt::format("locking {}: {}", dir_.string(), std::strerror(errno)));
+    }
+    stopsItself_ = false;
+    std::ifstream portFile(dir_ / "port");
+    if (portFile >> port_ && fs::exists(dir_ / "data" / "postmaster.pid")) {
+      const passwd* user = geteuid() == 0 ? getpwnam("postgres") : nullptr;
+      if (user != nullptr) runAs_ = "postgres";
+      if (run({(bin_ / "pg_ctl").string(), "-D", (dir_ / "data").string(), "status"}, runAs_,
+              dir_, dir_ / "status.log")
+              .ok()) {
+        running_ = true;
+        ::close(lock);  // its descriptor's lock goes with it
+        return absl::OkStatus();
+      }
+    }
+    fs::remove_all(dir_ / "data", ec);
+  } else {
+    dir_ = makeTempDir("postgres");
+  }
+  const auto unlock = [&] {
+    if (lock >= 0) ::close(lock);
+  };
+  absl::Status started = startServer();
+  if (started.ok() && !stopsItself_) std::ofstream(dir_ / "port") << port_;
+  unlock();
+  return started;
+}
+
+absl::Status PostgresCluster::startServer() {
   if (geteuid() == 0) {
     const passwd* user = getpwnam("postgres");
     if (user == nullptr) {
@@ -191,7 +229,7 @@ absl::Status PostgresCluster::start() {
 }
 
 absl::Status PostgresCluster::stop() {
-  if (!running_) return absl::OkStatus();
+  if (!running_ || !stopsItself_) return absl::OkStatus();
   running_ = false;
   return run(
       {(bin_ / "pg_ctl").string(), "-D", (dir_ / "data").string(), "-m", "immediate", "-w", "stop"},
@@ -213,7 +251,7 @@ absl::Status PostgresCluster::execute(const std::string& database, const std::st
 }
 
 absl::StatusOr<std::string> PostgresCluster::createDatabase() {
-  const std::string name = fmt::format("pbgi_test_{}", ++databases_);
+  const std::string name = fmt::format("pbgi_test_{}_{}", ::getpid(), ++databases_);
   if (absl::Status s = execute("postgres", "CREATE DATABASE " + name); !s.ok()) return s;
   return name;
 }

@@ -9,6 +9,11 @@
 // (runuser), which owns the folder. Without PostgreSQL's server binaries (Debian:
 // postgresql-15) the tests that need a cluster skip, saying why, unless PBGI_REQUIRE_POSTGRES=1
 // (CI) makes that a failure. PBGI_POSTGRES_BIN names another folder of server binaries.
+//
+// With PBGI_POSTGRES_SHARED_DIR set (ctest sets it for the services tests, which run a process
+// per test), the cluster lives in that folder and is shared by every test process: the first
+// starts it under a lock, the others connect, none stops it; a ctest cleanup fixture does
+// (tests/support/postgres_stop.sh). Databases are named by process, so none collide.
 #include <filesystem>
 #include <string>
 
@@ -40,6 +45,7 @@ class PostgresCluster {
  private:
   PostgresCluster() = default;
   absl::Status start();
+  absl::Status startServer();  // initdb and pg_ctl start in dir_
   absl::Status stop();
 
   std::filesystem::path bin_;
@@ -47,6 +53,7 @@ class PostgresCluster {
   std::string runAs_;  // the user initdb and pg_ctl run as; empty: this one
   int port_ = 0;
   bool running_ = false;
+  bool stopsItself_ = true;  // false: a cluster shared between test processes (see shared())
   int databases_ = 0;
 };
 
