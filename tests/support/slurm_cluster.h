@@ -101,7 +101,8 @@ class SlurmCluster {
     conf_ = (dir_ / "slurm.conf").string();
     const std::string d = dir_.string();
     std::ofstream(conf_) << "ClusterName=pbgitest\n"
-                         << "SlurmctldHost=" << host_ << "\n"
+                         // Addresses given: a container's hostname need not resolve.
+                         << "SlurmctldHost=" << host_ << "(127.0.0.1)\n"
                          << "SlurmctldPort=" << freeTcpPort() << "\n"
                          << "SlurmdPort=" << freeTcpPort() << "\n"
                          << "SlurmUser=root\nSlurmdUser=root\n"
@@ -120,7 +121,7 @@ class SlurmCluster {
                          << "SelectType=select/cons_tres\nSelectTypeParameters=CR_CPU\n"
                          << "ReturnToService=2\nKillWait=5\n"
                          << "SlurmdParameters=config_overrides\n"
-                         << "NodeName=" << host_ << " CPUs=4 State=UNKNOWN\n"
+                         << "NodeName=" << host_ << " NodeAddr=127.0.0.1 CPUs=4 State=UNKNOWN\n"
                          << "PartitionName=test Nodes=" << host_
                          << " Default=YES MaxTime=INFINITE State=UP\n";
     if (ShellResult c = shell(command("/usr/sbin/slurmctld -i -f " + conf_) + " 2>&1");
