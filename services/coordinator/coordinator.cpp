@@ -281,7 +281,7 @@ void FarmService::describeLease(const Lease& l, const JobView& view,
     case TaskKind::kTile: {
       response->set_output_path(farmTilePath(dir, l.ref.frame, l.ref.tile));
       // The tile's rectangles of the mosaic frame, explicitly.
-      const std::vector<FarmTile> tiles = farmTiles(view.shot, jobs_.tileSize());
+      const std::vector<FarmTile>& tiles = view.tiles;
       if (l.ref.tile >= 0 && static_cast<size_t>(l.ref.tile) < tiles.size()) {
         for (const TileRect& r : tiles[static_cast<size_t>(l.ref.tile)]) {
           v1::Rect* rect = response->add_regions();

@@ -18,6 +18,7 @@ absl::StatusOr<std::shared_ptr<const JobView>> JobViews::get(int64_t job) {
   view->spec = std::move(info.spec);
   PBGI_ASSIGN_OR_RETURN(view->shot, jobShot(view->spec.shotText, view->spec.shotPath,
                                             splitOverrides(view->spec.overrides)));
+  view->tiles = farmTiles(view->shot, tileSize_);
   std::lock_guard lock(mutex_);
   return views_.emplace(job, std::move(view)).first->second;
 }

@@ -7,10 +7,12 @@
 #include <mutex>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 #include <absl/status/statusor.h>
 
 #include "core/scene/shot.h"
+#include "services/render/frame_assembly.h"
 #include "services/coordinator/job_store.h"
 
 namespace pbgi::farm {
@@ -18,6 +20,10 @@ namespace pbgi::farm {
 struct JobView {
   JobSpec spec;
   ShotDesc shot;
+  // The frame's farm tiles (farmTiles of the shot at the coordinator's tile size), computed
+  // once: a lease of tile t sends tiles[t]'s rectangles, and sorting 4,096 tiles into Morton
+  // order on every lease was a tenth of the coordinator's time.
+  std::vector<FarmTile> tiles;
 };
 
 class JobViews {

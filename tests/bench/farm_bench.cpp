@@ -85,11 +85,11 @@ void leaseRoundTrips(const std::string& label, const std::string& store, int coo
   pbgi::testing::SmallShot big;
   big.width = 2048;
   big.height = 2048;
-  big.lastFrame = 4;
+  big.lastFrame = 16;  // more tiles than 5 s of round trips take
   const fs::path shot = pbgi::testing::writeSmallShot(dir, big);
   std::vector<std::unique_ptr<Coordinator>> farm;
   for (int c = 0; c < coordinators; ++c) farm.push_back(startCoordinator(dir, 32, store));
-  FarmClient client(farm[0]->address(), "bench");  // 4 frames of 4096 tiles
+  FarmClient client(farm[0]->address(), "bench");  // 16 frames of 4096 tiles
   if (!client.submitJob(jobRequest(shot)).ok()) std::exit(1);
   constexpr int kWorkers = 200;
   constexpr double kSeconds = 5.0;
