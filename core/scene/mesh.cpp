@@ -51,6 +51,35 @@ TriangleFault classify(const MeshData& mesh, size_t t) {
   return TriangleFault::kNone;
 }
 
+// Keeps the triangles `keep(t)` holds for, in order, `materials` in step; returns how many
+// went. `keep` sees each triangle's original index once, in order.
+template <typename Keep>
+size_t keepTriangles(MeshData& mesh, Keep&& keep) {
+  const size_t triangles = mesh.triangleCount();
+  size_t kept = 0;
+  for (size_t t = 0; t < triangles; ++t) {
+    if (!keep(t)) continue;
+    if (kept != t) {
+      std::copy_n(mesh.indices.begin() + 3 * t, 3, mesh.indices.begin() + 3 * kept);
+      mesh.materials[kept] = mesh.materials[t];
+    }
+    ++kept;
+  }
+  mesh.indices.resize(3 * kept);
+  mesh.materials.resize(kept);
+  return triangles - kept;
+}
+
+// FNV-1a over the 32-bit words of a key of float bit patterns.
+struct WordsHash {
+  template <size_t N>
+  size_t operator()(const std::array<uint32_t, N>& k) const {
+    uint64_t h = 1469598103934665603ull;
+    for (const uint32_t w : k) h = (h ^ w) * 1099511628211ull;
+    return static_cast<size_t>(h);
+  }
+};
+
 std::string counted(size_t n, const char* singular, const char* plural) {
   return fmt::format("{} {}", n, n == 1 ? singular : plural);
 }
@@ -90,30 +119,22 @@ MeshCleanReport cleanMesh(MeshData& mesh) {
   PBGI_CHECK(mesh.uvs.empty() || mesh.uvs.size() == mesh.positions.size());
 
   MeshCleanReport report;
-  const size_t triangles = mesh.triangleCount();
-  size_t kept = 0;
-  for (size_t t = 0; t < triangles; ++t) {
+  keepTriangles(mesh, [&](size_t t) {
     switch (classify(mesh, t)) {
       case TriangleFault::kBadIndex:
         ++report.badIndices;
-        continue;
+        return false;
       case TriangleFault::kNonFinite:
         ++report.nonFiniteTriangles;
-        continue;
+        return false;
       case TriangleFault::kDegenerate:
         ++report.degenerateTriangles;
-        continue;
+        return false;
       case TriangleFault::kNone:
         break;
     }
-    if (kept != t) {
-      std::copy_n(mesh.indices.begin() + 3 * t, 3, mesh.indices.begin() + 3 * kept);
-      mesh.materials[kept] = mesh.materials[t];
-    }
-    ++kept;
-  }
-  mesh.indices.resize(3 * kept);
-  mesh.materials.resize(kept);
+    return true;
+  });
 
   // Only vertices that a surviving triangle uses count towards the report: a NaN normal on a
   // vertex whose triangles were dropped already is not news. All of them are repaired.
@@ -147,16 +168,9 @@ MeshCleanReport cleanMesh(MeshData& mesh) {
 
 size_t joinIdenticalVertices(MeshData& mesh) {
   using Key = std::array<uint32_t, 8>;
-  struct KeyHash {
-    size_t operator()(const Key& k) const {
-      uint64_t h = 1469598103934665603ull;  // FNV-1a over the words
-      for (const uint32_t w : k) h = (h ^ w) * 1099511628211ull;
-      return static_cast<size_t>(h);
-    }
-  };
   const size_t count = mesh.positions.size();
   auto bits = [](float f) { return std::bit_cast<uint32_t>(f); };
-  std::unordered_map<Key, uint32_t, KeyHash> first;
+  std::unordered_map<Key, uint32_t, WordsHash> first;
   first.reserve(count);
   std::vector<uint32_t> remap(count);
   size_t kept = 0;
@@ -190,23 +204,14 @@ size_t joinIdenticalVertices(MeshData& mesh) {
 
 struct TriangleSet::Impl {
   using Key = std::array<uint32_t, 9>;
-  struct KeyHash {
-    size_t operator()(const Key& k) const {
-      uint64_t h = 1469598103934665603ull;
-      for (const uint32_t w : k) h = (h ^ w) * 1099511628211ull;
-      return static_cast<size_t>(h);
-    }
-  };
-  std::unordered_set<Key, KeyHash> seen;
+  std::unordered_set<Key, WordsHash> seen;
 };
 
 TriangleSet::TriangleSet() : impl_(std::make_unique<Impl>()) {}
 TriangleSet::~TriangleSet() = default;
 
 size_t TriangleSet::dropCoincident(MeshData& mesh) {
-  const size_t triangles = mesh.triangleCount();
-  size_t kept = 0;
-  for (size_t t = 0; t < triangles; ++t) {
+  return keepTriangles(mesh, [&](size_t t) {
     std::array<std::array<uint32_t, 3>, 3> corners;
     for (int c = 0; c < 3; ++c) {
       const Vec3f& p = mesh.positions.at(mesh.indices[3 * t + c]);
@@ -216,16 +221,8 @@ size_t TriangleSet::dropCoincident(MeshData& mesh) {
     std::sort(corners.begin(), corners.end());
     Impl::Key key;
     for (int c = 0; c < 3; ++c) std::copy_n(corners[c].begin(), 3, key.begin() + 3 * c);
-    if (!impl_->seen.insert(key).second) continue;
-    if (kept != t) {
-      std::copy_n(mesh.indices.begin() + 3 * t, 3, mesh.indices.begin() + 3 * kept);
-      mesh.materials[kept] = mesh.materials[t];
-    }
-    ++kept;
-  }
-  mesh.indices.resize(3 * kept);
-  mesh.materials.resize(kept);
-  return triangles - kept;
+    return impl_->seen.insert(key).second;
+  });
 }
 
 }  // namespace pbgi
