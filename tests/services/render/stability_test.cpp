@@ -58,7 +58,7 @@ struct Case {
   std::string obj;             // the geometry file's text
   std::string lights;          // [[light]] tables (default: the room's quad light)
   std::string camera;          // position / look_at (default: looking into the room)
-  int bakePoints = 20000;
+  int bakePoints = 8000;
 };
 
 std::string defaultLight(double s) {
@@ -162,7 +162,7 @@ void expectClose(const Case& c, const AllIntegrators& a, double tolerance) {
 }
 
 // The same room in units from 1e-6 to 1e6: the same picture, and PBGI within 15 % of the path
-// tracer (a 20,000-surfel draft bake of a room whose light is a quarter of its ceiling).
+// tracer (an 8,000-surfel draft bake of a room whose light is a quarter of its ceiling).
 TEST(Stability, AnyUnitGivesTheSamePicture) {
   std::map<double, AllIntegrators> at;
   for (const double s : {1.0, 1e-6, 1e-3, 1e3, 1e6}) {
