@@ -2,7 +2,8 @@
 # Installs every Debian 12 package pbgi needs to build, test and run; only what is missing.
 # Idempotent: a second run installs nothing and takes about a second. postgresql-15 is the
 # server the PostgreSQL job store's tests start a throwaway cluster of (initdb, pg_ctl);
-# slurm-wlm and munge the one-node Slurm cluster the worker-array test starts (deploy/slurm).
+# slurm-wlm and munge the one-node Slurm cluster the worker-array test starts (deploy/slurm);
+# iproute2 the `ip netns` of the network-hosts test.
 set -eu
 
 PACKAGES="
@@ -12,7 +13,7 @@ libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
 libsqlite3-dev libpqxx-dev postgresql-15 libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
-libcpp-httplib-dev libxxhash-dev slurm-wlm munge
+libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2
 "
 
 missing=""
