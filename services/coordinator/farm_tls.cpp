@@ -254,6 +254,19 @@ std::string verifyProblem(const Probe& probe, const HostPort& to) {
   }
 }
 
+// Reads --tls-cert and --tls-key into pem, checks that the key is the certificate's, and warns
+// when the certificate is not valid now (`whose`, and who then refuses it).
+absl::Status readCertificateAndKey(const TlsFiles& files, const char* whose,
+                                   const char* refusedBy, TlsPem* pem) {
+  PBGI_ASSIGN_OR_RETURN(pem->cert, readFile(files.cert, "--tls-cert"));
+  PBGI_ASSIGN_OR_RETURN(pem->key, readFile(files.key, "--tls-key"));
+  PBGI_ASSIGN_OR_RETURN(const std::vector<Cert> chain,
+                        certificates(pem->cert, files.cert, "--tls-cert"));
+  PBGI_RETURN_IF_ERROR(keyOf(chain[0].get(), pem->key, files, "--tls-key", "--tls-cert").status());
+  warnUnlessValidNow(chain[0].get(), files.cert, whose, refusedBy);
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<std::optional<TlsPem>> readServerTls(const TlsFiles& files) {
@@ -264,13 +277,8 @@ absl::StatusOr<std::optional<TlsPem>> readServerTls(const TlsFiles& files) {
         "and --tls-client-ca needs them");
   }
   TlsPem pem;
-  PBGI_ASSIGN_OR_RETURN(pem.cert, readFile(files.cert, "--tls-cert"));
-  PBGI_ASSIGN_OR_RETURN(pem.key, readFile(files.key, "--tls-key"));
-  PBGI_ASSIGN_OR_RETURN(const std::vector<Cert> chain,
-                        certificates(pem.cert, files.cert, "--tls-cert"));
-  PBGI_RETURN_IF_ERROR(keyOf(chain[0].get(), pem.key, files, "--tls-key", "--tls-cert").status());
-  warnUnlessValidNow(chain[0].get(), files.cert, "the coordinator's certificate",
-                     "clients will refuse it");
+  PBGI_RETURN_IF_ERROR(readCertificateAndKey(files, "the coordinator's certificate",
+                                             "clients will refuse it", &pem));
   if (!files.ca.empty()) {
     PBGI_ASSIGN_OR_RETURN(pem.ca, readFile(files.ca, "--tls-client-ca"));
     PBGI_RETURN_IF_ERROR(certificates(pem.ca, files.ca, "--tls-client-ca").status());
@@ -293,13 +301,8 @@ absl::StatusOr<std::optional<TlsPem>> readClientTls(const TlsFiles& files) {
   PBGI_ASSIGN_OR_RETURN(pem.ca, readFile(files.ca, "--tls-ca"));
   PBGI_RETURN_IF_ERROR(certificates(pem.ca, files.ca, "--tls-ca").status());
   if (!files.cert.empty()) {
-    PBGI_ASSIGN_OR_RETURN(pem.cert, readFile(files.cert, "--tls-cert"));
-    PBGI_ASSIGN_OR_RETURN(pem.key, readFile(files.key, "--tls-key"));
-    PBGI_ASSIGN_OR_RETURN(const std::vector<Cert> chain,
-                          certificates(pem.cert, files.cert, "--tls-cert"));
-    PBGI_RETURN_IF_ERROR(keyOf(chain[0].get(), pem.key, files, "--tls-key", "--tls-cert").status());
-    warnUnlessValidNow(chain[0].get(), files.cert, "this client's certificate",
-                       "the coordinator will refuse it");
+    PBGI_RETURN_IF_ERROR(readCertificateAndKey(files, "this client's certificate",
+                                               "the coordinator will refuse it", &pem));
   }
   return pem;
 }
