@@ -10,7 +10,7 @@
 
 #include <fmt/format.h>
 
-#include "services/coordinator/coordinator.h"
+#include "tests/support/idle_coordinator.h"
 #include "tests/support/run_pbgi.h"
 #include "tests/support/test_paths.h"
 
@@ -19,14 +19,9 @@ namespace {
 
 TEST(GrafanaDashboard, EveryQueriedMetricIsOneTheCoordinatorServes) {
   const std::string dashboard = slurpFile(sourceDir() / "deploy/grafana/pbgi-farm.json");
-  const std::filesystem::path dir = makeTempDir("grafana");
-  farm::CoordinatorOptions options;
-  options.stateDir = (dir / "state").string();
-  options.outputRoot = dir.string();
-  options.token = "grafana";
-  auto coordinator = farm::Coordinator::start(options);
-  ASSERT_TRUE(coordinator.ok()) << coordinator.status();
-  const std::string metrics = "\n" + (*coordinator)->metricsText();
+  const absl::StatusOr<std::string> served = idleCoordinatorMetrics("grafana");
+  ASSERT_TRUE(served.ok()) << served.status();
+  const std::string metrics = "\n" + *served;
 
   const std::regex expr(R"re("expr": "((?:[^"\\]|\\.)*)")re");
   const std::regex metric(R"((pbgi_[a-z_]+)(\{([a-z_]+)=\\"([a-z_]+)\\"\})?)");

@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "services/coordinator/coordinator.h"
 #include "tests/support/farm_fixtures.h"
+#include "tests/support/idle_coordinator.h"
 #include "tests/support/slurm_cluster.h"
 
 namespace pbgi::testing {
@@ -186,14 +186,9 @@ TEST(KubernetesManifests, TheAutoscalersMetricIsOneTheCoordinatorServes) {
   std::smatch name, label;
   ASSERT_TRUE(std::regex_search(hpa, name, std::regex(R"(metric:\n\s+name: (\w+))")));
   ASSERT_TRUE(std::regex_search(hpa, label, std::regex(R"(matchLabels:\n\s+(\w+): (\w+))")));
-  const fs::path dir = makeTempDir("k8s-metrics");
-  farm::CoordinatorOptions options;
-  options.stateDir = (dir / "state").string();
-  options.outputRoot = dir.string();
-  options.token = "k8s";
-  auto coordinator = farm::Coordinator::start(options);
-  ASSERT_TRUE(coordinator.ok()) << coordinator.status();
-  const std::string metrics = (*coordinator)->metricsText();
+  const absl::StatusOr<std::string> served = idleCoordinatorMetrics("k8s-metrics");
+  ASSERT_TRUE(served.ok()) << served.status();
+  const std::string& metrics = *served;
   const std::string series =
       fmt::format("\n{}{{{}=\"{}\"}} ", name[1].str(), label[1].str(), label[2].str());
   EXPECT_NE(metrics.find(series), std::string::npos) << series << " is not in:\n" << metrics;
