@@ -3,7 +3,8 @@
 # Idempotent: a second run installs nothing and takes about a second. postgresql-15 is the
 # server the PostgreSQL job store's tests start a throwaway cluster of (initdb, pg_ctl);
 # slurm-wlm and munge the one-node Slurm cluster the worker-array test starts (deploy/slurm);
-# iproute2 the `ip netns` of the network-hosts test.
+# iproute2 the `ip netns` of the network-hosts test; chromium (and node, npm) the dashboard's
+# headless browser test.
 set -eu
 
 PACKAGES="
@@ -13,8 +14,13 @@ libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
 libsqlite3-dev libpqxx-dev postgresql-15 libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
-libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2
+libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2 chromium
 "
+# The dashboard's browser test drives chromium with playwright-core, which npm installs from
+# tests/browser/package-lock.json. Debian's node and npm, unless a Node.js is already there (a
+# nodesource package, which brings its own npm and conflicts with Debian's).
+command -v node >/dev/null 2>&1 || PACKAGES="$PACKAGES nodejs"
+command -v npm >/dev/null 2>&1 || PACKAGES="$PACKAGES npm"
 
 missing=""
 for p in $PACKAGES; do

@@ -17,6 +17,7 @@
 
 #include <OpenColorIO/OpenColorIO.h>
 #include <OpenEXR/ImfHeader.h>
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <absl/strings/match.h>
 #include <absl/strings/str_cat.h>
@@ -267,16 +268,20 @@ absl::StatusOr<LatLongImage> readLatLong(const std::string& path) {
   return map;
 }
 
-absl::Status writePreviewPng(const Image& image, const std::string& path,
-                             const std::string& ocioConfig) {
+namespace {
+
+// The image's R, G, B as 8-bit display values: scene-linear through the OCIO config's default
+// display and view. `what` names the preview in errors (its path, or what it shows).
+absl::StatusOr<std::vector<uint8_t>> displayRgb8(const Image& image, const std::string& what,
+                                                 const std::string& ocioConfig) {
   if (image.width() <= 0 || image.height() <= 0 || image.channelCount() == 0) {
     return absl::InvalidArgumentError(
-        absl::StrFormat("%s: cannot write a preview of an empty image (%dx%d, %d channels)", path,
+        absl::StrFormat("%s: cannot write a preview of an empty image (%dx%d, %d channels)", what,
                         image.width(), image.height(), image.channelCount()));
   }
   if (ocioConfig.empty()) {
     return absl::FailedPreconditionError(
-        absl::StrCat(path,
+        absl::StrCat(what,
                      ": no OCIO config to make the preview with: set $OCIO, or install "
                      "share/pbgi/ocio/config.ocio beside the bin/ folder of pbgi"));
   }
@@ -299,7 +304,7 @@ absl::Status writePreviewPng(const Image& image, const std::string& path,
     processor->getDefaultCPUProcessor()->apply(desc);
   } catch (const std::exception& e) {
     return absl::FailedPreconditionError(
-        absl::StrCat(path, ": OCIO config ", ocioConfig, ": ", oneLine(e.what())));
+        absl::StrCat(what, ": OCIO config ", ocioConfig, ": ", oneLine(e.what())));
   }
 
   std::vector<uint8_t> encoded(linear.size());
@@ -309,9 +314,47 @@ absl::Status writePreviewPng(const Image& image, const std::string& path,
     const float clamped = std::isnan(v) ? 0.0f : std::clamp(v, 0.0f, 1.0f);
     encoded[i] = static_cast<uint8_t>(std::lround(clamped * 255.0f));
   }
+  return encoded;
+}
+
+OIIO::ImageSpec previewSpec(const Image& image) {
   OIIO::ImageSpec spec(image.width(), image.height(), 3, OIIO::TypeDesc::UINT8);
   spec.attribute("oiio:ColorSpace", "sRGB");
-  return writeAtomically(path, "png", spec, OIIO::TypeDesc::UINT8, encoded.data());
+  return spec;
+}
+
+}  // namespace
+
+absl::Status writePreviewPng(const Image& image, const std::string& path,
+                             const std::string& ocioConfig) {
+  absl::StatusOr<std::vector<uint8_t>> encoded = displayRgb8(image, path, ocioConfig);
+  if (!encoded.ok()) return encoded.status();
+  return writeAtomically(path, "png", previewSpec(image), OIIO::TypeDesc::UINT8, encoded->data());
+}
+
+absl::StatusOr<std::string> encodePreviewPng(const Image& image, const std::string& what,
+                                             const std::string& ocioConfig) {
+  absl::StatusOr<std::vector<uint8_t>> encoded = displayRgb8(image, what, ocioConfig);
+  if (!encoded.ok()) return encoded.status();
+  std::vector<unsigned char> bytes;
+  OIIO::Filesystem::IOVecOutput proxy(bytes);
+  try {
+    std::unique_ptr<OIIO::ImageOutput> out = OIIO::ImageOutput::create("png");
+    if (!out || !out->supports("ioproxy")) {
+      return absl::InternalError(absl::StrCat(what, ": OIIO cannot write PNG to memory"));
+    }
+    OIIO::ImageSpec spec = previewSpec(image);
+    OIIO::Filesystem::IOProxy* p = &proxy;
+    spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &p);
+    if (!out->open("preview.png", spec) || !out->write_image(OIIO::TypeDesc::UINT8, encoded->data()) ||
+        !out->close()) {
+      return absl::InternalError(
+          absl::StrCat(what, ": encoding the PNG failed: ", oiioError(out->geterror())));
+    }
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat(what, ": encoding the PNG: ", e.what()));
+  }
+  return std::string(bytes.begin(), bytes.end());
 }
 
 }  // namespace pbgi

@@ -27,5 +27,9 @@ absl::StatusOr<LatLongImage> readLatLong(const std::string& path);
 // scene-linear colour space to the display through the OCIO config at `ocioConfig`.
 absl::Status writePreviewPng(const Image& image, const std::string& path,
                              const std::string& ocioConfig);
+// The same preview as PNG bytes in memory (a page serves them without a file); `what` names it
+// in errors.
+absl::StatusOr<std::string> encodePreviewPng(const Image& image, const std::string& what,
+                                             const std::string& ocioConfig);
 
 }  // namespace pbgi

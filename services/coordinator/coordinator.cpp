@@ -12,11 +12,16 @@
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/image/ocio_config.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/coordinator/coordinator_metrics.h"
+#include "services/coordinator/dashboard.h"
+#include "services/coordinator/farm_activity.h"
 #include "services/coordinator/farm_auth.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/farm_service.h"
 #include "services/coordinator/farm_wire.h"
+#include "services/coordinator/frame_previews.h"
 #include "services/coordinator/job_views.h"
 #include "services/coordinator/lease_reaper.h"
 #include "services/coordinator/page_service.h"
@@ -47,8 +52,13 @@ std::optional<int> optionalTile(const auto& request) {
 class FarmService final : public v1::Coordinator::Service {
  public:
   FarmService(const CoordinatorOptions& options, JobStore& store, JobViews& jobs,
-              PageService& pages, CoordinatorMetrics& metrics)
-      : options_(options), store_(store), jobs_(jobs), pages_(pages), metrics_(metrics) {}
+              PageService& pages, CoordinatorMetrics& metrics, FarmActivity& activity)
+      : options_(options),
+        store_(store),
+        jobs_(jobs),
+        pages_(pages),
+        metrics_(metrics),
+        activity_(activity) {}
 
   grpc::Status SubmitJob(grpc::ServerContext*, const v1::SubmitJobRequest* request,
                          v1::SubmitJobResponse* response) override {
@@ -58,6 +68,7 @@ class FarmService final : public v1::Coordinator::Service {
       return toGrpc(id.status());
     }
     response->set_job(*id);
+    activity_.changed();
     return grpc::Status::OK;
   }
 
@@ -71,12 +82,12 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status CancelJob(grpc::ServerContext*, const v1::CancelJobRequest* request,
                          v1::CancelJobResponse*) override {
-    return toGrpc(store_.cancel(request->job()));
+    return changed(store_.cancel(request->job()));
   }
 
   grpc::Status RetryJob(grpc::ServerContext*, const v1::RetryJobRequest* request,
                         v1::RetryJobResponse*) override {
-    return toGrpc(
+    return changed(
         store_.retry(request->job(), optionalFrame(*request), optionalTile(*request), wallClock()));
   }
 
@@ -136,13 +147,14 @@ class FarmService final : public v1::Coordinator::Service {
     // A job whose stored shot no longer parses (a newer file format, a damaged row) must not
     // stop the farm: its task fails with the reason and the next one is offered.
     std::vector<HeldFrame> held;
-    if (options_.localityDispatch) {
-      for (const v1::HeldFrame& h : request->held()) held.push_back({h.job(), h.frame()});
-    }
+    for (const v1::HeldFrame& h : request->held()) held.push_back({h.job(), h.frame()});
+    const std::span<const HeldFrame> prefer =
+        options_.localityDispatch ? std::span<const HeldFrame>(held) : std::span<const HeldFrame>();
     for (;;) {
-      auto lease = store_.lease(request->worker(), wallClock(), options_.leaseSeconds, held);
+      auto lease = store_.lease(request->worker(), wallClock(), options_.leaseSeconds, prefer);
       if (!lease.ok()) return toGrpc(lease.status());
       if (!lease->has_value()) {
+        activity_.leaseAsked(request->worker(), std::move(held), std::nullopt, wallClock());
         response->set_has_task(false);
         return grpc::Status::OK;
       }
@@ -153,6 +165,7 @@ class FarmService final : public v1::Coordinator::Service {
         continue;
       }
       metrics_.leases->add();
+      activity_.leaseAsked(request->worker(), std::move(held), l.ref, wallClock());
       describeLease(l, **view, response);
       return grpc::Status::OK;
     }
@@ -169,6 +182,7 @@ class FarmService final : public v1::Coordinator::Service {
       return grpc::Status::OK;
     }
     response->set_keep_going(s.ok());
+    if (s.ok()) activity_.heartbeat(request->worker(), clampProgress(request->progress()), wallClock());
     return toGrpc(s);
   }
 
@@ -186,6 +200,8 @@ class FarmService final : public v1::Coordinator::Service {
     metrics_.cacheMisses->add(request->cache_misses());
     metrics_.treeBytesStreamed->add(request->tree_bytes_streamed());
     metrics_.taskSeconds->observe(toString(done->kind), request->seconds());
+    activity_.taskFinished(request->worker(), true, request->cache_hits(), request->cache_misses(),
+                           request->tree_bytes_streamed(), wallClock());
     return grpc::Status::OK;
   }
 
@@ -195,6 +211,7 @@ class FarmService final : public v1::Coordinator::Service {
                                        wallClock(), request->log());
     if (!s.ok()) return toGrpc(s);
     metrics_.failures->add();
+    activity_.taskFinished(request->worker(), false, 0, 0, 0, wallClock());
     log::warn("failed task={} attempt={} worker={}: {}", request->task(), request->attempt(),
               request->worker(), request->error());
     return grpc::Status::OK;
@@ -212,6 +229,11 @@ class FarmService final : public v1::Coordinator::Service {
   }
 
  private:
+  // A store call's status; when it succeeded, the dashboard hears that a job changed.
+  grpc::Status changed(const absl::Status& s) {
+    if (s.ok()) activity_.changed();
+    return toGrpc(s);
+  }
   absl::StatusOr<int64_t> submit(const v1::SubmitJobRequest& request);
   void describeLease(const Lease& lease, const JobView& view, v1::LeaseTaskResponse* out) const;
 
@@ -220,6 +242,7 @@ class FarmService final : public v1::Coordinator::Service {
   JobViews& jobs_;
   PageService& pages_;
   CoordinatorMetrics& metrics_;
+  FarmActivity& activity_;
 };
 
 absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request) {
@@ -304,6 +327,14 @@ void FarmService::describeLease(const Lease& l, const JobView& view,
 
 }  // namespace
 
+std::unique_ptr<v1::Coordinator::Service> makeFarmService(const CoordinatorOptions& options,
+                                                          JobStore& store, JobViews& jobs,
+                                                          PageService& pages,
+                                                          CoordinatorMetrics& metrics,
+                                                          FarmActivity& activity) {
+  return std::make_unique<FarmService>(options, store, jobs, pages, metrics, activity);
+}
+
 // The coordinator's parts, in the order they are made (and the reverse of their ending).
 struct Coordinator::Impl {
   CoordinatorOptions options;
@@ -311,12 +342,15 @@ struct Coordinator::Impl {
   std::shared_ptr<CoordinatorMetrics> metrics;  // shared with the token check (farm_auth.h)
   std::unique_ptr<JobViews> jobs;
   std::unique_ptr<PageService> pages;
+  FarmActivity activity;
+  std::unique_ptr<FramePreviews> previews;
   std::unique_ptr<FarmService> service;
   std::unique_ptr<grpc::Server> server;
   std::string address;
   std::string transport;  // for the log: "plaintext", "TLS", ...
 
   httplib::Server http;
+  std::unique_ptr<DashboardParts> dashboard;  // what the page's handlers read
   std::string httpAddress;
   std::thread httpThread;
 
@@ -366,6 +400,11 @@ absl::Status Coordinator::Impl::serveHttp() {
     (void)google::protobuf::util::MessageToJsonString(*status, &json);
     res.set_content(json, "application/json");
   });
+  previews = std::make_unique<FramePreviews>(defaultOcioConfigPath());
+  dashboard = std::make_unique<DashboardParts>(
+      DashboardParts{*store, *jobs, activity, *previews, *metrics->refused, options.token,
+                     isPostgresUri(options.store)});
+  addDashboard(http, *dashboard);
   const size_t colon = options.httpListen.rfind(':');
   const std::string httpHost = options.httpListen.substr(0, colon);
   int httpPort = colon == std::string::npos ? 0 : std::atoi(options.httpListen.c_str() + colon + 1);
@@ -419,10 +458,11 @@ absl::StatusOr<std::unique_ptr<Coordinator>> Coordinator::start(const Coordinato
                                  options.tileSize > 0 ? options.tileSize : kDefaultFarmTileSize);
   impl->pages = std::make_unique<PageService>(*impl->jobs, *impl->metrics);
   impl->service = std::make_unique<FarmService>(impl->options, *impl->store, *impl->jobs,
-                                                *impl->pages, *impl->metrics);
+                                                *impl->pages, *impl->metrics, impl->activity);
   // The lease period of grace after a start begins here, before any worker can call.
-  impl->reaper = std::make_unique<LeaseReaper>(*impl->store, *impl->metrics->expired,
-                                               options.leaseSeconds, options.expiryIntervalSeconds);
+  impl->reaper = std::make_unique<LeaseReaper>(
+      *impl->store, *impl->metrics->expired, options.leaseSeconds, options.expiryIntervalSeconds,
+      [activity = &impl->activity] { activity->changed(); });
   PBGI_RETURN_IF_ERROR(impl->listen());
   if (!options.httpListen.empty()) {
     if (absl::Status s = impl->serveHttp(); !s.ok()) {
@@ -433,7 +473,9 @@ absl::StatusOr<std::unique_ptr<Coordinator>> Coordinator::start(const Coordinato
   log::info(
       "coordinator on {} ({}; state {}, output root {}{})", impl->address, impl->transport,
       impl->options.stateDir, impl->options.outputRoot,
-      impl->httpAddress.empty() ? "" : ", metrics on http://" + impl->httpAddress + "/metrics");
+      impl->httpAddress.empty()
+          ? ""
+          : ", dashboard on http://" + impl->httpAddress + "/, metrics at /metrics");
   return std::unique_ptr<Coordinator>(new Coordinator(std::move(impl)));
 }
 
@@ -451,6 +493,7 @@ void Coordinator::shutdown() {
   // In-flight calls get a moment to finish; a worker streaming a tree is cut off.
   impl_->server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(5));
   if (impl_->httpThread.joinable()) {
+    impl_->activity.stop();  // the dashboard's event streams end
     impl_->http.stop();
     impl_->httpThread.join();
   }

@@ -26,7 +26,7 @@ int coordinatorDaemonMain(int argc, char** argv) {
   std::string addressFile;
   app.add_option("--listen", o.listen, "gRPC address (port 0 picks a free one)")
       ->capture_default_str();
-  app.add_option("--http", o.httpListen, "HTTP address of /metrics and /status (empty: none)");
+  app.add_option("--http", o.httpListen, "HTTP address of the web dashboard, /metrics and /status (empty: none)");
   app.add_option("--state", stateDir, "State folder: jobs.db, job folders, token")
       ->capture_default_str();
   app.add_option("--store", o.store,

@@ -12,9 +12,10 @@ Seconds wallClock() {
 }
 
 LeaseReaper::LeaseReaper(JobStore& store, metrics::Counter& expired, Seconds leaseSeconds,
-                         Seconds intervalSeconds)
+                         Seconds intervalSeconds, std::function<void()> onExpired)
     : store_(store),
       expired_(expired),
+      onExpired_(std::move(onExpired)),
       leaseSeconds_(leaseSeconds),
       intervalSeconds_(intervalSeconds),
       started_(wallClock()),
@@ -45,6 +46,7 @@ void LeaseReaper::loop() {
       } else if (*n > 0) {
         expired_.add(static_cast<uint64_t>(*n));
         log::warn("{} lease(s) expired; their tasks are retried", *n);
+        if (onExpired_) onExpired_();
       }
     }
     lock.lock();

@@ -4,6 +4,7 @@
 // start it waits one lease period first: leases from before it belong to workers that may
 // only have lost sight of this coordinator and will heartbeat again.
 #include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <thread>
 
@@ -14,9 +15,10 @@ namespace pbgi::farm {
 
 class LeaseReaper {
  public:
-  // Starts the thread. `expired` counts the leases reclaimed.
+  // Starts the thread. `expired` counts the leases reclaimed; `onExpired` runs after a sweep
+  // that reclaimed any.
   LeaseReaper(JobStore& store, metrics::Counter& expired, Seconds leaseSeconds,
-              Seconds intervalSeconds);
+              Seconds intervalSeconds, std::function<void()> onExpired = {});
   ~LeaseReaper();  // stop()
   LeaseReaper(const LeaseReaper&) = delete;
   LeaseReaper& operator=(const LeaseReaper&) = delete;
@@ -29,6 +31,7 @@ class LeaseReaper {
 
   JobStore& store_;
   metrics::Counter& expired_;
+  const std::function<void()> onExpired_;
   const Seconds leaseSeconds_;
   const Seconds intervalSeconds_;
   const Seconds started_;

@@ -1,0 +1,53 @@
+#pragma once
+// The farm's web page, served by the coordinator's HTTP listener (--http) beside /metrics:
+// jobs with their progress and ETA, a job's frames as grids of tiles coloured by task state,
+// a task's history and logs, the workers, previews of frames as their tiles land, and cancel
+// and retry. The page (services/coordinator/dashboard/) is compiled into the binary; it reads
+// the JSON API below and refreshes when the server-sent event stream says something changed.
+//
+//   GET  /                               the page (and /dashboard.js, /dashboard.css)
+//   GET  /api/jobs                       every job: state, tasks by state, progress, ETA
+//   GET  /api/jobs/J                     one job: per frame its tiles' states as one string
+//   GET  /api/jobs/J/task?frame=F&tile=T&kind=K   a task and its events (history, logs)
+//   GET  /api/jobs/J/frames/F/preview.png   the frame so far (assembled, or its done tiles)
+//   GET  /api/jobs/J/frames/F/tiles/T.png   one done tile
+//   GET  /api/workers                    workers: cores, memory, frames held, current task
+//   GET  /api/events                     text/event-stream: "data: {version}" on each change
+//   POST /api/jobs/J/cancel              needs "Authorization: Bearer <farm token>"
+//   POST /api/jobs/J/retry?frame=F&tile=T   likewise; dead and cancelled tasks run again
+//
+// Reading is open to whoever reaches the HTTP port, as /metrics and /status are; changing a
+// job needs the farm token, like every gRPC call (refusals are counted with theirs).
+#include <string>
+
+#include "services/coordinator/farm_activity.h"
+#include "services/coordinator/frame_previews.h"
+#include "services/coordinator/job_store.h"
+#include "services/coordinator/job_views.h"
+#include "services/coordinator/metrics.h"
+
+namespace httplib {
+class Server;
+}
+
+namespace pbgi::farm {
+
+struct DashboardParts {
+  JobStore& store;
+  JobViews& jobs;
+  FarmActivity& activity;
+  FramePreviews& previews;
+  metrics::Counter& refused;
+  std::string token;
+  // The store is shared with other coordinators (PostgreSQL): their changes move no version
+  // here, so event streams look again every second.
+  bool sharedStore = false;
+};
+
+// Adds the page, its files and the API to `http`. The parts outlive the server.
+void addDashboard(httplib::Server& http, const DashboardParts& parts);
+
+// A JSON string literal of `text` (quotes, escapes, control characters as \u00XX).
+std::string jsonString(std::string_view text);
+
+}  // namespace pbgi::farm

@@ -1,0 +1,84 @@
+#include "services/coordinator/farm_activity.h"
+
+namespace pbgi::farm {
+
+void FarmActivity::changed() {
+  {
+    std::lock_guard lock(mutex_);
+    ++version_;
+  }
+  cv_.notify_all();
+}
+
+uint64_t FarmActivity::version() const {
+  std::lock_guard lock(mutex_);
+  return version_;
+}
+
+uint64_t FarmActivity::waitForChange(uint64_t seen, std::chrono::milliseconds timeout) {
+  std::unique_lock lock(mutex_);
+  cv_.wait_for(lock, timeout, [&] { return version_ != seen || stopped_; });
+  return version_;
+}
+
+void FarmActivity::stop() {
+  {
+    std::lock_guard lock(mutex_);
+    stopped_ = true;
+  }
+  cv_.notify_all();
+}
+
+bool FarmActivity::stopped() const {
+  std::lock_guard lock(mutex_);
+  return stopped_;
+}
+
+void FarmActivity::leaseAsked(const std::string& worker, std::vector<HeldFrame> held,
+                              std::optional<TaskRef> leased, Seconds now) {
+  {
+    std::lock_guard lock(mutex_);
+    WorkerActivity& w = workers_[worker];
+    w.held = std::move(held);
+    w.lastHeard = now;
+    if (!leased) return;
+    w.current = std::move(leased);
+    w.progress = 0;
+    ++version_;
+  }
+  cv_.notify_all();
+}
+
+void FarmActivity::heartbeat(const std::string& worker, double progress, Seconds now) {
+  {
+    std::lock_guard lock(mutex_);
+    WorkerActivity& w = workers_[worker];
+    w.lastHeard = now;
+    w.progress = progress;
+    ++version_;
+  }
+  cv_.notify_all();
+}
+
+void FarmActivity::taskFinished(const std::string& worker, bool done, uint64_t cacheHits,
+                                uint64_t cacheMisses, uint64_t treeBytes, Seconds now) {
+  {
+    std::lock_guard lock(mutex_);
+    WorkerActivity& w = workers_[worker];
+    (done ? w.tasksDone : w.tasksFailed) += 1;
+    w.cacheHits += cacheHits;
+    w.cacheMisses += cacheMisses;
+    w.treeBytesStreamed += treeBytes;
+    w.lastHeard = now;
+    w.current.reset();
+    ++version_;
+  }
+  cv_.notify_all();
+}
+
+std::map<std::string, WorkerActivity> FarmActivity::workers() const {
+  std::lock_guard lock(mutex_);
+  return workers_;
+}
+
+}  // namespace pbgi::farm

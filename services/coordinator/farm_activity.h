@@ -1,0 +1,62 @@
+#pragma once
+// What this coordinator has seen happen, for the dashboard: a version number that moves
+// whenever a job's tasks change (so a page waiting on it can refresh at once instead of
+// polling), and what each worker said last: the frames it holds (scenes and pages loaded),
+// its page-cache hits and misses, the tasks it finished.
+//
+// The store stays the truth: the version only says "look again". With a store shared by
+// several coordinators (PostgreSQL), changes made through another one move no version here;
+// a waiter then wakes on its timeout and looks anyway.
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "services/coordinator/job_store.h"
+
+namespace pbgi::farm {
+
+struct WorkerActivity {
+  std::vector<HeldFrame> held;  // from its latest lease request, most recent first
+  Seconds lastHeard = 0;        // its latest call of any kind
+  std::optional<TaskRef> current;  // the task it leased last, until it finishes it
+  double progress = 0;          // of the current task, from its heartbeats
+  int64_t tasksDone = 0;        // completions accepted from it by this coordinator
+  int64_t tasksFailed = 0;
+  uint64_t cacheHits = 0, cacheMisses = 0, treeBytesStreamed = 0;
+};
+
+class FarmActivity {
+ public:
+  // A job's tasks changed (submitted, leased, progress, done, failed, expired, cancelled,
+  // retried): the version moves and every waiter wakes.
+  void changed();
+  uint64_t version() const;
+  // Blocks until the version is not `seen`, `timeout` passes or stop(); returns the version.
+  uint64_t waitForChange(uint64_t seen, std::chrono::milliseconds timeout);
+  // Wakes every waiter for good (the coordinator is shutting down).
+  void stop();
+  bool stopped() const;
+
+  // A lease request (`leased`: what it got, if anything).
+  void leaseAsked(const std::string& worker, std::vector<HeldFrame> held,
+                  std::optional<TaskRef> leased, Seconds now);
+  void heartbeat(const std::string& worker, double progress, Seconds now);
+  // A completion (`done`) or failure the store accepted.
+  void taskFinished(const std::string& worker, bool done, uint64_t cacheHits,
+                    uint64_t cacheMisses, uint64_t treeBytes, Seconds now);
+  std::map<std::string, WorkerActivity> workers() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  uint64_t version_ = 1;
+  bool stopped_ = false;
+  std::map<std::string, WorkerActivity> workers_;
+};
+
+}  // namespace pbgi::farm

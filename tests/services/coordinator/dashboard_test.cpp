@@ -1,0 +1,192 @@
+// The dashboard's HTTP API on a real coordinator (tests/services/coordinator/
+// dashboard_browser.test.mjs drives the page itself in Chromium): what it says about jobs and
+// tasks, who may change a job, how bad requests are answered, and that its event stream
+// speaks as soon as something changes.
+
+#include <gtest/gtest.h>
+
+#include <httplib.h>
+
+#include <chrono>
+#include <future>
+#include <thread>
+
+#include "services/coordinator/dashboard.h"
+#include "tests/support/coordinator_fixture.h"
+
+namespace pbgi::farm {
+namespace {
+
+using pbgi::testing::CoordinatorTest;
+
+TEST(JsonString, EscapesWhatJsonMust) {
+  EXPECT_EQ(jsonString("plain"), "\"plain\"");
+  EXPECT_EQ(jsonString("a \"quoted\" \\ path"), R"("a \"quoted\" \\ path")");
+  EXPECT_EQ(jsonString("line\nnext\ttab\r"), R"("line\nnext\ttab\r")");
+  EXPECT_EQ(jsonString(std::string("nul\0bell\a", 9)), R"("nul\u0000bell\u0007")");
+  EXPECT_EQ(jsonString("caf\xc3\xa9"), "\"caf\xc3\xa9\"");  // UTF-8 passes through
+}
+
+class DashboardTest : public CoordinatorTest {
+ protected:
+  httplib::Client http() { return httplib::Client("http://" + coordinator_->httpAddress()); }
+  int64_t submitSmall() {
+    auto id = client_->submitJob(shotRequest({}));
+    EXPECT_TRUE(id.ok()) << id.status();
+    return id.ok() ? id->job() : 0;
+  }
+};
+
+TEST_F(DashboardTest, ThePageAndItsFilesAreServedFromTheBinary) {
+  start();
+  auto c = http();
+  auto page = c.Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->get_header_value("Content-Type").find("text/html"), std::string::npos);
+  EXPECT_NE(page->body.find("<title>pbgi farm</title>"), std::string::npos);
+  for (const char* file : {"/dashboard.js", "/dashboard.css"}) {
+    auto res = c.Get(file);
+    ASSERT_TRUE(res) << file;
+    EXPECT_EQ(res->status, 200) << file;
+    EXPECT_GT(res->body.size(), 1000u) << file;
+  }
+}
+
+TEST_F(DashboardTest, AJobsFramesAreOneStateStringEachWithTheirTilesPlaces) {
+  start();
+  const int64_t job = submitSmall();  // 64x64 in tiles of 32: 4 tiles, frames 1..3
+  auto c = http();
+  auto list = c.Get("/api/jobs");
+  ASSERT_TRUE(list);
+  EXPECT_EQ(list->status, 200);
+  EXPECT_NE(list->body.find(fmt::format("\"id\":{},\"name\":\"cornell\",\"state\":\"active\"", job)),
+            std::string::npos)
+      << list->body;
+  auto detail = c.Get(fmt::format("/api/jobs/{}", job));
+  ASSERT_TRUE(detail);
+  ASSERT_EQ(detail->status, 200) << detail->body;
+  EXPECT_NE(detail->body.find("\"cols\":2,\"rows\":2,\"cells\":[0,0,1,0,0,1,1,1]"),
+            std::string::npos)
+      << detail->body;
+  // Every tile ready ('1'); no bake (path tracing); the assemble waits (blocked, '0').
+  EXPECT_NE(detail->body.find("{\"frame\":1,\"bake\":null,\"assemble\":\"0\",\"tiles\":\"1111\""),
+            std::string::npos)
+      << detail->body;
+
+  // A lease shows as the tile's state and in the leased list, and its history.
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("w-test");
+  auto leased = client_->leaseTask(lease);
+  ASSERT_TRUE(leased.ok() && leased->has_task()) << leased.status();
+  detail = c.Get(fmt::format("/api/jobs/{}", job));
+  ASSERT_TRUE(detail);
+  EXPECT_NE(detail->body.find("\"tiles\":\"2111\""), std::string::npos) << detail->body;
+  EXPECT_NE(detail->body.find("\"worker\":\"w-test\""), std::string::npos) << detail->body;
+  auto task = c.Get(fmt::format("/api/jobs/{}/task?frame={}&tile={}", job, leased->frame(),
+                                leased->tile()));
+  ASSERT_TRUE(task);
+  EXPECT_EQ(task->status, 200) << task->body;
+  EXPECT_NE(task->body.find("\"event\":\"leased\""), std::string::npos) << task->body;
+}
+
+TEST_F(DashboardTest, ChangingAJobNeedsTheFarmTokenAndRefusalsAreCounted) {
+  start();
+  const int64_t job = submitSmall();
+  auto c = http();
+  const std::string cancel = fmt::format("/api/jobs/{}/cancel", job);
+  auto refused = c.Post(cancel, "", "text/plain");
+  ASSERT_TRUE(refused);
+  EXPECT_EQ(refused->status, 401);
+  EXPECT_NE(refused->body.find("farm token"), std::string::npos) << refused->body;
+  auto wrong = c.Post(cancel, {{"Authorization", "Bearer not-it"}}, "", "text/plain");
+  ASSERT_TRUE(wrong);
+  EXPECT_EQ(wrong->status, 401);
+  EXPECT_NE(metrics().find("pbgi_rpc_refused_total 2"), std::string::npos) << metrics();
+  auto status = coordinator_->store().job(job);
+  ASSERT_TRUE(status.ok());
+  EXPECT_EQ(status->state, JobState::kActive);
+
+  const httplib::Headers bearer = {{"Authorization", "Bearer " + options_.token}};
+  auto done = c.Post(cancel, bearer, "", "text/plain");
+  ASSERT_TRUE(done);
+  EXPECT_EQ(done->status, 200) << done->body;
+  EXPECT_EQ(coordinator_->store().job(job)->state, JobState::kCancelled);
+  auto retried = c.Post(fmt::format("/api/jobs/{}/retry?frame=1&tile=2", job), bearer, "",
+                        "text/plain");
+  ASSERT_TRUE(retried);
+  EXPECT_EQ(retried->status, 200) << retried->body;
+  EXPECT_EQ(coordinator_->store().job(job)->state, JobState::kActive);
+}
+
+TEST_F(DashboardTest, BadRequestsGetAReasonNotACrash) {
+  start();
+  const int64_t job = submitSmall();
+  auto c = http();
+  const httplib::Headers bearer = {{"Authorization", "Bearer " + options_.token}};
+  struct Case {
+    std::string path;
+    int status;
+    std::string says;
+  };
+  for (const Case& k : std::vector<Case>{
+           {"/api/jobs/999", 404, "999"},
+           {fmt::format("/api/jobs/{}/task?frame=1&tile=99", job), 404, "no tile task"},
+           {fmt::format("/api/jobs/{}/task?tile=1", job), 400, "needs its frame"},
+           {fmt::format("/api/jobs/{}/task?frame=one", job), 400, "frame=one"},
+           {fmt::format("/api/jobs/{}/frames/1/preview.png", job), 404, "no tile"},
+           {fmt::format("/api/jobs/{}/frames/1/tiles/0.png", job), 404, "tile.0000.exr"},
+       }) {
+    auto res = c.Get(k.path);
+    ASSERT_TRUE(res) << k.path;
+    EXPECT_EQ(res->status, k.status) << k.path << ": " << res->body;
+    EXPECT_NE(res->body.find(k.says), std::string::npos) << k.path << ": " << res->body;
+  }
+  auto bad = c.Post(fmt::format("/api/jobs/{}/retry?tile=3", job), bearer, "", "text/plain");
+  ASSERT_TRUE(bad);
+  EXPECT_EQ(bad->status, 400) << bad->body;
+  auto unknown = c.Post("/api/jobs/999/cancel", bearer, "", "text/plain");
+  ASSERT_TRUE(unknown);
+  EXPECT_EQ(unknown->status, 404) << unknown->body;
+  // Still serving.
+  auto list = c.Get("/api/jobs");
+  ASSERT_TRUE(list);
+  EXPECT_EQ(list->status, 200);
+}
+
+TEST_F(DashboardTest, TheEventStreamSpeaksWhenAJobChanges) {
+  start();
+  // A stream, read on a thread: its first event at once, the next after the submission.
+  std::promise<void> first, second;
+  std::atomic<int> events{0};
+  std::atomic<bool> stop{false};
+  std::thread reader([&] {
+    auto c = http();
+    c.set_read_timeout(10, 0);
+    c.Get("/api/events", [&](const char* data, size_t size) {
+      const std::string chunk(data, size);
+      for (size_t at = chunk.find("data: "); at != std::string::npos;
+           at = chunk.find("data: ", at + 1)) {
+        const int n = ++events;
+        if (n == 1) first.set_value();
+        if (n == 2) second.set_value();
+      }
+      return !stop.load();
+    });
+  });
+  ASSERT_EQ(first.get_future().wait_for(std::chrono::seconds(10)), std::future_status::ready);
+  const auto before = std::chrono::steady_clock::now();
+  submitSmall();
+  const bool heard =
+      second.get_future().wait_for(std::chrono::seconds(10)) == std::future_status::ready;
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                              before).count();
+  stop = true;
+  coordinator_->shutdown();  // ends the stream
+  reader.join();
+  EXPECT_TRUE(heard) << "no event within 10 s of a submission";
+  RecordProperty("event_after_submit_ms", std::to_string(ms));
+}
+
+}  // namespace
+}  // namespace pbgi::farm
