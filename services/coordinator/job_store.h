@@ -50,6 +50,16 @@ struct RetryPolicy {
   int blocklistAfter = 3;         // failures of one job on one worker that blocklist the worker
 };
 
+// An accuracy audit of one frame: a few of its tiles rendered again with the path tracer at
+// `spp` on a worker that found nothing else to do, and compared with the job's own tiles once
+// the frame is assembled. A frame whose relMSE exceeds `threshold` is flagged.
+struct AuditSpec {
+  int frame = 0;
+  std::vector<int> tiles;  // farm tile indices, chosen by a seeded rule (farm_job.h)
+  int spp = 0;
+  double threshold = 0;
+};
+
 struct JobSpec {
   std::string name;          // the shot's name
   std::string shotPath;      // absolute path of the shot file, as the workers will read it
@@ -60,6 +70,43 @@ struct JobSpec {
   std::vector<int> frames;   // in order
   int tileCount = 0;         // tiles per frame (> 0)
   bool needsBake = false;    // a bake task per frame, which the frame's tiles wait on
+  std::vector<AuditSpec> audits;  // at most one per frame of `frames`; none: no audit
+};
+
+//   ready -> leased -> done
+//     ^        |
+//     +--------+  fail or lease expiry: ready again after the back-off, until the cap;
+//              v
+//            failed   (an audit never fails its job: it only reports)
+// and a cancelled job's unfinished audits are cancelled (retry makes them ready again).
+enum class AuditState { kReady = 0, kLeased = 1, kDone = 2, kFailed = 3, kCancelled = 4 };
+std::string toString(AuditState state);
+
+struct AuditResult {
+  double relMse = 0;   // mean over the audited pixels and channels of (pbgi - ref)^2 / (ref^2 + 0.01)
+  double bias = 0;     // (sum of pbgi - sum of ref) / sum of ref, over the audited pixels
+  double seconds = 0;  // the worker's time for the audit
+};
+
+struct AuditInfo {
+  int64_t id = 0;
+  int64_t job = 0;
+  AuditSpec spec;
+  AuditState state = AuditState::kReady;
+  int attempt = 0;
+  int failures = 0;
+  std::string worker;     // the current or last lease's
+  std::string lastError;
+  std::optional<AuditResult> result;  // once done
+  bool flagged() const { return result && result->relMse > spec.threshold; }
+};
+
+struct AuditLease {
+  int64_t audit = 0;
+  int attempt = 0;
+  int64_t job = 0;
+  AuditSpec spec;
+  Seconds expires = 0;
 };
 
 struct TaskRef {
@@ -173,6 +220,28 @@ class JobStore {
   // The job's events in order, of one frame or one tile of it when given.
   virtual absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                         std::optional<int> tile) = 0;
+
+  // Audits. The coordinator asks for one only when lease() found no task for the worker, so
+  // an audit never delays a frame. An audit is leasable when it is ready, its back-off has
+  // passed, its job is not cancelled and its frame's assemble task is done; the most urgent
+  // first (priority, then job age, then frame). Heartbeats, completions and failures follow
+  // the tasks' rules: FailedPrecondition from anything but the current attempt of a leased
+  // audit (nothing changes), NotFound for an unknown audit. A failure makes the audit ready
+  // after the policy's back-off, or failed at its attempt cap; it never touches the job.
+  // expireLeases() reclaims expired audit leases too (counted with the tasks'); cancel()
+  // cancels a job's unfinished audits and retry() (of the job, or of a frame) makes its
+  // failed and cancelled audits ready again.
+  virtual absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker,
+                                                               Seconds now,
+                                                               Seconds leaseSeconds) = 0;
+  virtual absl::Status heartbeatAudit(int64_t audit, int attempt, Seconds now,
+                                      Seconds leaseSeconds) = 0;
+  virtual absl::Status completeAudit(int64_t audit, int attempt, const AuditResult& result,
+                                     Seconds now) = 0;
+  virtual absl::Status failAudit(int64_t audit, int attempt, const std::string& error,
+                                 Seconds now) = 0;
+  // The job's audits by frame.
+  virtual absl::StatusOr<std::vector<AuditInfo>> audits(int64_t job) = 0;
 };
 
 // The embedded store: one SQLite file in WAL mode (created with its schema when missing).
