@@ -23,8 +23,6 @@
 
 namespace pbgi::farm {
 
-namespace v1 = ::pbgi::farm::v1;
-
 // The token a client sends: the file's first line when a file is named, else the PBGI_TOKEN
 // environment variable; NotFound/InvalidArgument saying where it looked otherwise.
 absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile);

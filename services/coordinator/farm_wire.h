@@ -12,8 +12,6 @@
 
 namespace pbgi::farm {
 
-namespace v1 = ::pbgi::farm::v1;
-
 v1::TaskKind toWire(TaskKind kind);
 v1::TaskState toWire(TaskState state);
 v1::JobState toWire(JobState state);
