@@ -61,6 +61,22 @@ std::string toString(JobState state) {
   return fmt::format("JobState({})", static_cast<int>(state));
 }
 
+std::string toString(AuditState state) {
+  switch (state) {
+    case AuditState::kReady:
+      return "ready";
+    case AuditState::kLeased:
+      return "leased";
+    case AuditState::kDone:
+      return "done";
+    case AuditState::kFailed:
+      return "failed";
+    case AuditState::kCancelled:
+      return "cancelled";
+  }
+  return fmt::format("AuditState({})", static_cast<int>(state));
+}
+
 std::string TaskRef::toString() const {
   if (kind == TaskKind::kTile) return fmt::format("job {} frame {} tile {}", job, frame, tile);
   return fmt::format("job {} frame {} {}", job, frame, farm::toString(kind));
@@ -115,6 +131,31 @@ absl::Status validateRetryPolicy(const RetryPolicy& policy) {
       policy.maxAttempts, policy.backoffBase, policy.backoffMax));
 }
 
+namespace {
+
+// One audit on its own; validateJobSpec() checks it against the job's other audits.
+absl::Status validateAuditSpec(const JobSpec& spec, const AuditSpec& audit) {
+  const auto invalid = [&](std::string_view what) {
+    return absl::InvalidArgumentError(
+        fmt::format("job '{}': audit of frame {}: {}", spec.name, audit.frame, what));
+  };
+  if (audit.tiles.empty()) return invalid("no tiles; expected at least one");
+  for (int tile : audit.tiles) {
+    if (tile < 0 || tile >= spec.tileCount) {
+      return invalid(fmt::format("tile {}: expected 0..{} (the job has {} tiles a frame)", tile,
+                                 spec.tileCount - 1, spec.tileCount));
+    }
+  }
+  if (audit.spp <= 0) return invalid(fmt::format("spp {}: expected at least 1", audit.spp));
+  if (!std::isfinite(audit.threshold) || audit.threshold < 0) {
+    return invalid(
+        fmt::format("threshold {}: expected a finite relMSE of at least 0", audit.threshold));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 absl::Status validateJobSpec(const JobSpec& spec) {
   if (spec.tileCount <= 0) {
     return absl::InvalidArgumentError(
@@ -128,6 +169,20 @@ absl::Status validateJobSpec(const JobSpec& spec) {
     if (!seen.insert(frame).second) {
       return absl::InvalidArgumentError(
           fmt::format("job '{}': frame {} is listed twice", spec.name, frame));
+    }
+  }
+  std::set<int> audited;
+  for (const AuditSpec& audit : spec.audits) {
+    PBGI_RETURN_IF_ERROR(validateAuditSpec(spec, audit));
+    if (!seen.contains(audit.frame)) {
+      return absl::InvalidArgumentError(
+          fmt::format("job '{}': audit of frame {}: the job has no such frame (its frames: {})",
+                      spec.name, audit.frame, formatFrames(spec.frames)));
+    }
+    if (!audited.insert(audit.frame).second) {
+      return absl::InvalidArgumentError(
+          fmt::format("job '{}': frame {} has two audits; expected at most one a frame", spec.name,
+                      audit.frame));
     }
   }
   return absl::OkStatus();
@@ -210,6 +265,18 @@ absl::Status checkCurrentLease(const TaskInfo& info, int attempt) {
   return absl::FailedPreconditionError(fmt::format(
       "{} (task {}): attempt {} no longer holds the lease; the task is {} at attempt {}",
       info.ref.toString(), info.id, attempt, toString(info.state), info.attempt));
+}
+
+absl::Status checkCurrentLease(const AuditInfo& info, int attempt) {
+  if (info.state == AuditState::kLeased && info.attempt == attempt) return absl::OkStatus();
+  return absl::FailedPreconditionError(fmt::format(
+      "job {} frame {} audit (audit {}): attempt {} no longer holds the lease; the audit is {} at "
+      "attempt {}",
+      info.job, info.spec.frame, info.id, attempt, toString(info.state), info.attempt));
+}
+
+AuditState auditStateAfter(const FailureOutcome& outcome) {
+  return outcome.state == TaskState::kDead ? AuditState::kFailed : AuditState::kReady;
 }
 
 double clampProgress(double progress) {

@@ -283,9 +283,22 @@ static_assert(static_cast<int>(JobState::kActive) == 0 && static_cast<int>(JobSt
   "id, name, shot_path, shot_text, overrides, output_pattern, priority, frames, tile_count, " \
   "needs_bake, state, submitted"
 
+// Audits likewise: the states' numbers, and one column list for both stores' readAudit() and
+// their SELECTs. rel_mse, bias and seconds are NULL until the audit is done.
+static_assert(static_cast<int>(AuditState::kReady) == 0 &&
+              static_cast<int>(AuditState::kLeased) == 1 &&
+              static_cast<int>(AuditState::kDone) == 2 &&
+              static_cast<int>(AuditState::kFailed) == 3 &&
+              static_cast<int>(AuditState::kCancelled) == 4);
+#define PBGI_AUDIT_COLUMNS                                                                \
+  "id, job, frame, tiles, spp, threshold, state, attempt, failures, worker, last_error, " \
+  "rel_mse, bias, seconds"
+
 // InvalidArgument unless the policy allows an attempt and its back-offs are not negative.
 absl::Status validateRetryPolicy(const RetryPolicy& policy);
-// InvalidArgument for a job without tiles or frames, or with a frame listed twice.
+// InvalidArgument for a job without tiles or frames, or with a frame listed twice, or with an
+// audit that is not of one of its frames, a second audit of a frame, an audit without tiles or
+// with a tile out of range, without samples, or with a threshold that is negative or not finite.
 absl::Status validateJobSpec(const JobSpec& spec);
 
 // The tasks a job becomes, in insertion order (so ids follow it): per frame its bake when the
@@ -337,6 +350,12 @@ std::string leaseExpiredError(std::string_view worker);
 // FailedPrecondition, saying which attempt holds the task now, unless `attempt` is the current
 // attempt of the leased task `info`.
 absl::Status checkCurrentLease(const TaskInfo& info, int attempt);
+// The same for an audit: FailedPrecondition unless `attempt` is the current attempt of the
+// leased audit `info`.
+absl::Status checkCurrentLease(const AuditInfo& info, int attempt);
+// What a failed attempt (failureOutcome's) makes of an audit: ready again, or failed where a
+// task would be dead.
+AuditState auditStateAfter(const FailureOutcome& outcome);
 // Progress comes from the network: NaN is 0, the rest is clamped to 0..1.
 double clampProgress(double progress);
 // Where a job settles given which task states it still has (indexed by TaskState): active

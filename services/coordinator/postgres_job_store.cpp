@@ -13,6 +13,7 @@
 //   each see the other unfinished, and the assemble would never become ready.
 // Locks are taken job, then task, then worker, so deadlocks are rare; those and serialization
 // failures are retried a bounded number of times.
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string_view>
@@ -28,7 +29,7 @@ namespace pbgi::farm {
 namespace {
 
 // Bumped with every schema change: a database written by a newer coordinator is refused.
-constexpr int kSchemaVersion = 1;
+constexpr int kSchemaVersion = 2;
 // Connections per store object: calls beyond this many at once wait for one. The locking
 // below is what lets two coordinators share a database; it is also what lets these share it.
 constexpr int kConnections = 8;
@@ -106,9 +107,36 @@ CREATE TABLE IF NOT EXISTS task_events (
 CREATE INDEX IF NOT EXISTS task_events_by_job ON task_events (job, id);
 )sql";
 
+// Version 2 added the audits; a version 1 database gets them on opening.
+constexpr const char* kAuditsSchema = R"sql(
+CREATE TABLE IF NOT EXISTS audits (
+  id BIGSERIAL PRIMARY KEY,
+  job BIGINT NOT NULL REFERENCES jobs (id),
+  frame INTEGER NOT NULL,
+  tiles TEXT NOT NULL,
+  spp INTEGER NOT NULL CHECK (spp > 0),
+  threshold DOUBLE PRECISION NOT NULL CHECK (threshold >= 0),
+  state SMALLINT NOT NULL DEFAULT 0 CHECK (state BETWEEN 0 AND 4),
+  attempt INTEGER NOT NULL DEFAULT 0,
+  failures INTEGER NOT NULL DEFAULT 0,
+  worker TEXT NOT NULL DEFAULT '',
+  last_error BYTEA NOT NULL DEFAULT '',
+  expires DOUBLE PRECISION,
+  not_before DOUBLE PRECISION NOT NULL DEFAULT 0,
+  rel_mse DOUBLE PRECISION,
+  bias DOUBLE PRECISION,
+  seconds DOUBLE PRECISION,
+  UNIQUE (job, frame)
+);
+-- Partial, like the tasks': done audits never lengthen a lease's or an expiry's scan.
+CREATE INDEX IF NOT EXISTS audits_ready ON audits (job, frame) WHERE state = 0;
+CREATE INDEX IF NOT EXISTS audits_leased ON audits (expires) WHERE state = 1;
+)sql";
+
 int number(TaskKind kind) { return static_cast<int>(kind); }
 int number(TaskState state) { return static_cast<int>(state); }
 int number(JobState state) { return static_cast<int>(state); }
+int number(AuditState state) { return static_cast<int>(state); }
 
 // Reads a row selected with PBGI_TASK_COLUMNS.
 TaskInfo readTask(const pqxx::row& r) {
@@ -125,6 +153,11 @@ TaskInfo readTask(const pqxx::row& r) {
   task.lastError = pgBytes(r[9]);
   task.progress = r[10].as<double>();
   return task;
+}
+
+// A result column: NULL only if a row was written otherwise than by completeAudit().
+double doubleOrNan(const pqxx::field& field) {
+  return field.is_null() ? std::numeric_limits<double>::quiet_NaN() : field.as<double>();
 }
 
 class PostgresJobStore final : public JobStore {
@@ -156,6 +189,15 @@ class PostgresJobStore final : public JobStore {
   absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
   absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                 std::optional<int> tile) override;
+  absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker, Seconds now,
+                                                       Seconds leaseSeconds) override;
+  absl::Status heartbeatAudit(int64_t audit, int attempt, Seconds now,
+                              Seconds leaseSeconds) override;
+  absl::Status completeAudit(int64_t audit, int attempt, const AuditResult& result,
+                             Seconds now) override;
+  absl::Status failAudit(int64_t audit, int attempt, const std::string& error,
+                         Seconds now) override;
+  absl::StatusOr<std::vector<AuditInfo>> audits(int64_t job) override;
 
  private:
   template <typename Body>
@@ -175,6 +217,11 @@ class PostgresJobStore final : public JobStore {
   absl::Status recordFailure(PgTx& tx, const TaskInfo& task, const std::string& error, Seconds now,
                              std::string_view event, std::string_view log);
   absl::Status settleJob(PgTx& tx, int64_t job);
+  absl::StatusOr<AuditInfo> readAudit(const pqxx::row& r) const;
+  absl::StatusOr<AuditInfo> loadAudit(PgTx& tx, int64_t audit, bool lock = false);
+  // Why a change to the audit at `attempt` matched no row: NotFound or FailedPrecondition.
+  absl::Status auditLeaseLost(PgTx& tx, int64_t audit, int attempt);
+  void recordAuditFailure(PgTx& tx, const AuditInfo& audit, const std::string& error, Seconds now);
 
   PgPool sessions_;
   const RetryPolicy policy_;
@@ -185,15 +232,22 @@ absl::Status PostgresJobStore::initialize() {
     tx.exec("SELECT pg_advisory_xact_lock($1)", kSchemaLockKey);
     tx.script("CREATE TABLE IF NOT EXISTS pbgi_schema (version INTEGER NOT NULL)");
     const pqxx::result version = tx.exec("SELECT version FROM pbgi_schema");
-    if (!version.empty()) {
-      const int found = version[0][0].as<int>();
-      if (found == kSchemaVersion) return absl::OkStatus();
+    const int found = version.empty() ? 0 : version[0][0].as<int>();
+    if (found == kSchemaVersion) return absl::OkStatus();
+    if (found < 0 || found > kSchemaVersion) {
       return absl::FailedPreconditionError(
           fmt::format("{}: schema version {}; this coordinator reads version {}",
                       sessions_.shownUri(), found, kSchemaVersion));
     }
-    tx.script(kSchema);
-    tx.exec("INSERT INTO pbgi_schema (version) VALUES ($1)", kSchemaVersion);
+    // Each version's additions in turn: a new database gets them all, an older one what it
+    // lacks.
+    if (found < 1) tx.script(kSchema);
+    tx.script(kAuditsSchema);
+    if (version.empty()) {
+      tx.exec("INSERT INTO pbgi_schema (version) VALUES ($1)", kSchemaVersion);
+    } else {
+      tx.exec("UPDATE pbgi_schema SET version = $1", kSchemaVersion);
+    }
     return absl::OkStatus();
   });
 }
@@ -342,13 +396,14 @@ absl::Status PostgresJobStore::settleJob(PgTx& tx, int64_t job) {
   return absl::OkStatus();
 }
 
-// Brace-enclosed array literals for the one-statement task insert.
+// Brace-enclosed array literals for the one-statement task and audit inserts. fmt, not
+// std::to_string: a double keeps every digit (the shortest text that reads back the same).
 template <typename T, typename Get>
 std::string arrayLiteral(const std::vector<T>& items, Get get) {
   std::string out = "{";
   for (size_t i = 0; i < items.size(); ++i) {
     if (i > 0) out += ',';
-    out += std::to_string(get(items[i]));
+    out += fmt::format("{}", get(items[i]));
   }
   return out + "}";
 }
@@ -377,6 +432,18 @@ absl::StatusOr<int64_t> PostgresJobStore::submit(const JobSpec& spec, Seconds no
     // A job that grows the table by much: fresh statistics now, not at autovacuum's next
     // pass, so that the lease and completion plans keep to the indexes.
     if (planned.size() >= kAnalyzeAfterTasks) tx.script("ANALYZE tasks");
+    if (!spec.audits.empty()) {
+      tx.exec(
+          "INSERT INTO audits (job, frame, tiles, spp, threshold) SELECT $1, u.frame, u.tiles, "
+          "u.spp, u.threshold FROM unnest($2::integer[], $3::text[], $4::integer[], "
+          "$5::double precision[]) AS u (frame, tiles, spp, threshold)",
+          job, arrayLiteral(spec.audits, [](const AuditSpec& a) { return a.frame; }),
+          // Quoted: each list of tiles is one element (digits and spaces, nothing to escape).
+          arrayLiteral(spec.audits,
+                       [](const AuditSpec& a) { return '"' + formatFrames(a.tiles) + '"'; }),
+          arrayLiteral(spec.audits, [](const AuditSpec& a) { return a.spp; }),
+          arrayLiteral(spec.audits, [](const AuditSpec& a) { return a.threshold; }));
+    }
     return job;
   });
 }
@@ -575,6 +642,16 @@ absl::StatusOr<int> PostgresJobStore::expireLeases(Seconds now) {
         ++expired;
       }
     }
+    // Audits lock no job (they never settle one): their rows only, in id order, each read
+    // again under its lock (a late heartbeat may have extended it).
+    for (const auto& row : tx.exec("SELECT " PBGI_AUDIT_COLUMNS
+                                   " FROM audits WHERE state = 1 AND expires <= $1 ORDER BY id "
+                                   "FOR UPDATE",
+                                   now)) {
+      PBGI_ASSIGN_OR_RETURN(const AuditInfo info, readAudit(row));
+      recordAuditFailure(tx, info, leaseExpiredError(info.worker), now);
+      ++expired;
+    }
     return expired;
   });
 }
@@ -589,6 +666,7 @@ absl::Status PostgresJobStore::cancel(int64_t job) {
     // Dead tasks stay dead: their errors are the record of why the job failed.
     tx.exec("UPDATE tasks SET state = 5, expires = NULL WHERE job = $1 AND state IN (0, 1, 2)",
             job);
+    tx.exec("UPDATE audits SET state = 4, expires = NULL WHERE job = $1 AND state IN (0, 1)", job);
     tx.exec("UPDATE jobs SET state = 3 WHERE id = $1", job);
     return absl::OkStatus();
   });
@@ -610,6 +688,12 @@ absl::Status PostgresJobStore::retry(int64_t job, std::optional<int> frame, std:
         "AND ($2::integer IS NULL OR frame = $2::integer) "
         "AND ($3::integer IS NULL OR kind <> 1 OR tile = $3::integer)",
         job, nullable(frame), nullable(tile));
+    // An audit covers its whole frame: a tile's retry revives its frame's audit.
+    tx.exec(
+        "UPDATE audits SET state = 0, failures = 0, last_error = '', not_before = 0, "
+        "expires = NULL WHERE job = $1 AND state IN (3, 4) "
+        "AND ($2::integer IS NULL OR frame = $2::integer)",
+        job, nullable(frame));
     tx.exec("UPDATE jobs SET state = 0 WHERE id = $1", job);
     promoteBlocked(tx, job, frame);
     // What was revived may still wait on a task left dead (another tile of the frame, say).
@@ -657,6 +741,134 @@ absl::StatusOr<std::vector<TaskEvent>> PostgresJobStore::events(int64_t job,
       e.event = row[7].as<std::string>();
       e.text = pgBytes(row[8]);
       out.push_back(std::move(e));
+    }
+    return out;
+  });
+}
+
+absl::StatusOr<AuditInfo> PostgresJobStore::readAudit(const pqxx::row& r) const {
+  AuditInfo info;
+  info.id = r[0].as<int64_t>();
+  info.job = r[1].as<int64_t>();
+  info.spec.frame = r[2].as<int>();
+  PBGI_ASSIGN_OR_RETURN(info.spec.tiles, parseFrames(r[3].as<std::string>(),
+                                                     fmt::format("{}: audit {} tiles",
+                                                                 sessions_.shownUri(), info.id)));
+  info.spec.spp = r[4].as<int>();
+  info.spec.threshold = r[5].as<double>();
+  info.state = static_cast<AuditState>(r[6].as<int>());
+  info.attempt = r[7].as<int>();
+  info.failures = r[8].as<int>();
+  info.worker = r[9].as<std::string>();
+  info.lastError = pgBytes(r[10]);
+  if (info.state == AuditState::kDone) {
+    info.result = AuditResult{doubleOrNan(r[11]), doubleOrNan(r[12]), doubleOrNan(r[13])};
+  }
+  return info;
+}
+
+absl::StatusOr<AuditInfo> PostgresJobStore::loadAudit(PgTx& tx, int64_t audit, bool lock) {
+  const pqxx::result r =
+      lock ? tx.exec("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE id = $1 FOR UPDATE", audit)
+           : tx.exec("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE id = $1", audit);
+  if (r.empty()) return absl::NotFoundError(fmt::format("audit {}: no such audit", audit));
+  return readAudit(r[0]);
+}
+
+absl::Status PostgresJobStore::auditLeaseLost(PgTx& tx, int64_t audit, int attempt) {
+  PBGI_ASSIGN_OR_RETURN(const AuditInfo info, loadAudit(tx, audit));
+  PBGI_RETURN_IF_ERROR(checkCurrentLease(info, attempt));
+  // Current now, but not when the update ran: a lease of that attempt committed in between,
+  // so the caller named an attempt before it was handed out.
+  return absl::FailedPreconditionError(
+      fmt::format("job {} frame {} audit (audit {}): attempt {} did not hold the lease yet",
+                  info.job, info.spec.frame, audit, attempt));
+}
+
+// The caller holds the audit's row. Unlike a task's failure, nothing else moves: not the job,
+// not the worker's blocklist.
+void PostgresJobStore::recordAuditFailure(PgTx& tx, const AuditInfo& audit,
+                                          const std::string& error, Seconds now) {
+  const FailureOutcome outcome = failureOutcome(policy_, audit.failures, now);
+  tx.exec(
+      "UPDATE audits SET state = $3, failures = $4, last_error = $5, not_before = $6, "
+      "expires = NULL WHERE id = $1 AND attempt = $2 AND state = 1",
+      audit.id, audit.attempt, number(auditStateAfter(outcome)), outcome.failures,
+      pqxx::binarystring(error), outcome.notBefore);
+}
+
+absl::StatusOr<std::optional<AuditLease>> PostgresJobStore::leaseAudit(const std::string& worker,
+                                                                       Seconds now,
+                                                                       Seconds leaseSeconds) {
+  if (worker.empty()) return absl::InvalidArgumentError("an audit's lease needs a worker id");
+  return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::StatusOr<std::optional<AuditLease>> {
+    // The most urgent leasable audit that no other coordinator is leasing this moment, taken
+    // in one statement: the pick locks its row (SKIP LOCKED passes over a row another
+    // transaction holds) and the update re-checks that it is still ready.
+    const Seconds expires = now + leaseSeconds;
+    const pqxx::result taken = tx.exec(
+        "UPDATE audits SET state = 1, attempt = attempt + 1, worker = $2, expires = $3 "
+        "WHERE state = 0 AND id = (SELECT a.id FROM audits a JOIN jobs j ON j.id = a.job "
+        "WHERE a.state = 0 AND a.not_before <= $1 AND j.state <> 3 AND EXISTS (SELECT 1 FROM "
+        "tasks t WHERE t.job = a.job AND t.frame = a.frame AND t.kind = 2 AND t.state = 3) "
+        "ORDER BY j.priority DESC, j.submitted, j.id, a.frame LIMIT 1 "
+        "FOR UPDATE OF a SKIP LOCKED) RETURNING " PBGI_AUDIT_COLUMNS,
+        now, worker, expires);
+    if (taken.empty()) return std::optional<AuditLease>();
+    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, readAudit(taken[0]));
+    touchWorker(tx, worker, now);
+    return std::optional<AuditLease>(
+        AuditLease{info.id, info.attempt, info.job, info.spec, expires});
+  });
+}
+
+absl::Status PostgresJobStore::heartbeatAudit(int64_t audit, int attempt, Seconds now,
+                                              Seconds leaseSeconds) {
+  return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::Status {
+    // Only the current attempt of a leased audit extends its lease.
+    const pqxx::result r = tx.exec(
+        "UPDATE audits SET expires = $3 WHERE id = $1 AND attempt = $2 AND state = 1 "
+        "RETURNING worker",
+        audit, attempt, now + leaseSeconds);
+    if (r.empty()) return auditLeaseLost(tx, audit, attempt);
+    touchWorker(tx, r[0][0].as<std::string>(), now);
+    return absl::OkStatus();
+  });
+}
+
+absl::Status PostgresJobStore::completeAudit(int64_t audit, int attempt, const AuditResult& result,
+                                             Seconds now) {
+  return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::Status {
+    // One statement: at READ COMMITTED it waits for a concurrent change to the row and
+    // re-checks the attempt and state against what that change left.
+    const pqxx::result r = tx.exec(
+        "UPDATE audits SET state = 2, expires = NULL, rel_mse = $3, bias = $4, seconds = $5 "
+        "WHERE id = $1 AND attempt = $2 AND state = 1 RETURNING worker",
+        audit, attempt, result.relMse, result.bias, result.seconds);
+    if (r.empty()) return auditLeaseLost(tx, audit, attempt);
+    touchWorker(tx, r[0][0].as<std::string>(), now);
+    return absl::OkStatus();
+  });
+}
+
+absl::Status PostgresJobStore::failAudit(int64_t audit, int attempt, const std::string& error,
+                                         Seconds now) {
+  return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::Status {
+    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, loadAudit(tx, audit, /*lock=*/true));
+    PBGI_RETURN_IF_ERROR(checkCurrentLease(info, attempt));
+    recordAuditFailure(tx, info, error, now);
+    return absl::OkStatus();
+  });
+}
+
+absl::StatusOr<std::vector<AuditInfo>> PostgresJobStore::audits(int64_t job) {
+  return transaction(PgAccess::kRead, [&](PgTx& tx) -> absl::StatusOr<std::vector<AuditInfo>> {
+    PBGI_RETURN_IF_ERROR(jobState(tx, job).status());
+    std::vector<AuditInfo> out;
+    for (const auto& row :
+         tx.exec("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE job = $1 ORDER BY frame", job)) {
+      PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(row));
+      out.push_back(std::move(info));
     }
     return out;
   });

@@ -8,6 +8,7 @@
 // savepoint, undoing only itself; a commit that fails fails every call of its batch.
 #include <condition_variable>
 #include <functional>
+#include <limits>
 #include <mutex>
 #include <optional>
 #include <type_traits>
@@ -27,7 +28,7 @@ namespace {
 
 // Bumped with every schema change: a file written by a newer coordinator is refused rather
 // than misread.
-constexpr int kSchemaVersion = 2;
+constexpr int kSchemaVersion = 3;
 // An operator's sqlite3 shell or a backup may hold the write lock for a moment; waiting that
 // long beats failing a lease.
 constexpr int kBusyTimeoutMs = 5000;
@@ -47,6 +48,31 @@ CREATE TABLE task_events (
 CREATE INDEX task_events_by_job ON task_events (job, id);
 -- A lease walks the active jobs in order and takes each one's first ready task from here.
 CREATE INDEX tasks_by_job_state ON tasks (job, state, frame, kind, tile);
+)sql";
+
+// Schema 3 added the audits; a version 1 or 2 file gets them on opening. AUTOINCREMENT, as
+// for tasks: a worker holding an audit's id from before some clean-up addresses no other.
+constexpr const char* kAuditsSchema = R"sql(
+CREATE TABLE audits (
+  id INTEGER PRIMARY KEY AUTOINCREMENT,
+  job INTEGER NOT NULL REFERENCES jobs (id),
+  frame INTEGER NOT NULL,
+  tiles TEXT NOT NULL,  -- farm tile indices, space separated
+  spp INTEGER NOT NULL CHECK (spp > 0),
+  threshold REAL NOT NULL CHECK (threshold >= 0),
+  state INTEGER NOT NULL DEFAULT 0 CHECK (state BETWEEN 0 AND 4),
+  attempt INTEGER NOT NULL DEFAULT 0,
+  failures INTEGER NOT NULL DEFAULT 0,
+  worker TEXT NOT NULL DEFAULT '',
+  last_error TEXT NOT NULL DEFAULT '',
+  expires REAL,                        -- while leased
+  not_before REAL NOT NULL DEFAULT 0,  -- the back-off
+  rel_mse REAL,                        -- the result, once done (SQLite stores NaN as NULL)
+  bias REAL,
+  seconds REAL,
+  UNIQUE (job, frame)
+);
+CREATE INDEX audits_by_state ON audits (state, not_before);
 )sql";
 
 // AUTOINCREMENT so that ids are never reused: a worker still holding a task id from before
@@ -99,6 +125,11 @@ CREATE TABLE job_worker_failures (
 );
 )sql";
 
+// A result column: NULL is how SQLite stored a NaN.
+double realOrNan(const Query& q, int column) {
+  return q.isNull(column) ? std::numeric_limits<double>::quiet_NaN() : q.real(column);
+}
+
 // Reads a row selected with PBGI_TASK_COLUMNS.
 TaskInfo readTask(const Query& q) {
   TaskInfo task;
@@ -147,6 +178,15 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
   absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                 std::optional<int> tile) override;
+  absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker, Seconds now,
+                                                       Seconds leaseSeconds) override;
+  absl::Status heartbeatAudit(int64_t audit, int attempt, Seconds now,
+                              Seconds leaseSeconds) override;
+  absl::Status completeAudit(int64_t audit, int attempt, const AuditResult& result,
+                             Seconds now) override;
+  absl::Status failAudit(int64_t audit, int attempt, const std::string& error,
+                         Seconds now) override;
+  absl::StatusOr<std::vector<AuditInfo>> audits(int64_t job) override;
 
  private:
   absl::Status addEvent(const TaskInfo& task, int attempt, const std::string& worker,
@@ -179,6 +219,10 @@ class SqliteJobStore final : public JobStore {
   absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
                              std::string_view event, std::string_view log);
   absl::Status settleJob(int64_t job);
+  absl::StatusOr<AuditInfo> readAudit(const Query& q) const;
+  absl::StatusOr<AuditInfo> loadAudit(int64_t audit);
+  absl::StatusOr<AuditInfo> currentAuditLease(int64_t audit, int attempt);
+  absl::Status recordAuditFailure(const AuditInfo& audit, const std::string& error, Seconds now);
 
   const std::string path_;
   const RetryPolicy policy_;
@@ -351,17 +395,15 @@ absl::Status SqliteJobStore::initialize() {
       if (row) found = version.integer(0);
     }
     if (found == kSchemaVersion) return absl::OkStatus();
-    if (found == 1) {
-      PBGI_RETURN_IF_ERROR(exec(kEventsSchema));
-      return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
-    }
-    if (found != 0) {
+    if (found < 0 || found > kSchemaVersion) {
       return absl::FailedPreconditionError(
           fmt::format("{}: schema version {}; this coordinator reads version {}", path_, found,
                       kSchemaVersion));
     }
-    PBGI_RETURN_IF_ERROR(exec(kSchema));
-    PBGI_RETURN_IF_ERROR(exec(kEventsSchema));
+    // Each version's additions in turn: a new file gets them all, an older one what it lacks.
+    if (found < 1) PBGI_RETURN_IF_ERROR(exec(kSchema));
+    if (found < 2) PBGI_RETURN_IF_ERROR(exec(kEventsSchema));
+    PBGI_RETURN_IF_ERROR(exec(kAuditsSchema));
     // PRAGMA takes no parameters; the value is our own constant.
     return exec(fmt::format("PRAGMA user_version = {}", kSchemaVersion).c_str());
   });
@@ -564,6 +606,16 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
       Query q =
           query("INSERT INTO tasks (job, kind, frame, tile, state) VALUES (?1, ?2, ?3, ?4, ?5)");
       q.bind(1, job).bind(2, t.kind).bind(3, t.frame).bind(4, t.tile).bind(5, t.state);
+      PBGI_RETURN_IF_ERROR(q.run());
+    }
+    for (const AuditSpec& a : spec.audits) {
+      Query q = query(
+          "INSERT INTO audits (job, frame, tiles, spp, threshold) VALUES (?1, ?2, ?3, ?4, ?5)");
+      q.bind(1, job)
+          .bind(2, a.frame)
+          .bind(3, formatFrames(a.tiles))
+          .bind(4, a.spp)
+          .bind(5, a.threshold);
       PBGI_RETURN_IF_ERROR(q.run());
     }
     return job;
@@ -771,7 +823,22 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
       PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
       PBGI_RETURN_IF_ERROR(recordFailure(info, leaseExpiredError(info.worker), now, "expired", ""));
     }
-    return static_cast<int>(expired.size());
+    std::vector<AuditInfo> expiredAudits;
+    {
+      Query q = query("SELECT " PBGI_AUDIT_COLUMNS
+                      " FROM audits WHERE state = 1 AND expires <= ?1 ORDER BY id");
+      q.bind(1, now);
+      for (;;) {
+        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+        if (!row) break;
+        PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(q));
+        expiredAudits.push_back(std::move(info));
+      }
+    }
+    for (const AuditInfo& info : expiredAudits) {
+      PBGI_RETURN_IF_ERROR(recordAuditFailure(info, leaseExpiredError(info.worker), now));
+    }
+    return static_cast<int>(expired.size() + expiredAudits.size());
   });
 }
 
@@ -787,6 +854,12 @@ absl::Status SqliteJobStore::cancel(int64_t job) {
     {
       Query q =
           query("UPDATE tasks SET state = 5, expires = NULL WHERE job = ?1 AND state IN (0, 1, 2)");
+      q.bind(1, job);
+      PBGI_RETURN_IF_ERROR(q.run());
+    }
+    {
+      Query q =
+          query("UPDATE audits SET state = 4, expires = NULL WHERE job = ?1 AND state IN (0, 1)");
       q.bind(1, job);
       PBGI_RETURN_IF_ERROR(q.run());
     }
@@ -813,6 +886,14 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
           "not_before = 0, expires = NULL WHERE job = ?1 AND state IN (4, 5) "
           "AND (?2 IS NULL OR frame = ?2) AND (?3 IS NULL OR kind != 1 OR tile = ?3)");
       q.bind(1, job).bind(2, frame).bind(3, tile);
+      PBGI_RETURN_IF_ERROR(q.run());
+    }
+    {
+      // An audit covers its whole frame: a tile's retry revives its frame's audit.
+      Query q = query(
+          "UPDATE audits SET state = 0, failures = 0, last_error = '', not_before = 0, "
+          "expires = NULL WHERE job = ?1 AND state IN (3, 4) AND (?2 IS NULL OR frame = ?2)");
+      q.bind(1, job).bind(2, frame);
       PBGI_RETURN_IF_ERROR(q.run());
     }
     {
@@ -875,6 +956,137 @@ absl::StatusOr<std::vector<TaskEvent>> SqliteJobStore::events(int64_t job,
       e.event = q.text(7);
       e.text = q.text(8);
       out.push_back(std::move(e));
+    }
+  });
+}
+
+absl::StatusOr<AuditInfo> SqliteJobStore::readAudit(const Query& q) const {
+  AuditInfo info;
+  info.id = q.int64(0);
+  info.job = q.int64(1);
+  info.spec.frame = q.integer(2);
+  PBGI_ASSIGN_OR_RETURN(info.spec.tiles,
+                        parseFrames(q.text(3), fmt::format("{}: audit {} tiles", path_, info.id)));
+  info.spec.spp = q.integer(4);
+  info.spec.threshold = q.real(5);
+  info.state = static_cast<AuditState>(q.integer(6));
+  info.attempt = q.integer(7);
+  info.failures = q.integer(8);
+  info.worker = q.text(9);
+  info.lastError = q.text(10);
+  if (info.state == AuditState::kDone) {
+    info.result = AuditResult{realOrNan(q, 11), realOrNan(q, 12), realOrNan(q, 13)};
+  }
+  return info;
+}
+
+absl::StatusOr<AuditInfo> SqliteJobStore::loadAudit(int64_t audit) {
+  Query q = query("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE id = ?1");
+  q.bind(1, audit);
+  PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+  if (!row) return absl::NotFoundError(fmt::format("audit {}: no such audit", audit));
+  return readAudit(q);
+}
+
+absl::StatusOr<AuditInfo> SqliteJobStore::currentAuditLease(int64_t audit, int attempt) {
+  PBGI_ASSIGN_OR_RETURN(AuditInfo info, loadAudit(audit));
+  PBGI_RETURN_IF_ERROR(checkCurrentLease(info, attempt));
+  return info;
+}
+
+// Unlike a task's failure, nothing else moves: not the job, not the worker's blocklist.
+absl::Status SqliteJobStore::recordAuditFailure(const AuditInfo& audit, const std::string& error,
+                                                Seconds now) {
+  const FailureOutcome outcome = failureOutcome(policy_, audit.failures, now);
+  Query q = query(
+      "UPDATE audits SET state = ?2, failures = ?3, last_error = ?4, not_before = ?5, "
+      "expires = NULL WHERE id = ?1");
+  q.bind(1, audit.id)
+      .bind(2, auditStateAfter(outcome))
+      .bind(3, outcome.failures)
+      .bind(4, error)
+      .bind(5, outcome.notBefore);
+  return q.run();
+}
+
+absl::StatusOr<std::optional<AuditLease>> SqliteJobStore::leaseAudit(const std::string& worker,
+                                                                     Seconds now,
+                                                                     Seconds leaseSeconds) {
+  if (worker.empty()) return absl::InvalidArgumentError("an audit's lease needs a worker id");
+  return transaction(Access::kWrite, [&]() -> absl::StatusOr<std::optional<AuditLease>> {
+    AuditInfo picked;
+    {
+      // One sort of the ready audits: a job has at most one a frame, and this runs only for a
+      // worker that found no task.
+      Query q = query(
+          "SELECT " PBGI_AUDIT_COLUMNS
+          " FROM audits WHERE id = (SELECT a.id FROM audits a "
+          "JOIN jobs j ON j.id = a.job WHERE a.state = 0 AND a.not_before <= ?1 AND j.state != 3 "
+          "AND EXISTS (SELECT 1 FROM tasks t WHERE t.job = a.job AND t.frame = a.frame AND "
+          "t.kind = 2 AND t.state = 3) "
+          "ORDER BY j.priority DESC, j.submitted, j.id, a.frame LIMIT 1)");
+      q.bind(1, now);
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return std::optional<AuditLease>();
+      PBGI_ASSIGN_OR_RETURN(picked, readAudit(q));
+    }
+    AuditLease lease{picked.id, picked.attempt + 1, picked.job, picked.spec, now + leaseSeconds};
+    {
+      Query take = query(
+          "UPDATE audits SET state = 1, attempt = ?2, worker = ?3, expires = ?4 WHERE id = ?1");
+      take.bind(1, lease.audit).bind(2, lease.attempt).bind(3, worker).bind(4, lease.expires);
+      PBGI_RETURN_IF_ERROR(take.run());
+    }
+    PBGI_RETURN_IF_ERROR(touchWorker(worker, now));
+    return std::optional<AuditLease>(std::move(lease));
+  });
+}
+
+absl::Status SqliteJobStore::heartbeatAudit(int64_t audit, int attempt, Seconds now,
+                                            Seconds leaseSeconds) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
+    Query q = query("UPDATE audits SET expires = ?2 WHERE id = ?1");
+    q.bind(1, audit).bind(2, now + leaseSeconds);
+    PBGI_RETURN_IF_ERROR(q.run());
+    return touchWorker(info.worker, now);
+  });
+}
+
+absl::Status SqliteJobStore::completeAudit(int64_t audit, int attempt, const AuditResult& result,
+                                           Seconds now) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
+    {
+      Query q = query(
+          "UPDATE audits SET state = 2, expires = NULL, rel_mse = ?2, bias = ?3, seconds = ?4 "
+          "WHERE id = ?1");
+      q.bind(1, audit).bind(2, result.relMse).bind(3, result.bias).bind(4, result.seconds);
+      PBGI_RETURN_IF_ERROR(q.run());
+    }
+    return touchWorker(info.worker, now);
+  });
+}
+
+absl::Status SqliteJobStore::failAudit(int64_t audit, int attempt, const std::string& error,
+                                       Seconds now) {
+  return transaction(Access::kWrite, [&]() -> absl::Status {
+    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
+    return recordAuditFailure(info, error, now);
+  });
+}
+
+absl::StatusOr<std::vector<AuditInfo>> SqliteJobStore::audits(int64_t job) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<AuditInfo>> {
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
+    Query q = query("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE job = ?1 ORDER BY frame");
+    q.bind(1, job);
+    std::vector<AuditInfo> out;
+    for (;;) {
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) return out;
+      PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(q));
+      out.push_back(std::move(info));
     }
   });
 }
