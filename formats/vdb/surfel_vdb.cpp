@@ -505,7 +505,7 @@ std::string contentUuid(std::istream& in) {
   XXH3_state_t* state = XXH3_createState();
   PBGI_CHECK(state != nullptr);
   XXH3_128bits_reset(state);
-  std::vector<char> buffer(1 << 20);
+  std::vector<char> buffer(1 << 16);
   uint64_t offset = 0;
   while (in.read(buffer.data(), static_cast<std::streamsize>(buffer.size())) || in.gcount() > 0) {
     const uint64_t got = static_cast<uint64_t>(in.gcount());
@@ -630,28 +630,16 @@ absl::Status checkHeaderAndContents(std::istream& in, const std::string& path) {
   return absl::OkStatus();
 }
 
-// Opens `path` and reads its "surfels" points grid, turning everything OpenVDB throws into
-// a status that names the file.
-absl::StatusOr<LoadedGrid> loadSurfelGrid(const std::string& path) {
+// Reads the "surfels" points grid from `in` (the whole file, `fileBytes` long, from its first
+// byte), turning everything OpenVDB throws into a status that names the file.
+absl::StatusOr<LoadedGrid> loadSurfelGrid(std::istream& in, const std::string& path,
+                                          uint64_t fileBytes) {
   ensureOpenVdb();
-  std::error_code ec;
-  const fs::file_status status = fs::status(path, ec);
-  if (!fs::exists(status)) return absl::NotFoundError(absl::StrCat(path, ": no such file"));
-  if (!fs::is_regular_file(status)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(path, ": not a regular file; expected an OpenVDB file"));
-  }
-  if (::access(path.c_str(), R_OK) != 0) {
-    const int error = errno;
-    return absl::ErrnoToStatus(error, absl::StrCat(path, ": cannot read"));
-  }
   LoadedGrid loaded;
-  loaded.fileBytes = fs::file_size(path, ec);
-  if (ec) return absl::ErrnoToStatus(ec.value(), absl::StrCat(path, ": cannot get its size"));
+  loaded.fileBytes = fileBytes;
   if (loaded.fileBytes == 0) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": empty file; expected an OpenVDB file"));
   }
-  std::ifstream in(path, std::ios::binary);
   if (absl::Status s = checkHeaderAndContents(in, path); !s.ok()) return s;
   try {
     // The contents are what pbgi wrote; what follows guards against a writer that went wrong.
@@ -687,6 +675,34 @@ absl::StatusOr<LoadedGrid> loadSurfelGrid(const std::string& path) {
         absl::StrCat(path, ": not a readable OpenVDB file: ", e.what()));
   }
   return loaded;
+}
+
+// Opens `path` (a regular file that can be read) and reads its grid.
+absl::StatusOr<LoadedGrid> loadSurfelGrid(const std::string& path) {
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);
+  if (!fs::exists(status)) return absl::NotFoundError(absl::StrCat(path, ": no such file"));
+  if (!fs::is_regular_file(status)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": not a regular file; expected an OpenVDB file"));
+  }
+  if (::access(path.c_str(), R_OK) != 0) {
+    const int error = errno;
+    return absl::ErrnoToStatus(error, absl::StrCat(path, ": cannot read"));
+  }
+  const uint64_t fileBytes = fs::file_size(path, ec);
+  if (ec) return absl::ErrnoToStatus(ec.value(), absl::StrCat(path, ": cannot get its size"));
+  std::ifstream in(path, std::ios::binary);
+  return loadSurfelGrid(in, path, fileBytes);
+}
+
+// The grid of a file held by a seekable stream: its size is where the stream ends.
+absl::StatusOr<LoadedGrid> loadSurfelGridFromStream(std::istream& in, const std::string& name) {
+  in.seekg(0, std::ios::end);
+  const std::streamoff end = in.tellg();
+  if (end < 0) return absl::InvalidArgumentError(absl::StrCat(name, ": cannot seek in the stream"));
+  in.seekg(0);
+  return loadSurfelGrid(in, name, static_cast<uint64_t>(end));
 }
 
 absl::StatusOr<std::vector<Surfel>> decodeAndVerify(const vdbp::PointDataGrid& grid,
@@ -742,8 +758,10 @@ absl::Status writeSurfelVdb(const std::string& path, std::span<const Surfel> sur
   return writeGridAtomically(path, grid);
 }
 
-absl::StatusOr<std::vector<Surfel>> readSurfelVdb(const std::string& path) {
-  absl::StatusOr<LoadedGrid> loaded = loadSurfelGrid(path);
+namespace {
+
+absl::StatusOr<std::vector<Surfel>> readLoaded(absl::StatusOr<LoadedGrid> loaded,
+                                               const std::string& path) {
   if (!loaded.ok()) return loaded.status();
   try {
     return decodeAndVerify(*loaded->grid, path);
@@ -752,6 +770,19 @@ absl::StatusOr<std::vector<Surfel>> readSurfelVdb(const std::string& path) {
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": cannot decode surfels: ", e.what()));
   }
+}
+
+absl::StatusOr<SurfelVdbInfo> inspectLoaded(absl::StatusOr<LoadedGrid> loaded,
+                                             const std::string& path);
+
+}  // namespace
+
+absl::StatusOr<std::vector<Surfel>> readSurfelVdb(const std::string& path) {
+  return readLoaded(loadSurfelGrid(path), path);
+}
+
+absl::StatusOr<std::vector<Surfel>> readSurfelVdb(std::istream& in, const std::string& name) {
+  return readLoaded(loadSurfelGridFromStream(in, name), name);
 }
 
 double SurfelVdbInfo::fileBytesPerPoint() const {
@@ -791,7 +822,17 @@ std::string SurfelVdbInfo::toString() const {
 }
 
 absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(const std::string& path) {
-  absl::StatusOr<LoadedGrid> loaded = loadSurfelGrid(path);
+  return inspectLoaded(loadSurfelGrid(path), path);
+}
+
+absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(std::istream& in, const std::string& name) {
+  return inspectLoaded(loadSurfelGridFromStream(in, name), name);
+}
+
+namespace {
+
+absl::StatusOr<SurfelVdbInfo> inspectLoaded(absl::StatusOr<LoadedGrid> loaded,
+                                            const std::string& path) {
   if (!loaded.ok()) return loaded.status();
   const vdbp::PointDataGrid& grid = *loaded->grid;
   SurfelVdbInfo info;
@@ -846,5 +887,7 @@ absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(const std::string& path) {
   }
   return info;
 }
+
+}  // namespace
 
 }  // namespace pbgi

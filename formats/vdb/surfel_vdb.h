@@ -57,6 +57,7 @@
 // match. What OpenVDB allocates while reading such a file is up to OpenVDB.
 
 #include <cstdint>
+#include <iosfwd>
 #include <span>
 #include <string>
 #include <utility>
@@ -106,6 +107,9 @@ absl::Status writeSurfelVdb(const std::string& path, std::span<const Surfel> sur
 
 // Reads a file written by writeSurfelVdb: the surfels in the order they were written.
 absl::StatusOr<std::vector<Surfel>> readSurfelVdb(const std::string& path);
+// The same from a seekable stream that holds the whole file from its first byte (the fuzz
+// target reads bytes in memory); `name` stands for the path in messages. Reads `in` to its end.
+absl::StatusOr<std::vector<Surfel>> readSurfelVdb(std::istream& in, const std::string& name);
 
 struct SurfelVdbAttributeInfo {
   std::string name;
@@ -141,5 +145,6 @@ struct SurfelVdbInfo {
 // points grid named "surfels"; a grid that readSurfelVdb rejects for its contents (a missing
 // attribute, a bad id, ...) is described, with `problem` saying why.
 absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(const std::string& path);
+absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(std::istream& in, const std::string& name);
 
 }  // namespace pbgi
