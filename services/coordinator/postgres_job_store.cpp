@@ -11,8 +11,12 @@
 //   and change a task only at the attempt and state they checked. Serializing a job's changes
 //   is what keeps promotion and settling right: two tiles completing at once would otherwise
 //   each see the other unfinished, and the assemble would never become ready.
-// Locks are taken job, then task, then worker, so deadlocks are rare; those and serialization
-// failures are retried a bounded number of times.
+// - audits settle nothing, so their calls lock only the audit's row, never a job's: leaseAudit
+//   takes its pick with FOR UPDATE SKIP LOCKED in the statement that leases it, heartbeats and
+//   completions are one UPDATE conditional on the attempt, failures and expiry lock the row
+//   and re-check it; cancel and retry reach a job's audits after its row and its tasks.
+// Locks are taken job, then task, then audit, then worker, so deadlocks are rare; those and
+// serialization failures are retried a bounded number of times.
 #include <limits>
 #include <memory>
 #include <optional>

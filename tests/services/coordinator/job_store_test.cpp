@@ -7,12 +7,16 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <set>
 #include <thread>
+
+#include <sqlite3.h>
 
 #include <fmt/format.h>
 
@@ -26,6 +30,7 @@ namespace pbgi::farm {
 void PrintTo(TaskKind kind, std::ostream* os) { *os << toString(kind); }
 void PrintTo(TaskState state, std::ostream* os) { *os << toString(state); }
 void PrintTo(JobState state, std::ostream* os) { *os << toString(state); }
+void PrintTo(AuditState state, std::ostream* os) { *os << toString(state); }
 
 namespace {
 
@@ -45,6 +50,10 @@ JobSpec makeSpec(std::vector<int> frames, int tiles, bool bake, int priority = 0
   spec.tileCount = tiles;
   spec.needsBake = bake;
   return spec;
+}
+
+AuditSpec makeAudit(int frame, std::vector<int> tiles, int spp = 64, double threshold = 0.05) {
+  return AuditSpec{frame, std::move(tiles), spp, threshold};
 }
 
 int count(const JobInfo& info, TaskState state) {
@@ -133,6 +142,42 @@ class JobStoreFixture : public ::testing::Test {
       ++done;
     }
     return done;
+  }
+
+  // Leases and completes the tasks of one frame (held, so first within the most urgent job)
+  // until its assemble is done.
+  void finishFrame(int64_t job, int frame, Seconds now) {
+    const std::vector<HeldFrame> held = {{job, frame}};
+    for (int spins = 0; spins < 1000; ++spins) {
+      if (task(job, TaskKind::kAssemble, frame).state == TaskState::kDone) return;
+      auto l = store_->lease("finisher", now, kLease, held);
+      ASSERT_TRUE(l.ok()) << l.status();
+      ASSERT_TRUE(l->has_value()) << "job " << job << " frame " << frame << ": nothing ready";
+      ASSERT_EQ((*l)->ref.job, job) << (*l)->ref.toString();
+      ASSERT_EQ((*l)->ref.frame, frame) << (*l)->ref.toString();
+      ASSERT_TRUE(store_->complete((*l)->task, (*l)->attempt, now).ok()) << (*l)->ref.toString();
+    }
+    FAIL() << "job " << job << " frame " << frame << " never assembled";
+  }
+
+  std::optional<AuditLease> leaseAudit(const std::string& worker, Seconds now) {
+    auto l = store_->leaseAudit(worker, now, kLease);
+    EXPECT_TRUE(l.ok()) << l.status();
+    return l.ok() ? *l : std::nullopt;
+  }
+
+  std::vector<AuditInfo> audits(int64_t job) {
+    auto all = store_->audits(job);
+    EXPECT_TRUE(all.ok()) << all.status();
+    return all.ok() ? *all : std::vector<AuditInfo>{};
+  }
+
+  AuditInfo audit(int64_t job, int frame) {
+    for (const AuditInfo& a : audits(job)) {
+      if (a.spec.frame == frame) return a;
+    }
+    ADD_FAILURE() << "job " << job << ": no audit of frame " << frame;
+    return {};
   }
 
   fs::path dir_;
@@ -731,6 +776,391 @@ TEST_P(JobStoreTest, TheEventLogKeepsEveryLeaseAndOutcomeInOrder) {
             absl::StatusCode::kNotFound);
 }
 
+// Audits: per-frame accuracy checks that a worker with nothing else to do takes. They wait on
+// their frame's assemble, come only from leaseAudit(), and nothing they do moves a task or a job.
+TEST_P(JobStoreTest, AnAuditIsLeasedOnlyOnceItsFrameIsAssembledAndOnlyWhenAskedFor) {
+  JobSpec spec = makeSpec({1, 2}, 2, false);
+  spec.audits = {makeAudit(2, {1}, 32, 0.1), makeAudit(1, {0, 1}, 64, 0.05)};
+  const int64_t id = submit(spec, 0);
+  const std::vector<AuditInfo> submitted = audits(id);
+  ASSERT_EQ(submitted.size(), 2u);
+  EXPECT_EQ(submitted[0].spec.frame, 1) << "by frame";
+  EXPECT_EQ(submitted[0].spec.tiles, (std::vector<int>{0, 1}));
+  EXPECT_EQ(submitted[0].spec.spp, 64);
+  EXPECT_EQ(submitted[0].spec.threshold, 0.05);
+  EXPECT_EQ(submitted[1].spec.frame, 2);
+  EXPECT_EQ(submitted[1].spec.tiles, std::vector<int>{1});
+  for (const AuditInfo& a : submitted) {
+    EXPECT_EQ(a.job, id);
+    EXPECT_EQ(a.state, AuditState::kReady);
+    EXPECT_EQ(a.attempt, 0);
+    EXPECT_FALSE(a.result.has_value());
+    EXPECT_FALSE(a.flagged());
+  }
+  EXPECT_EQ(count(job(id), TaskState::kReady), 4) << "audits are not tasks";
+  EXPECT_EQ(store_->audits(id + 1).status().code(), absl::StatusCode::kNotFound);
+
+  EXPECT_FALSE(leaseAudit("w1", 0).has_value()) << "nothing is assembled";
+  auto tile0 = lease("w1", 0);
+  auto tile1 = lease("w1", 0);
+  ASSERT_TRUE(tile0.has_value() && tile1.has_value());
+  ASSERT_EQ(tile1->ref.toString(), fmt::format("job {} frame 1 tile 1", id));
+  ASSERT_TRUE(store_->complete(tile0->task, tile0->attempt, 1).ok());
+  ASSERT_TRUE(store_->complete(tile1->task, tile1->attempt, 1).ok());
+  EXPECT_FALSE(leaseAudit("w1", 1).has_value()) << "frame 1's assemble is ready, not done";
+  auto assemble = lease("w1", 1);
+  ASSERT_TRUE(assemble.has_value());
+  ASSERT_EQ(assemble->ref.kind, TaskKind::kAssemble);
+  EXPECT_FALSE(leaseAudit("w1", 1).has_value()) << "frame 1's assemble is leased, not done";
+  ASSERT_TRUE(store_->complete(assemble->task, assemble->attempt, 2).ok());
+
+  auto first = leaseAudit("w1", 3);
+  ASSERT_TRUE(first.has_value());
+  EXPECT_EQ(first->audit, submitted[0].id);
+  EXPECT_EQ(first->job, id);
+  EXPECT_EQ(first->attempt, 1);
+  EXPECT_EQ(first->spec.frame, 1);
+  EXPECT_EQ(first->spec.tiles, (std::vector<int>{0, 1}));
+  EXPECT_EQ(first->spec.spp, 64);
+  EXPECT_EQ(first->expires, 3 + kLease);
+  EXPECT_FALSE(leaseAudit("w2", 3).has_value()) << "frame 2 is not assembled";
+  const AuditInfo leased = audit(id, 1);
+  EXPECT_EQ(leased.state, AuditState::kLeased);
+  EXPECT_EQ(leased.worker, "w1");
+  EXPECT_EQ(leased.attempt, 1);
+
+  // Frame 2's tasks, and then nothing: lease() never hands out the audit that is ready.
+  EXPECT_EQ(runReady("w2", 4), 3);
+  EXPECT_EQ(job(id).state, JobState::kDone) << "a job is done when its tasks are";
+  EXPECT_EQ(audit(id, 2).state, AuditState::kReady);
+  EXPECT_FALSE(lease("w2", 5).has_value());
+  auto second = leaseAudit("w2", 5);
+  ASSERT_TRUE(second.has_value());
+  EXPECT_EQ(second->spec.frame, 2);
+  EXPECT_EQ(job(id).state, JobState::kDone);
+  EXPECT_EQ(store_->leaseAudit("", 5, kLease).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST_P(JobStoreTest, ACompletedAuditKeepsItsResultAndStaleAttemptsChangeNothing) {
+  RetryPolicy policy;
+  policy.backoffBase = 0;
+  open(policy);
+  JobSpec spec = makeSpec({1, 2}, 1, false);
+  spec.audits = {makeAudit(1, {0}, 64, 0.05), makeAudit(2, {0}, 64, 0.5)};
+  const int64_t id = submit(spec);
+  EXPECT_EQ(runReady("w0", 0), 4);
+  auto first = leaseAudit("w1", 1);
+  ASSERT_TRUE(first.has_value());
+  ASSERT_EQ(first->spec.frame, 1);
+  ASSERT_EQ(store_->expireLeases(first->expires).value_or(-1), 1);
+  auto second = leaseAudit("w2", first->expires);
+  ASSERT_TRUE(second.has_value());
+  ASSERT_EQ(second->audit, first->audit);
+  ASSERT_EQ(second->attempt, 2);
+  ASSERT_TRUE(store_->heartbeatAudit(second->audit, 2, 40, kLease).ok());
+  const AuditInfo before = audit(id, 1);
+
+  const absl::Status stale = store_->completeAudit(first->audit, 1, {0.9, 0.1, 3}, 41);
+  EXPECT_EQ(stale.code(), absl::StatusCode::kFailedPrecondition) << stale;
+  EXPECT_NE(stale.message().find(fmt::format("job {} frame 1 audit", id)), std::string::npos)
+      << stale;
+  EXPECT_NE(stale.message().find("attempt 1"), std::string::npos) << stale;
+  EXPECT_NE(stale.message().find("attempt 2"), std::string::npos) << stale;
+  EXPECT_EQ(store_->heartbeatAudit(first->audit, 1, 41, kLease).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->failAudit(first->audit, 1, "late", 41).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->completeAudit(first->audit, 3, {}, 41).code(),
+            absl::StatusCode::kFailedPrecondition);
+  const int64_t unknown = first->audit + 1000;
+  EXPECT_EQ(store_->completeAudit(unknown, 1, {}, 41).code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store_->heartbeatAudit(unknown, 1, 41, kLease).code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store_->failAudit(unknown, 1, "?", 41).code(), absl::StatusCode::kNotFound);
+
+  const AuditInfo after = audit(id, 1);
+  EXPECT_EQ(after.state, AuditState::kLeased);
+  EXPECT_EQ(after.attempt, before.attempt);
+  EXPECT_EQ(after.failures, 1);
+  EXPECT_EQ(after.worker, "w2");
+  EXPECT_EQ(after.lastError, "lease expired: worker w1 stopped heartbeating");
+  EXPECT_FALSE(after.result.has_value());
+  EXPECT_EQ(store_->expireLeases(1 + 2 * kLease).value_or(-1), 0) << "the heartbeat extended it";
+
+  ASSERT_TRUE(store_->completeAudit(second->audit, 2, {0.2, -0.0125, 12.5}, 42).ok());
+  const AuditInfo done = audit(id, 1);
+  EXPECT_EQ(done.state, AuditState::kDone);
+  ASSERT_TRUE(done.result.has_value());
+  EXPECT_EQ(done.result->relMse, 0.2);
+  EXPECT_EQ(done.result->bias, -0.0125);
+  EXPECT_EQ(done.result->seconds, 12.5);
+  EXPECT_TRUE(done.flagged()) << "0.2 is over the threshold of 0.05";
+  EXPECT_EQ(store_->completeAudit(second->audit, 2, {}, 43).code(),
+            absl::StatusCode::kFailedPrecondition)
+      << "a done audit takes no second completion";
+  EXPECT_EQ(store_->failAudit(second->audit, 2, "late", 43).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->expireLeases(1e6).value_or(-1), 0);
+
+  // Under its threshold; a result that is not a number (NaN pixels) comes back as one.
+  auto other = leaseAudit("w3", 44);
+  ASSERT_TRUE(other.has_value());
+  ASSERT_EQ(other->spec.frame, 2);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  ASSERT_TRUE(store_->completeAudit(other->audit, other->attempt, {0.25, nan, 1}, 45).ok());
+  const AuditInfo under = audit(id, 2);
+  ASSERT_TRUE(under.result.has_value());
+  EXPECT_FALSE(under.flagged());
+  EXPECT_TRUE(std::isnan(under.result->bias)) << under.result->bias;
+  EXPECT_FALSE(leaseAudit("w3", 46).has_value());
+  EXPECT_EQ(job(id).state, JobState::kDone);
+}
+
+TEST_P(JobStoreTest, AFailedAuditBacksOffAndFailsAtTheCapWithoutTouchingItsJob) {
+  RetryPolicy policy;
+  policy.maxAttempts = 3;
+  policy.backoffBase = 2;
+  policy.backoffMax = 3;
+  policy.blocklistAfter = 1;  // were an audit's failure counted, w1 would be blocklisted
+  open(policy);
+  JobSpec spec = makeSpec({1, 2}, 1, false);
+  spec.audits = {makeAudit(1, {0})};
+  const int64_t id = submit(spec);
+  finishFrame(id, 1, 0);
+  Seconds now = 0;
+  for (Seconds wait : {2.0, 3.0}) {
+    auto l = leaseAudit("w1", now);
+    ASSERT_TRUE(l.has_value()) << "at " << now;
+    ASSERT_TRUE(store_->failAudit(l->audit, l->attempt, "out of memory", now).ok());
+    const AuditInfo failed = audit(id, 1);
+    EXPECT_EQ(failed.state, AuditState::kReady);
+    EXPECT_EQ(failed.lastError, "out of memory");
+    EXPECT_FALSE(leaseAudit("w1", now + wait - 0.01).has_value()) << "back-off of " << wait;
+    now += wait;
+  }
+  auto last = leaseAudit("w1", now);
+  ASSERT_TRUE(last.has_value());
+  EXPECT_EQ(last->attempt, 3);
+  ASSERT_TRUE(store_->failAudit(last->audit, last->attempt, "out of memory", now).ok());
+  const AuditInfo failed = audit(id, 1);
+  EXPECT_EQ(failed.state, AuditState::kFailed);
+  EXPECT_EQ(failed.failures, 3);
+  EXPECT_EQ(failed.attempt, 3);
+  EXPECT_EQ(failed.lastError, "out of memory");
+  EXPECT_FALSE(failed.result.has_value());
+  EXPECT_FALSE(leaseAudit("w1", 1000).has_value());
+
+  const JobInfo info = job(id);
+  EXPECT_EQ(info.state, JobState::kActive);
+  EXPECT_TRUE(info.dead.empty());
+  EXPECT_EQ(count(info, TaskState::kDone), 2);
+  EXPECT_FALSE(store_->blocklisted(id, "w1").value_or(true));
+  auto events = store_->events(id, std::nullopt, std::nullopt);
+  ASSERT_TRUE(events.ok()) << events.status();
+  EXPECT_EQ(events->size(), 4u) << "the task log has no audits in it";
+  auto tile = lease("w1", now);
+  ASSERT_TRUE(tile.has_value());
+  EXPECT_EQ(tile->ref.toString(), fmt::format("job {} frame 2 tile 0", id));
+  EXPECT_EQ(tile->attempt, 1);
+  ASSERT_TRUE(store_->complete(tile->task, tile->attempt, now).ok());
+  EXPECT_EQ(runReady("w1", now), 1);
+  EXPECT_EQ(job(id).state, JobState::kDone) << "a failed audit never fails its job";
+}
+
+TEST_P(JobStoreTest, ExpiredAuditLeasesAreReclaimedWithTheTasks) {
+  JobSpec spec = makeSpec({1, 2}, 1, false);
+  spec.audits = {makeAudit(1, {0})};
+  const int64_t id = submit(spec);
+  finishFrame(id, 1, 0);
+  auto a = leaseAudit("w1", 0);
+  auto t = lease("w2", 0);
+  ASSERT_TRUE(a.has_value() && t.has_value());
+  ASSERT_TRUE(store_->heartbeatAudit(a->audit, a->attempt, 20, kLease).ok());
+  ASSERT_TRUE(store_->heartbeat(t->task, t->attempt, 0.5, 20, kLease).ok());
+  EXPECT_EQ(store_->expireLeases(a->expires).value_or(-1), 0) << "both were extended to 50 s";
+  EXPECT_EQ(store_->expireLeases(50).value_or(-1), 2) << "the audit's lease and the task's";
+
+  const AuditInfo expired = audit(id, 1);
+  EXPECT_EQ(expired.state, AuditState::kReady);
+  EXPECT_EQ(expired.failures, 1);
+  EXPECT_EQ(expired.lastError, "lease expired: worker w1 stopped heartbeating");
+  EXPECT_EQ(task(id, TaskKind::kTile, 2, 0).failures, 1);
+  EXPECT_EQ(store_->completeAudit(a->audit, a->attempt, {}, 51).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_FALSE(leaseAudit("w3", 51.99).has_value()) << "the back-off of 2 s";
+  auto again = leaseAudit("w3", 52);
+  ASSERT_TRUE(again.has_value());
+  EXPECT_EQ(again->audit, a->audit);
+  EXPECT_EQ(again->attempt, 2);
+  EXPECT_EQ(store_->expireLeases(1000).value_or(-1), 1) << "the audit's second lease";
+}
+
+TEST_P(JobStoreTest, CancelStopsAJobsAuditsAndRetryRevivesThemByFrame) {
+  RetryPolicy policy;
+  policy.maxAttempts = 1;
+  open(policy);
+  JobSpec spec = makeSpec({1, 2, 3, 4}, 1, false);
+  spec.audits = {makeAudit(1, {0}), makeAudit(2, {0}), makeAudit(3, {0}), makeAudit(4, {0})};
+  const int64_t id = submit(spec);
+  for (int frame : {1, 2, 3}) finishFrame(id, frame, 0);
+  auto a1 = leaseAudit("w1", 1);
+  auto a2 = leaseAudit("w2", 1);
+  auto a3 = leaseAudit("w3", 1);
+  ASSERT_TRUE(a1.has_value() && a2.has_value() && a3.has_value());
+  ASSERT_EQ(a3->spec.frame, 3);
+  ASSERT_TRUE(store_->failAudit(a2->audit, a2->attempt, "diverged", 2).ok());
+  ASSERT_TRUE(store_->completeAudit(a3->audit, a3->attempt, {0.01, 0, 5}, 2).ok());
+  ASSERT_EQ(audit(id, 2).state, AuditState::kFailed);
+
+  ASSERT_TRUE(store_->cancel(id).ok());
+  EXPECT_EQ(audit(id, 1).state, AuditState::kCancelled) << "leased";
+  EXPECT_EQ(audit(id, 2).state, AuditState::kFailed) << "failed stays failed";
+  EXPECT_EQ(audit(id, 3).state, AuditState::kDone);
+  EXPECT_EQ(audit(id, 4).state, AuditState::kCancelled) << "ready";
+  EXPECT_EQ(store_->completeAudit(a1->audit, a1->attempt, {}, 3).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store_->expireLeases(1000).value_or(-1), 0);
+
+  // Frame 1 only; the job stays cancelled (frame 4's tasks are), so nothing is leased yet.
+  ASSERT_TRUE(store_->retry(id, 1, std::nullopt, 4).ok());
+  EXPECT_EQ(audit(id, 1).state, AuditState::kReady);
+  EXPECT_EQ(audit(id, 2).state, AuditState::kFailed);
+  EXPECT_EQ(audit(id, 4).state, AuditState::kCancelled);
+  EXPECT_EQ(job(id).state, JobState::kCancelled);
+  EXPECT_FALSE(leaseAudit("w1", 4).has_value()) << "the job is cancelled";
+  // A tile's retry revives its frame's audit.
+  ASSERT_TRUE(store_->retry(id, 2, 0, 5).ok());
+  const AuditInfo revived = audit(id, 2);
+  EXPECT_EQ(revived.state, AuditState::kReady);
+  EXPECT_EQ(revived.failures, 0);
+  EXPECT_EQ(revived.lastError, "");
+  ASSERT_TRUE(store_->retry(id, std::nullopt, std::nullopt, 6).ok());
+  EXPECT_EQ(job(id).state, JobState::kActive);
+  EXPECT_EQ(audit(id, 4).state, AuditState::kReady);
+  auto again1 = leaseAudit("w1", 6);
+  auto again2 = leaseAudit("w1", 6);
+  ASSERT_TRUE(again1.has_value() && again2.has_value());
+  EXPECT_EQ(again1->spec.frame, 1);
+  EXPECT_EQ(again1->attempt, 2) << "attempts keep counting across a retry";
+  EXPECT_EQ(again2->spec.frame, 2);
+  EXPECT_EQ(again2->attempt, 2);
+  EXPECT_FALSE(leaseAudit("w1", 6).has_value()) << "frame 4 is not assembled";
+  const AuditInfo kept = audit(id, 3);
+  EXPECT_EQ(kept.state, AuditState::kDone);
+  ASSERT_TRUE(kept.result.has_value());
+  EXPECT_EQ(kept.result->seconds, 5);
+}
+
+TEST_P(JobStoreTest, AuditsLeaseByPriorityThenJobAgeThenFrame) {
+  JobSpec olderSpec = makeSpec({2, 1}, 1, false, /*priority=*/0);
+  olderSpec.audits = {makeAudit(2, {0}), makeAudit(1, {0})};
+  JobSpec urgentSpec = makeSpec({3}, 1, false, /*priority=*/5);
+  urgentSpec.audits = {makeAudit(3, {0})};
+  JobSpec newerSpec = makeSpec({0}, 1, false, /*priority=*/0);
+  newerSpec.audits = {makeAudit(0, {0})};
+  const int64_t older = submit(olderSpec, 1);
+  const int64_t urgent = submit(urgentSpec, 2);
+  const int64_t newer = submit(newerSpec, 3);
+  EXPECT_EQ(runReady("w1", 4), 8);
+  const std::vector<std::pair<int64_t, int>> expected = {
+      {urgent, 3}, {older, 1}, {older, 2}, {newer, 0}};
+  for (const auto& [job, frame] : expected) {
+    auto l = leaseAudit("w1", 5);
+    ASSERT_TRUE(l.has_value()) << "expected job " << job << " frame " << frame;
+    EXPECT_EQ(l->job, job);
+    EXPECT_EQ(l->spec.frame, frame);
+  }
+  EXPECT_FALSE(leaseAudit("w1", 5).has_value());
+}
+
+TEST_P(JobStoreTest, SubmitRejectsMalformedAudits) {
+  const auto rejected = [&](std::vector<AuditSpec> audits, const std::string& says) {
+    JobSpec spec = makeSpec({1, 2}, 4, false);
+    spec.audits = std::move(audits);
+    const absl::Status status = store_->submit(spec, 0).status();
+    EXPECT_EQ(status.code(), absl::StatusCode::kInvalidArgument) << status;
+    EXPECT_NE(status.message().find(says), std::string::npos)
+        << status << " (expected " << says << ")";
+  };
+  const double inf = std::numeric_limits<double>::infinity();
+  rejected({makeAudit(3, {0})}, "frame 3: the job has no such frame");
+  rejected({makeAudit(1, {0}), makeAudit(2, {0}), makeAudit(1, {1})}, "frame 1 has two audits");
+  rejected({makeAudit(1, {})}, "no tiles");
+  rejected({makeAudit(1, {0, 4})}, "tile 4: expected 0..3");
+  rejected({makeAudit(1, {-1})}, "tile -1: expected 0..3");
+  rejected({makeAudit(1, {0}, 0)}, "spp 0");
+  rejected({makeAudit(2, {0}, 64, -0.1)}, "threshold -0.1");
+  rejected({makeAudit(2, {0}, 64, inf)}, "threshold inf");
+  rejected({makeAudit(2, {0}, 64, std::numeric_limits<double>::quiet_NaN())}, "threshold nan");
+  auto jobs = store_->jobs();
+  ASSERT_TRUE(jobs.ok()) << jobs.status();
+  EXPECT_TRUE(jobs->empty()) << "nothing of a rejected job is stored";
+
+  JobSpec spec = makeSpec({1, 2}, 4, false);
+  spec.audits = {makeAudit(2, {3, 0}, 1, 0), makeAudit(1, {2}, 4096, 1e-7)};
+  const int64_t id = submit(spec);
+  const std::vector<AuditInfo> stored = audits(id);
+  ASSERT_EQ(stored.size(), 2u);
+  EXPECT_EQ(stored[0].spec.threshold, 1e-7) << "every digit kept";
+  EXPECT_EQ(stored[1].spec.tiles, (std::vector<int>{3, 0})) << "tiles in the spec's order";
+  EXPECT_EQ(stored[1].spec.threshold, 0);
+}
+
+// Two store objects (two coordinators, by mistake for SQLite), two threads each, lease the
+// audits of many assembled frames at once: each is leased once and completed once.
+TEST_P(JobStoreTest, ConcurrentAuditLeasesNeverHandOutAnAuditTwice) {
+  constexpr int kFrames = 60;
+  std::vector<int> frames(kFrames);
+  for (int f = 0; f < kFrames; ++f) frames[f] = f;
+  JobSpec spec = makeSpec(frames, 1, false);
+  for (int f : frames) spec.audits.push_back(makeAudit(f, {0}));
+  const int64_t id = submit(spec);
+  ASSERT_EQ(runReady("w0", 0), 2 * kFrames);
+  std::unique_ptr<JobStore> second = openAnother();
+  ASSERT_NE(second, nullptr);
+  std::vector<JobStore*> stores = {store_.get(), second.get()};
+
+  std::mutex mutex;
+  std::multiset<int64_t> leased;
+  std::vector<int> perStore(2, 0);
+  std::vector<std::string> errors;
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&, t] {
+      JobStore& store = *stores[t % 2];
+      const std::string worker = fmt::format("coordinator{}-worker{}", t % 2, t);
+      for (int spins = 0; spins < 100000; ++spins) {
+        auto l = store.leaseAudit(worker, 1, kLease);
+        if (!l.ok() || !*l) {
+          std::lock_guard lock(mutex);
+          if (!l.ok()) errors.push_back(std::string(l.status().message()));
+          return;  // every frame is assembled: none ready means none left
+        }
+        const absl::Status s = store.completeAudit((*l)->audit, (*l)->attempt, {0.01, 0, 1}, 1);
+        std::lock_guard lock(mutex);
+        if (!s.ok()) errors.push_back(std::string(s.message()));
+        EXPECT_EQ((*l)->attempt, 1) << "audit " << (*l)->audit;
+        leased.insert((*l)->audit);
+        ++perStore[t % 2];
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  EXPECT_TRUE(errors.empty()) << errors.front();
+  EXPECT_EQ(leased.size(), static_cast<size_t>(kFrames));
+  EXPECT_EQ(std::set<int64_t>(leased.begin(), leased.end()).size(), static_cast<size_t>(kFrames))
+      << "an audit was leased twice";
+  if (GetParam() == Backend::kPostgres) {
+    // Both coordinators got some. Not asked of SQLite: a second connection to the file sleeps
+    // in its busy handler while the first one's group commits take every audit.
+    EXPECT_GT(perStore[0], 0);
+    EXPECT_GT(perStore[1], 0);
+  }
+  for (const AuditInfo& a : audits(id)) {
+    EXPECT_EQ(a.state, AuditState::kDone) << "frame " << a.spec.frame;
+    EXPECT_EQ(a.attempt, 1) << "frame " << a.spec.frame;
+  }
+}
+
 // Two coordinators, one thread each, share one database: leases race on every task of a big
 // job, and each is leased exactly once.
 TEST_F(PostgresJobStoreTest, TwoCoordinatorsLeaseEveryTaskOfABigJobExactlyOnce) {
@@ -890,6 +1320,115 @@ TEST_F(PostgresJobStoreTest, OpenRefusesAServerItCannotReachAndASchemaFromANewer
   EXPECT_EQ(newer.status().code(), absl::StatusCode::kFailedPrecondition) << newer.status();
   EXPECT_NE(newer.status().message().find("schema version 99"), std::string::npos)
       << newer.status();
+}
+
+// A file written before audits (schema 2), or before the event log too (schema 1): opening it
+// adds what it lacks, and its jobs, tasks and leases are as they were.
+TEST_F(SqliteJobStoreTest, AnOlderFileGainsTheAuditsTableWithItsJobsIntact) {
+  for (const int version : {2, 1}) {
+    SCOPED_TRACE(fmt::format("schema version {}", version));
+    open();
+    const int64_t id = submit(makeSpec({4, 5}, 2, true, 3), 7);
+    auto bake = lease("w1", 8);
+    ASSERT_TRUE(bake.has_value());
+    store_.reset();
+
+    // Back to what that version's coordinator wrote.
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(spec_.c_str(), &raw), SQLITE_OK);
+    std::unique_ptr<sqlite3, decltype(&sqlite3_close)> db(raw, &sqlite3_close);
+    const auto exec = [&](const std::string& sql) {
+      char* message = nullptr;
+      const int rc = sqlite3_exec(db.get(), sql.c_str(), nullptr, nullptr, &message);
+      EXPECT_EQ(rc, SQLITE_OK) << sql << ": " << (message != nullptr ? message : "");
+      sqlite3_free(message);
+    };
+    const auto userVersion = [&] {
+      sqlite3_stmt* stmt = nullptr;
+      EXPECT_EQ(sqlite3_prepare_v2(db.get(), "PRAGMA user_version", -1, &stmt, nullptr), SQLITE_OK);
+      const int found = sqlite3_step(stmt) == SQLITE_ROW ? sqlite3_column_int(stmt, 0) : -1;
+      sqlite3_finalize(stmt);
+      return found;
+    };
+    ASSERT_EQ(userVersion(), 3);
+    exec("DROP TABLE audits");
+    if (version == 1) exec("DROP TABLE task_events; DROP INDEX tasks_by_job_state");
+    exec(fmt::format("PRAGMA user_version = {}", version));
+    db.reset();
+
+    open();
+    const JobInfo info = job(id);
+    EXPECT_EQ(info.spec.priority, 3);
+    EXPECT_EQ(info.submitted, 7);
+    EXPECT_EQ(info.spec.frames, (std::vector<int>{4, 5}));
+    EXPECT_EQ(count(info, TaskState::kLeased), 1);
+    EXPECT_EQ(count(info, TaskState::kReady), 1);
+    EXPECT_EQ(count(info, TaskState::kBlocked), 6);
+    EXPECT_TRUE(audits(id).empty());
+    auto events = store_->events(id, std::nullopt, std::nullopt);
+    ASSERT_TRUE(events.ok()) << events.status();
+    EXPECT_EQ(events->size(), version == 1 ? 0u : 1u);
+    ASSERT_TRUE(store_->complete(bake->task, bake->attempt, 9).ok()) << "the lease survived";
+
+    JobSpec audited = makeSpec({1}, 1, false, 9);
+    audited.audits = {makeAudit(1, {0})};
+    const int64_t withAudit = submit(audited, 10);
+    finishFrame(withAudit, 1, 11);
+    auto a = leaseAudit("w2", 12);
+    ASSERT_TRUE(a.has_value());
+    EXPECT_EQ(a->job, withAudit);
+    store_.reset();
+
+    ASSERT_EQ(sqlite3_open(spec_.c_str(), &raw), SQLITE_OK);
+    db.reset(raw);
+    EXPECT_EQ(userVersion(), 3);
+    db.reset();
+    fs::remove(spec_);
+    fs::remove(spec_ + "-wal");
+    fs::remove(spec_ + "-shm");
+  }
+}
+
+TEST_F(SqliteJobStoreTest, OpenRefusesAFileFromANewerCoordinator) {
+  store_.reset();
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open(spec_.c_str(), &raw), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(raw, "PRAGMA user_version = 4", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(raw);
+  auto newer = openJobStore(spec_, {});
+  EXPECT_EQ(newer.status().code(), absl::StatusCode::kFailedPrecondition) << newer.status();
+  EXPECT_NE(newer.status().message().find("schema version 4"), std::string::npos) << newer.status();
+}
+
+// A database written before audits (schema 1) gains them, its jobs intact.
+TEST_F(PostgresJobStoreTest, AVersion1DatabaseGainsTheAuditsTableWithItsJobsIntact) {
+  const int64_t id = submit(makeSpec({4, 5}, 2, true, 3), 7);
+  auto bake = lease("w1", 8);
+  ASSERT_TRUE(bake.has_value());
+  store_.reset();
+  ASSERT_TRUE(
+      cluster_->execute(database_, "DROP TABLE audits; UPDATE pbgi_schema SET version = 1").ok());
+
+  open();
+  const JobInfo info = job(id);
+  EXPECT_EQ(info.spec.priority, 3);
+  EXPECT_EQ(info.submitted, 7);
+  EXPECT_EQ(count(info, TaskState::kLeased), 1);
+  EXPECT_EQ(count(info, TaskState::kBlocked), 6);
+  EXPECT_TRUE(audits(id).empty());
+  ASSERT_TRUE(store_->complete(bake->task, bake->attempt, 9).ok()) << "the lease survived";
+  JobSpec audited = makeSpec({1}, 1, false, 9);
+  audited.audits = {makeAudit(1, {0})};
+  const int64_t withAudit = submit(audited, 10);
+  finishFrame(withAudit, 1, 11);
+  auto a = leaseAudit("w2", 12);
+  ASSERT_TRUE(a.has_value());
+  EXPECT_EQ(a->job, withAudit);
+  const absl::Status version = cluster_->execute(
+      database_,
+      "DO $$ BEGIN IF (SELECT version FROM pbgi_schema) <> 2 OR (SELECT COUNT(*) FROM "
+      "pbgi_schema) <> 1 THEN RAISE EXCEPTION 'not at version 2'; END IF; END $$");
+  EXPECT_TRUE(version.ok()) << version;
 }
 
 TEST(JobStoreRulesTest, AStoreSpecPicksItsImplementationAndErrorsShowNoPassword) {
