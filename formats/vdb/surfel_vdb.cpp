@@ -772,9 +772,6 @@ absl::StatusOr<std::vector<Surfel>> readLoaded(absl::StatusOr<LoadedGrid> loaded
   }
 }
 
-absl::StatusOr<SurfelVdbInfo> inspectLoaded(absl::StatusOr<LoadedGrid> loaded,
-                                             const std::string& path);
-
 }  // namespace
 
 absl::StatusOr<std::vector<Surfel>> readSurfelVdb(const std::string& path) {
@@ -819,14 +816,6 @@ std::string SurfelVdbInfo::toString() const {
   }
   absl::StrAppend(&s, "  status: ", problem.empty() ? "ok" : problem, "\n");
   return s;
-}
-
-absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(const std::string& path) {
-  return inspectLoaded(loadSurfelGrid(path), path);
-}
-
-absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(std::istream& in, const std::string& name) {
-  return inspectLoaded(loadSurfelGridFromStream(in, name), name);
 }
 
 namespace {
@@ -889,5 +878,13 @@ absl::StatusOr<SurfelVdbInfo> inspectLoaded(absl::StatusOr<LoadedGrid> loaded,
 }
 
 }  // namespace
+
+absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(const std::string& path) {
+  return inspectLoaded(loadSurfelGrid(path), path);
+}
+
+absl::StatusOr<SurfelVdbInfo> inspectSurfelVdb(std::istream& in, const std::string& name) {
+  return inspectLoaded(loadSurfelGridFromStream(in, name), name);
+}
 
 }  // namespace pbgi

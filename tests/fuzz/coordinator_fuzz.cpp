@@ -21,8 +21,8 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   // A line per submission and registration would be most of the run's time, and a request
   // with a string field that is not UTF-8 is refused by its parser with a line of its own.
   pbgi::log::setLevel(pbgi::log::Level::kOff);
-  google::protobuf::SetLogHandler([](google::protobuf::LogLevel, const char*, int,
-                                     const std::string&) {});
+  google::protobuf::SetLogHandler(
+      [](google::protobuf::LogLevel, const char*, int, const std::string&) {});
   return 0;
 }
 

@@ -13,13 +13,14 @@
 //                 parse is skipped, as gRPC would refuse it)
 //
 // applied in order to the coordinator's handlers (services/coordinator/farm_service.h),
-// in-process, over a fresh SQLite job store in a scratch folder. The token check runs before any handler in a
-// real coordinator (farm_auth.h), so none is made here. A relative shot_path is taken relative
-// to the scratch folder, whose shots/ holds an empty file for every geometry and texture the
-// seeds name (shot_fuzz_input.h); a job's output root is its output/. Two records stand for
-// what happens around the handlers: kExpireLeases (a lease period passes: the lease reaper
-// reclaims every lease), and a worker's bake writing the frame's tree (a copy of tests/data/pbgi/
-// valid.pbgi) when LeaseTask hands out a bake, so that OpenTree and FetchPages find one.
+// in-process, over a fresh SQLite job store in a scratch folder (its output/ is the output
+// root). The token check runs before any handler in a real coordinator (farm_auth.h), so none
+// is made here. A relative shot_path is taken relative to the shot parser target's scratch
+// folder (shot_fuzz_input.h), whose shots/ holds an empty file for every geometry and texture
+// the seeds name. Two things stand for what happens around the handlers: the record
+// kExpireLeases (a lease period passes and the lease reaper reclaims every lease), and, when
+// LeaseTask hands out a bake, a copy of tests/data/pbgi/valid.pbgi where the frame's tree goes
+// (what the bake's worker would write), so that OpenTree and FetchPages find one.
 //
 // What must hold, beyond "no crash, no sanitizer report":
 //   - a handler refuses a request with a status of the request's making (InvalidArgument,
@@ -150,8 +151,8 @@ class FarmFuzzCoordinator {
         return call<v1::CancelJobRequest, v1::CancelJobResponse>(
             "CancelJob", body, &v1::Coordinator::Service::CancelJob);
       case FarmRpc::kRetryJob:
-        return call<v1::RetryJobRequest, v1::RetryJobResponse>(
-            "RetryJob", body, &v1::Coordinator::Service::RetryJob);
+        return call<v1::RetryJobRequest, v1::RetryJobResponse>("RetryJob", body,
+                                                               &v1::Coordinator::Service::RetryJob);
       case FarmRpc::kGetLogs:
         return call<v1::GetLogsRequest, v1::GetLogsResponse>("GetLogs", body,
                                                              &v1::Coordinator::Service::GetLogs);
@@ -179,11 +180,11 @@ class FarmFuzzCoordinator {
         return call<v1::CompleteTaskRequest, v1::CompleteTaskResponse>(
             "CompleteTask", body, &v1::Coordinator::Service::CompleteTask);
       case FarmRpc::kFailTask:
-        return call<v1::FailTaskRequest, v1::FailTaskResponse>(
-            "FailTask", body, &v1::Coordinator::Service::FailTask);
+        return call<v1::FailTaskRequest, v1::FailTaskResponse>("FailTask", body,
+                                                               &v1::Coordinator::Service::FailTask);
       case FarmRpc::kOpenTree:
-        return call<v1::OpenTreeRequest, v1::OpenTreeResponse>(
-            "OpenTree", body, &v1::Coordinator::Service::OpenTree);
+        return call<v1::OpenTreeRequest, v1::OpenTreeResponse>("OpenTree", body,
+                                                               &v1::Coordinator::Service::OpenTree);
       case FarmRpc::kFetchPages: {
         // The handler only hands the page service a writer of its stream; a fuzz run has none.
         v1::FetchPagesRequest r;
@@ -282,8 +283,7 @@ class FarmFuzzCoordinator {
     if (!path.ok()) return;
     std::error_code ec;
     std::filesystem::create_directories(std::filesystem::path(*path).parent_path(), ec);
-    std::filesystem::copy_file(tree_, *path, std::filesystem::copy_options::overwrite_existing,
-                               ec);
+    std::filesystem::copy_file(tree_, *path, std::filesystem::copy_options::overwrite_existing, ec);
   }
 
   // The process's scratch folder, on /dev/shm where there is one (the store's fsyncs cost

@@ -35,7 +35,7 @@ namespace pbgi::fuzz {
 // Every file name the seeds refer to, relative to their shot (tests/data/shots and
 // config/scenes/*): a seed that names another needs it added here.
 inline constexpr const char* kShotFuzzFiles[] = {
-    "tri.obj",     "checker.png", "sky_grey.exr",          "cornell_box.obj",
+    "tri.obj",     "checker.png", "sky_grey.exr",           "cornell_box.obj",
     "caustic.obj", "plates.obj",  "cornell_box_glossy.obj",
 };
 
@@ -86,7 +86,8 @@ inline ShotFuzzResult parseShotInput(std::string_view text) {
   ShotFuzzResult result;
   if (!shot.ok()) {
     if (!startsWithLocation(std::string(shot.status().message()), path)) {
-      result.broken = fmt::format("a refusal without file:line:column: {}", shot.status().ToString());
+      result.broken =
+          fmt::format("a refusal without file:line:column: {}", shot.status().ToString());
     }
     return result;
   }
@@ -94,9 +95,9 @@ inline ShotFuzzResult parseShotInput(std::string_view text) {
   const int64_t pixels = int64_t{shot->width} * shot->height;
   if (shot->name.empty() || shot->firstFrame > shot->lastFrame || shot->width <= 0 ||
       shot->height <= 0 || pixels > (int64_t{1} << 26) || shot->geometry.empty()) {
-    result.broken = fmt::format("accepted: name \"{}\", frames [{}, {}], {} x {} pixels, {} geometry",
-                                shot->name, shot->firstFrame, shot->lastFrame, shot->width,
-                                shot->height, shot->geometry.size());
+    result.broken = fmt::format(
+        "accepted: name \"{}\", frames [{}, {}], {} x {} pixels, {} geometry", shot->name,
+        shot->firstFrame, shot->lastFrame, shot->width, shot->height, shot->geometry.size());
     return result;
   }
   for (const int frame : {shot->firstFrame, shot->lastFrame}) {

@@ -15,7 +15,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   // Past the content hash into OpenVDB's parser only when asked: see surfel_vdb_fuzz_input.h.
   static const bool rehash = std::getenv("PBGI_VDB_FUZZ_REHASH") != nullptr;
   const std::string_view bytes(reinterpret_cast<const char*>(data), size);
-  for (const SurfelVdbFuzzMode mode : {SurfelVdbFuzzMode::kFrontDoor, SurfelVdbFuzzMode::kRehashed}) {
+  for (const SurfelVdbFuzzMode mode :
+       {SurfelVdbFuzzMode::kFrontDoor, SurfelVdbFuzzMode::kRehashed}) {
     if (mode == SurfelVdbFuzzMode::kRehashed && !rehash) break;
     const pbgi::fuzz::SurfelVdbFuzzResult result = pbgi::fuzz::readSurfelVdbInput(bytes, mode);
     if (!result.broken.empty()) {

@@ -60,9 +60,9 @@ inline std::string withContentUuid(std::string_view bytes) {
   XXH3_freeState(state);
   const uint64_t hi = (h.high64 & ~uint64_t{0xf000}) | uint64_t{0x8000};
   const uint64_t lo = (h.low64 & ~(uint64_t{3} << 62)) | (uint64_t{2} << 62);
-  const std::string uuid = fmt::format("{:08x}-{:04x}-{:04x}-{:04x}-{:012x}", hi >> 32,
-                                       (hi >> 16) & 0xffff, hi & 0xffff, lo >> 48,
-                                       lo & 0xffffffffffffULL);
+  const std::string uuid =
+      fmt::format("{:08x}-{:04x}-{:04x}-{:04x}-{:012x}", hi >> 32, (hi >> 16) & 0xffff, hi & 0xffff,
+                  lo >> 48, lo & 0xffffffffffffULL);
   std::copy(uuid.begin(), uuid.end(), out.begin() + kVdbUuidOffset);
   return out;
 }
@@ -81,8 +81,8 @@ inline SurfelVdbFuzzResult readSurfelVdbInput(std::string_view bytes, SurfelVdbF
   if (mode == SurfelVdbFuzzMode::kFrontDoor && file == bytes) return result;
   auto check = [&](const absl::Status& s, std::string_view how) {
     if (!s.ok() && !std::string(s.message()).starts_with(name) && result.broken.empty()) {
-      result.broken = fmt::format("{}: a refusal that does not name the input: {}", how,
-                                  s.ToString());
+      result.broken =
+          fmt::format("{}: a refusal that does not name the input: {}", how, s.ToString());
     }
   };
   const std::string& read = mode == SurfelVdbFuzzMode::kRehashed ? file : std::string(bytes);
@@ -95,10 +95,10 @@ inline SurfelVdbFuzzResult readSurfelVdbInput(std::string_view bytes, SurfelVdbF
   result.read = surfels.ok();
   if (surfels.ok() && result.broken.empty() &&
       (!info.ok() || !info->problem.empty() || info->pointCount != surfels->size())) {
-    result.broken = fmt::format("{} surfels read, but inspect says: {}", surfels->size(),
-                                info.ok() ? fmt::format("{} points, problem \"{}\"",
-                                                        info->pointCount, info->problem)
-                                          : info.status().ToString());
+    result.broken = fmt::format(
+        "{} surfels read, but inspect says: {}", surfels->size(),
+        info.ok() ? fmt::format("{} points, problem \"{}\"", info->pointCount, info->problem)
+                  : info.status().ToString());
   }
   return result;
 }
