@@ -25,6 +25,15 @@ void addJobFlags(CLI::App& cmd, JobFlags& flags) {
   addIntegratorParamFlags(cmd, flags.set, flags.gather, flags.quality);
   cmd.add_option("--cache-mb", flags.cacheMb, "PBGI: tree page cache budget in MiB");
   cmd.add_option("--priority", flags.priority, "Higher runs first (default 0)");
+  cmd.add_option("--audit-tiles", flags.auditTiles,
+                 "Accuracy audit: tiles per frame path traced on idle workers and compared with "
+                 "the job's (default: 2 for PBGI, 0 for the path tracer; 0: no audit)")
+      ->check(CLI::NonNegativeNumber);
+  cmd.add_option("--audit-spp", flags.auditSpp, "Accuracy audit: the path tracer's spp (default 256)")
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--audit-threshold", flags.auditThreshold,
+                 "Accuracy audit: the relMSE beyond which a frame is flagged (default 0.05)")
+      ->check(CLI::PositiveNumber);
 }
 
 absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
@@ -55,6 +64,9 @@ absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
   request.set_shot_path(std::filesystem::absolute(shot.path).lexically_normal().string());
   request.set_shot_text(shot.source);
   request.set_priority(flags.priority);
+  if (flags.auditTiles) request.set_audit_tiles(*flags.auditTiles);
+  request.set_audit_spp(flags.auditSpp);
+  request.set_audit_threshold(flags.auditThreshold);
   if (!flags.integrator.empty()) request.add_overrides("integrator=" + flags.integrator);
   if (flags.spp > 0) request.add_overrides(fmt::format("spp={}", flags.spp));
   // Every integrator parameter the flags set, checked here as the coordinator will check it.
@@ -168,8 +180,36 @@ std::string describeJob(const farm::v1::JobStatus& job) {
                        kind == farm::v1::TASK_KIND_TILE ? fmt::format(" {}", d.tile()) : "",
                        d.attempt(), d.last_error());
   }
+  out += describeAudits(job);
   for (const auto& o : job.outputs()) out += fmt::format("  wrote {}\n", o);
   return out;
+}
+
+std::string describeAudits(const farm::v1::JobStatus& job) {
+  std::string out;
+  for (const farm::v1::FrameAudit& a : job.audits()) {
+    out += fmt::format("  audit frame {:>4}: ", a.frame());
+    if (a.has_result()) {
+      out += fmt::format("relMSE {:.4g}, bias {:+.2f} % against the path tracer at {} spp on {} "
+                         "tile(s){}\n",
+                         a.rel_mse(), 100.0 * a.bias(), a.spp(), a.tiles_size(),
+                         a.flagged() ? fmt::format("  FLAGGED (above {})", a.threshold()) : "");
+    } else {
+      out += a.state() + (a.last_error().empty() ? "" : ": " + a.last_error()) + "\n";
+    }
+  }
+  return out;
+}
+
+std::string auditSummary(const farm::v1::JobStatus& job) {
+  if (job.audits().empty()) return "";
+  int done = 0, flagged = 0;
+  for (const farm::v1::FrameAudit& a : job.audits()) {
+    done += a.has_result();
+    flagged += a.flagged();
+  }
+  return fmt::format(", audited {}/{} frames{}", done, job.audits_size(),
+                     flagged > 0 ? fmt::format(", {} FLAGGED", flagged) : "");
 }
 
 }  // namespace pbgi::cli

@@ -28,8 +28,16 @@ struct JobFlags {
   std::string cacheMb;
   std::vector<std::string> set;  // integrator parameters, KEY=VALUE
   int priority = 0;
+  // The accuracy audit (farm.proto SubmitJobRequest): unset or 0, the coordinator's defaults.
+  std::optional<int> auditTiles;
+  int auditSpp = 0;
+  double auditThreshold = 0;
 };
 void addJobFlags(CLI::App& cmd, JobFlags& flags);
+// A job's audits, one line per frame ("  audit frame 1: relMSE 0.0041, bias -1.2 % ..."), and
+// the summary "audited 3/4 frames, 1 flagged" (empty without audits).
+std::string describeAudits(const farm::v1::JobStatus& job);
+std::string auditSummary(const farm::v1::JobStatus& job);
 
 // The submission of `shot` (the job renders the bytes it was parsed from) with `flags`.
 // Errors name the shot file or the flag.

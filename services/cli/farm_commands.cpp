@@ -83,12 +83,13 @@ int runStatus(const StatusOptions& o) {
       std::printf("%s", describeJob(job).c_str());
     } else {
       const JobProgress p = jobProgress(job);
-      std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s\n",
+      std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s%s\n",
                   static_cast<long long>(job.job()), job.name().c_str(),
                   farm::wireWord(farm::jobStateOf(job)).c_str(),
                   p.total > 0 ? 100 * p.done / p.total : 0, p.done, p.total, job.frames_size(),
                   job.tiles_per_frame(),
-                  job.dead().empty() ? "" : fmt::format(", {} dead", job.dead_size()).c_str());
+                  job.dead().empty() ? "" : fmt::format(", {} dead", job.dead_size()).c_str(),
+                  auditSummary(job).c_str());
     }
   }
   return kExitOk;

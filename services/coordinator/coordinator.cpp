@@ -1,5 +1,6 @@
 #include "services/coordinator/coordinator.h"
 
+#include <cmath>
 #include <filesystem>
 #include <mutex>
 #include <thread>
@@ -31,7 +32,6 @@
 namespace pbgi::farm {
 
 namespace fs = std::filesystem;
-namespace v1 = ::pbgi::farm::v1;
 
 namespace {
 
@@ -154,6 +154,27 @@ class FarmService final : public v1::Coordinator::Service {
       auto lease = store_.lease(request->worker(), wallClock(), options_.leaseSeconds, prefer);
       if (!lease.ok()) return toGrpc(lease.status());
       if (!lease->has_value()) {
+        // Nothing of any job's frames is ready for this worker: an audit, if it runs them.
+        std::optional<AuditLease> audit;
+        if (request->runs_audits()) {
+          auto a = store_.leaseAudit(request->worker(), wallClock(), options_.leaseSeconds);
+          if (!a.ok()) return toGrpc(a.status());
+          audit = *std::move(a);
+        }
+        if (audit) {
+          auto view = jobs_.get(audit->job);
+          if (!view.ok()) {
+            (void)store_.failAudit(audit->audit, audit->attempt,
+                                   std::string(view.status().message()), wallClock());
+            continue;
+          }
+          activity_.leaseAsked(request->worker(), std::move(held),
+                               fmt::format("job {} frame {} audit", audit->job,
+                                           audit->spec.frame),
+                               wallClock());
+          describeAudit(*audit, **view, response);
+          return grpc::Status::OK;
+        }
         activity_.leaseAsked(request->worker(), std::move(held), std::nullopt, wallClock());
         response->set_has_task(false);
         return grpc::Status::OK;
@@ -165,7 +186,7 @@ class FarmService final : public v1::Coordinator::Service {
         continue;
       }
       metrics_.leases->add();
-      activity_.leaseAsked(request->worker(), std::move(held), l.ref, wallClock());
+      activity_.leaseAsked(request->worker(), std::move(held), l.ref.toString(), wallClock());
       describeLease(l, **view, response);
       return grpc::Status::OK;
     }
@@ -174,8 +195,11 @@ class FarmService final : public v1::Coordinator::Service {
   grpc::Status Heartbeat(grpc::ServerContext*, const v1::HeartbeatRequest* request,
                          v1::HeartbeatResponse* response) override {
     const absl::Status s =
-        store_.heartbeat(request->task(), request->attempt(), request->progress(), wallClock(),
-                         options_.leaseSeconds);
+        request->audit()
+            ? store_.heartbeatAudit(request->task(), request->attempt(), wallClock(),
+                                    options_.leaseSeconds)
+            : store_.heartbeat(request->task(), request->attempt(), request->progress(),
+                               wallClock(), options_.leaseSeconds);
     if (s.code() == absl::StatusCode::kFailedPrecondition ||
         s.code() == absl::StatusCode::kNotFound) {
       response->set_keep_going(false);
@@ -188,6 +212,7 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status CompleteTask(grpc::ServerContext*, const v1::CompleteTaskRequest* request,
                             v1::CompleteTaskResponse*) override {
+    if (request->audit()) return completeAudit(*request);
     const absl::StatusOr<TaskRef> done =
         store_.complete(request->task(), request->attempt(), wallClock(), request->log());
     if (done.status().code() == absl::StatusCode::kFailedPrecondition) {
@@ -207,13 +232,16 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status FailTask(grpc::ServerContext*, const v1::FailTaskRequest* request,
                         v1::FailTaskResponse*) override {
-    const absl::Status s = store_.fail(request->task(), request->attempt(), request->error(),
-                                       wallClock(), request->log());
+    const absl::Status s =
+        request->audit()
+            ? store_.failAudit(request->task(), request->attempt(), request->error(), wallClock())
+            : store_.fail(request->task(), request->attempt(), request->error(), wallClock(),
+                          request->log());
     if (!s.ok()) return toGrpc(s);
     metrics_.failures->add();
     activity_.taskFinished(request->worker(), false, 0, 0, 0, wallClock());
-    log::warn("failed task={} attempt={} worker={}: {}", request->task(), request->attempt(),
-              request->worker(), request->error());
+    log::warn("failed {}={} attempt={} worker={}: {}", request->audit() ? "audit" : "task",
+              request->task(), request->attempt(), request->worker(), request->error());
     return grpc::Status::OK;
   }
 
@@ -235,7 +263,12 @@ class FarmService final : public v1::Coordinator::Service {
     return toGrpc(s);
   }
   absl::StatusOr<int64_t> submit(const v1::SubmitJobRequest& request);
+  absl::Status planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
+                          const IntegratorInfo& integrator, JobSpec* spec) const;
+  grpc::Status completeAudit(const v1::CompleteTaskRequest& request);
   void describeLease(const Lease& lease, const JobView& view, v1::LeaseTaskResponse* out) const;
+  void describeAudit(const AuditLease& audit, const JobView& view,
+                     v1::LeaseTaskResponse* out) const;
 
   const CoordinatorOptions& options_;
   JobStore& store_;
@@ -273,12 +306,81 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
   spec.tileCount = static_cast<int>(farmTiles(shot, jobs_.tileSize()).size());
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
   spec.needsBake = integrator->needsTree;
+  PBGI_RETURN_IF_ERROR(planAudits(request, shot, *integrator, &spec));
   PBGI_ASSIGN_OR_RETURN(const int64_t id, store_.submit(spec, wallClock()));
   std::error_code ec;
   fs::create_directories(jobs_.workDir(id), ec);
   log::info("submitted job={} shot={} frames={} tiles={} integrator={} output={}", id, spec.name,
             spec.frames.size(), spec.tileCount, shot.render.integrator, spec.outputPattern);
   return id;
+}
+
+// The job's accuracy audits: per frame, tiles chosen by the seeded rule, unless the request
+// or the integrator (the path tracer is its own reference) says none.
+absl::Status FarmService::planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
+                                     const IntegratorInfo& integrator, JobSpec* spec) const {
+  const int tiles = request.has_audit_tiles() ? request.audit_tiles()
+                    : integrator.needsTree    ? kDefaultAuditTiles
+                                              : 0;
+  const int spp = request.audit_spp() != 0 ? request.audit_spp() : kDefaultAuditSpp;
+  const double threshold =
+      request.audit_threshold() != 0 ? request.audit_threshold() : kDefaultAuditThreshold;
+  if (tiles < 0 || spp < 0 || !(std::isfinite(threshold) && threshold > 0)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "audit of {} tiles at {} spp, threshold {}: expected tiles >= 0, spp >= 0 and a "
+        "positive threshold",
+        tiles, spp, threshold));
+  }
+  if (tiles == 0) return absl::OkStatus();
+  for (const int f : spec->frames) {
+    spec->audits.push_back(
+        {f, chooseAuditTiles(shot.name, f, spec->tileCount, tiles), spp, threshold});
+  }
+  return absl::OkStatus();
+}
+
+grpc::Status FarmService::completeAudit(const v1::CompleteTaskRequest& request) {
+  AuditResult result;
+  result.relMse = request.audit_rel_mse();
+  result.bias = request.audit_bias();
+  result.seconds = request.seconds();
+  if (!std::isfinite(result.relMse) || !std::isfinite(result.bias) || result.relMse < 0) {
+    // A result that is no measurement is a failed audit, not a number on the dashboard.
+    const std::string error = fmt::format("the audit's result is not a measurement: relMSE {}, "
+                                          "bias {}", result.relMse, result.bias);
+    return changed(store_.failAudit(request.task(), request.attempt(), error, wallClock()));
+  }
+  const absl::Status s = store_.completeAudit(request.task(), request.attempt(), result, wallClock());
+  if (s.code() == absl::StatusCode::kFailedPrecondition) metrics_.staleCompletions->add();
+  if (!s.ok()) return toGrpc(s);
+  activity_.taskFinished(request.worker(), true, 0, 0, 0, wallClock());
+  log::info("audit={} worker={}: relMSE {:.4g}, bias {:+.2f} %", request.task(), request.worker(),
+            result.relMse, 100.0 * result.bias);
+  return grpc::Status::OK;
+}
+
+// What a worker needs to audit a frame: the shot, the assembled frame, the tiles and samples.
+void FarmService::describeAudit(const AuditLease& audit, const JobView& view,
+                                v1::LeaseTaskResponse* response) const {
+  const JobSpec& spec = view.spec;
+  response->set_has_task(true);
+  response->set_task(audit.audit);
+  response->set_attempt(audit.attempt);
+  response->set_kind("audit");
+  response->set_task_kind(v1::TASK_KIND_AUDIT);
+  response->set_job(audit.job);
+  response->set_frame(audit.spec.frame);
+  response->set_tile(-1);
+  response->set_shot_path(spec.shotPath);
+  response->set_shot_text(spec.shotText);
+  for (const std::string& o : splitOverrides(spec.overrides)) response->add_overrides(o);
+  response->set_work_dir(jobs_.workDir(audit.job));
+  response->set_output_path(JobViews::frameOutput(view, audit.spec.frame));
+  for (const int t : audit.spec.tiles) response->add_audit_tiles(t);
+  response->set_audit_spp(audit.spec.spp);
+  response->set_lease_seconds(options_.leaseSeconds);
+  response->set_tiles_per_frame(spec.tileCount);
+  response->set_tile_size(jobs_.tileSize());
 }
 
 // What a worker needs to run the leased task: the shot, where its result goes, its tile.

@@ -98,8 +98,27 @@ std::string taskJson(const TaskInfo& t) {
       t.failures, jsonString(t.worker), jsonString(t.lastError), jsonNumber(t.progress));
 }
 
-// A job as the list shows it: state, counts, progress and the time left at the rate so far.
-std::string jobSummaryJson(const JobInfo& job, Seconds now) {
+std::string auditJson(const AuditInfo& a) {
+  std::string tiles;
+  for (const int t : a.spec.tiles) tiles += fmt::format("{}{}", tiles.empty() ? "" : ",", t);
+  return fmt::format(
+      "{{\"state\":\"{}\",\"tiles\":[{}],\"spp\":{},\"threshold\":{},\"relMse\":{},"
+      "\"bias\":{},\"flagged\":{},\"worker\":{},\"error\":{}}}",
+      toString(a.state), tiles, a.spec.spp, jsonNumber(a.spec.threshold),
+      a.result ? jsonNumber(a.result->relMse) : "null",
+      a.result ? jsonNumber(a.result->bias) : "null", a.flagged(), jsonString(a.worker),
+      jsonString(a.lastError));
+}
+
+// A job as the list shows it: state, counts, progress and the time left at the rate so far,
+// and how many of its frames' audits are done and flagged.
+std::string jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits,
+                           Seconds now) {
+  int audited = 0, flagged = 0;
+  for (const AuditInfo& a : audits) {
+    audited += a.result.has_value();
+    flagged += a.flagged();
+  }
   const int total = totalTasks(job);
   const int done = job.tasksByState[static_cast<int>(TaskState::kDone)];
   const double progress = total > 0 ? double(done) / total : 0.0;
@@ -124,11 +143,12 @@ std::string jobSummaryJson(const JobInfo& job, Seconds now) {
   return fmt::format(
       "{{\"id\":{},\"name\":{},\"state\":\"{}\",\"priority\":{},\"submitted\":{},\"frames\":[{}],"
       "\"tilesPerFrame\":{},\"tasks\":{{{}}},\"total\":{},\"done\":{},\"progress\":{},\"eta\":{},"
-      "\"output\":{},\"deadCount\":{},\"dead\":[{}]}}",
+      "\"output\":{},\"deadCount\":{},\"dead\":[{}],\"audits\":{},\"audited\":{},"
+      "\"flagged\":{}}}",
       job.id, jsonString(job.spec.name), toString(job.state), job.spec.priority,
       jsonNumber(job.submitted), frames, job.spec.tileCount, states, total, done,
       jsonNumber(progress), eta ? jsonNumber(*eta) : "null", jsonString(job.spec.outputPattern),
-      job.dead.size(), dead);
+      job.dead.size(), dead, audits.size(), audited, flagged);
 }
 
 // One job's frames: per frame its bake's and assemble's state and its tiles' states as one
@@ -138,6 +158,7 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
   PBGI_ASSIGN_OR_RETURN(const JobInfo info, p.store.job(id));
   PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, p.jobs.get(id));
   PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, p.store.tasks(id));
+  PBGI_ASSIGN_OR_RETURN(const std::vector<AuditInfo> audits, p.store.audits(id));
   const int tileSize = p.jobs.tileSize();
   const int cols = (view->shot.width + tileSize - 1) / tileSize;
   const int rows = (view->shot.height + tileSize - 1) / tileSize;
@@ -152,10 +173,14 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
     char bake = 0, assemble = 0;
     std::string tiles;
     int done = 0;
+    std::string audit = "null";
   };
   std::map<int, Frame> frames;
   for (const int f : info.spec.frames) {
     frames[f].tiles.assign(static_cast<size_t>(info.spec.tileCount), '0');
+  }
+  for (const AuditInfo& a : audits) {
+    if (auto it = frames.find(a.spec.frame); it != frames.end()) it->second.audit = auditJson(a);
   }
   std::string leased;
   for (const TaskInfo& t : tasks) {
@@ -179,14 +204,14 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
     const auto code = [](char c) { return c ? fmt::format("\"{}\"", c) : std::string("null"); };
     framesJson += fmt::format(
         "{}{{\"frame\":{},\"bake\":{},\"assemble\":{},\"tiles\":\"{}\",\"done\":{},"
-        "\"output\":{}}}",
+        "\"output\":{},\"audit\":{}}}",
         framesJson.empty() ? "" : ",", f, code(fr.bake), code(fr.assemble), fr.tiles, fr.done,
-        jsonString(JobViews::frameOutput(*view, f)));
+        jsonString(JobViews::frameOutput(*view, f)), fr.audit);
   }
   return fmt::format(
       "{{\"job\":{},\"tileSize\":{},\"width\":{},\"height\":{},\"views\":[{},{}],\"cols\":{},"
       "\"rows\":{},\"cells\":[{}],\"frames\":[{}],\"leased\":[{}]}}",
-      jobSummaryJson(info, now), tileSize, view->shot.width, view->shot.height,
+      jobSummaryJson(info, audits, now), tileSize, view->shot.width, view->shot.height,
       view->shot.camera.views.x, view->shot.camera.views.y, cols, rows, cells, framesJson, leased);
 }
 
@@ -229,11 +254,6 @@ absl::StatusOr<std::string> workersJson(const DashboardParts& p, Seconds now) {
     for (const HeldFrame& h : a.held) {
       held += fmt::format("{}[{},{}]", held.empty() ? "" : ",", h.job, h.frame);
     }
-    const std::string current =
-        a.current ? fmt::format("{{\"job\":{},\"kind\":\"{}\",\"frame\":{},\"tile\":{}}}",
-                                a.current->job, toString(a.current->kind), a.current->frame,
-                                a.current->tile)
-                  : "null";
     out += fmt::format(
         "{}{{\"id\":{},\"host\":{},\"cores\":{},\"memoryBytes\":{},\"cacheBytes\":{},"
         "\"registered\":{},\"lastHeard\":{},\"held\":[{}],\"current\":{},\"progress\":{},"
@@ -241,7 +261,7 @@ absl::StatusOr<std::string> workersJson(const DashboardParts& p, Seconds now) {
         "\"treeBytesStreamed\":{}}}",
         out.empty() ? "" : ",", jsonString(w.id), jsonString(w.host), w.cores, w.memoryBytes,
         w.cacheBytes, jsonNumber(w.lastSeen), jsonNumber(std::max(a.lastHeard, w.lastSeen)),
-        held, current, jsonNumber(a.progress), a.tasksDone, a.tasksFailed, a.cacheHits,
+        held, jsonString(a.current), jsonNumber(a.progress), a.tasksDone, a.tasksFailed, a.cacheHits,
         a.cacheMisses, a.treeBytesStreamed);
   }
   return fmt::format("{{\"now\":{},\"workers\":[{}]}}", jsonNumber(now), out);
@@ -339,7 +359,11 @@ void addDashboard(httplib::Server& http, const DashboardParts& parts) {
     if (!jobs.ok()) return replyError(res, jobs.status());
     const Seconds now = wallClock();
     std::string list;
-    for (const JobInfo& j : *jobs) list += (list.empty() ? "" : ",") + jobSummaryJson(j, now);
+    for (const JobInfo& j : *jobs) {
+      auto audits = p->store.audits(j.id);
+      if (!audits.ok()) return replyError(res, audits.status());
+      list += (list.empty() ? "" : ",") + jobSummaryJson(j, *audits, now);
+    }
     replyJson(res, fmt::format("{{\"version\":{},\"now\":{},\"jobs\":[{}]}}",
                                p->activity.version(), jsonNumber(now), list));
   });

@@ -1,6 +1,8 @@
 #pragma once
 // The farm's web page, served by the coordinator's HTTP listener (--http) beside /metrics:
-// jobs with their progress and ETA, a job's frames as grids of tiles coloured by task state,
+// jobs with their progress and ETA, a job's frames as grids of tiles coloured by task state
+// with each frame's accuracy audit (relMSE and bias against the path tracer, flagged beyond
+// its threshold),
 // a task's history and logs, the workers, previews of frames as their tiles land, and cancel
 // and retry. The page (services/coordinator/dashboard/) is compiled into the binary; it reads
 // the JSON API below and refreshes when the server-sent event stream says something changed.

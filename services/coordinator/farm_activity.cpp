@@ -35,14 +35,14 @@ bool FarmActivity::stopped() const {
 }
 
 void FarmActivity::leaseAsked(const std::string& worker, std::vector<HeldFrame> held,
-                              std::optional<TaskRef> leased, Seconds now) {
+                              std::optional<std::string> leased, Seconds now) {
   {
     std::lock_guard lock(mutex_);
     WorkerActivity& w = workers_[worker];
     w.held = std::move(held);
     w.lastHeard = now;
     if (!leased) return;
-    w.current = std::move(leased);
+    w.current = *std::move(leased);
     w.progress = 0;
     ++version_;
   }
@@ -70,7 +70,7 @@ void FarmActivity::taskFinished(const std::string& worker, bool done, uint64_t c
     w.cacheMisses += cacheMisses;
     w.treeBytesStreamed += treeBytes;
     w.lastHeard = now;
-    w.current.reset();
+    w.current.clear();
     ++version_;
   }
   cv_.notify_all();

@@ -23,7 +23,7 @@ namespace pbgi::farm {
 struct WorkerActivity {
   std::vector<HeldFrame> held;  // from its latest lease request, most recent first
   Seconds lastHeard = 0;        // its latest call of any kind
-  std::optional<TaskRef> current;  // the task it leased last, until it finishes it
+  std::string current;          // what it leased last ("job 3 frame 12 tile 7"), until done
   double progress = 0;          // of the current task, from its heartbeats
   int64_t tasksDone = 0;        // completions accepted from it by this coordinator
   int64_t tasksFailed = 0;
@@ -42,9 +42,9 @@ class FarmActivity {
   void stop();
   bool stopped() const;
 
-  // A lease request (`leased`: what it got, if anything).
+  // A lease request (`leased`: what it got, if anything, as TaskRef::toString() says it).
   void leaseAsked(const std::string& worker, std::vector<HeldFrame> held,
-                  std::optional<TaskRef> leased, Seconds now);
+                  std::optional<std::string> leased, Seconds now);
   void heartbeat(const std::string& worker, double progress, Seconds now);
   // A completion (`done`) or failure the store accepted.
   void taskFinished(const std::string& worker, bool done, uint64_t cacheHits,

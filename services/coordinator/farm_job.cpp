@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <filesystem>
 #include <iterator>
+#include <numeric>
 
 #include <absl/strings/numbers.h>
 #include <absl/strings/str_split.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <xxhash.h>
 
 #include "core/render/integrators.h"
 #include "core/util/status.h"
@@ -119,6 +121,27 @@ absl::StatusOr<std::string> confineToRoot(const std::string& path, const std::st
         rootPath.string()));
   }
   return full.string();
+}
+
+}  // namespace pbgi::farm
+
+namespace pbgi::farm {
+
+std::vector<int> chooseAuditTiles(std::string_view shotName, int frame, int tileCount, int count) {
+  std::vector<int> all(static_cast<size_t>(std::max(tileCount, 0)));
+  std::iota(all.begin(), all.end(), 0);
+  if (count >= tileCount) return all;
+  // A partial Fisher-Yates shuffle driven by a hash chain: the first `count` are the choice.
+  const std::string seed = fmt::format("{}#{}", shotName, frame);
+  uint64_t h = XXH3_64bits(seed.data(), seed.size());
+  for (int i = 0; i < count; ++i) {
+    h = XXH3_64bits_withSeed(&h, sizeof h, static_cast<uint64_t>(i));
+    const int j = i + static_cast<int>(h % static_cast<uint64_t>(tileCount - i));
+    std::swap(all[static_cast<size_t>(i)], all[static_cast<size_t>(j)]);
+  }
+  all.resize(static_cast<size_t>(std::max(count, 0)));
+  std::sort(all.begin(), all.end());
+  return all;
 }
 
 }  // namespace pbgi::farm

@@ -45,6 +45,19 @@ std::vector<std::string> splitOverrides(std::string_view lines);
 absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
                                  const std::vector<std::string>& overrides);
 
+// The accuracy audit's defaults: tiles per frame (for integrators other than the path tracer;
+// a path-traced job is its own reference), the path tracer's samples per pixel on them, and
+// the relMSE beyond which a frame is flagged. A 256-spp reference carries noise of its own
+// (relMSE about 0.005 on the sample Cornell box), well under the threshold.
+inline constexpr int kDefaultAuditTiles = 2;
+inline constexpr int kDefaultAuditSpp = 256;
+inline constexpr double kDefaultAuditThreshold = 0.05;
+
+// The seeded rule that picks a frame's audited tiles: `count` distinct tiles of `tileCount`
+// (all of them when count >= tileCount), from a hash of the shot's name and the frame, so the
+// same job audits the same tiles wherever and whenever it is submitted. Sorted.
+std::vector<int> chooseAuditTiles(std::string_view shotName, int frame, int tileCount, int count);
+
 // `path`, made absolute and normal, when it lies inside `root` (symbolic links resolved as far
 // as they exist); PermissionDenied naming both otherwise.
 absl::StatusOr<std::string> confineToRoot(const std::string& path, const std::string& root);

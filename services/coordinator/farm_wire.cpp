@@ -60,7 +60,8 @@ std::string wordIn(const std::pair<Store, Wire> (&table)[N], Wire value) {
 
 template <typename Message>
 v1::TaskKind kindOf(const Message& m) {
-  return m.task_kind() != v1::TASK_KIND_UNSPECIFIED ? m.task_kind() : named(kKinds, m.kind());
+  if (m.task_kind() != v1::TASK_KIND_UNSPECIFIED) return m.task_kind();
+  return m.kind() == "audit" ? v1::TASK_KIND_AUDIT : named(kKinds, m.kind());
 }
 
 }  // namespace
@@ -72,7 +73,10 @@ std::optional<TaskKind> fromWire(v1::TaskKind kind) { return fromWireIn(kKinds, 
 std::optional<TaskState> fromWire(v1::TaskState state) { return fromWireIn(kTaskStates, state); }
 std::optional<JobState> fromWire(v1::JobState state) { return fromWireIn(kJobStates, state); }
 
-std::string wireWord(v1::TaskKind kind) { return wordIn(kKinds, kind); }
+std::string wireWord(v1::TaskKind kind) {
+  // Audits are not store tasks (job_store.h keeps them apart): no TaskKind of their own.
+  return kind == v1::TASK_KIND_AUDIT ? "audit" : wordIn(kKinds, kind);
+}
 std::string wireWord(v1::TaskState state) { return wordIn(kTaskStates, state); }
 std::string wireWord(v1::JobState state) { return wordIn(kJobStates, state); }
 

@@ -17,6 +17,23 @@ void fillTask(const TaskInfo& t, v1::TaskStatus* out) {
   out->set_progress(t.progress);
 }
 
+void fillAudit(const AuditInfo& a, v1::FrameAudit* out) {
+  out->set_frame(a.spec.frame);
+  out->set_state(toString(a.state));
+  for (const int t : a.spec.tiles) out->add_tiles(t);
+  out->set_spp(a.spec.spp);
+  out->set_threshold(a.spec.threshold);
+  out->set_has_result(a.result.has_value());
+  if (a.result) {
+    out->set_rel_mse(a.result->relMse);
+    out->set_bias(a.result->bias);
+  }
+  out->set_flagged(a.flagged());
+  out->set_worker(a.worker);
+  out->set_last_error(a.lastError);
+  out->set_attempt(a.attempt);
+}
+
 absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& views,
                                                    const v1::GetStatusRequest& request) {
   std::vector<JobInfo> infos;
@@ -36,6 +53,8 @@ absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& vi
     for (int f : info.spec.frames) job->add_frames(f);
     job->set_tiles_per_frame(info.spec.tileCount);
     for (const TaskInfo& t : info.dead) fillTask(t, job->add_dead());
+    PBGI_ASSIGN_OR_RETURN(const std::vector<AuditInfo> audits, store.audits(info.id));
+    for (const AuditInfo& a : audits) fillAudit(a, job->add_audits());
     // Every task of a job is a large read: only for callers that ask for them.
     if (!request.with_tasks()) continue;
     PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, store.tasks(info.id));

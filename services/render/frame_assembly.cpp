@@ -134,4 +134,28 @@ absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
   return frame;
 }
 
+absl::StatusOr<Image> cropRegions(const Image& frame, const std::vector<TileRect>& regions) {
+  int width = 0, height = 0;
+  for (const TileRect& r : regions) {
+    if (r.x0 < 0 || r.y0 < 0 || r.x1 > frame.width() || r.y1 > frame.height() || r.x1 <= r.x0 ||
+        r.y1 <= r.y0) {
+      return absl::InvalidArgumentError(fmt::format(
+          "region {} is not inside the {}x{} frame", regionText(r), frame.width(), frame.height()));
+    }
+    width = std::max(width, r.width());
+    height += r.height();
+  }
+  Image out(width, height, frame.channels());
+  const size_t channels = static_cast<size_t>(frame.channelCount());
+  int row = 0;
+  for (const TileRect& r : regions) {
+    for (int y = r.y0; y < r.y1; ++y, ++row) {
+      const float* from = &frame.pixels()[(size_t(y) * frame.width() + r.x0) * channels];
+      std::copy(from, from + size_t(r.width()) * channels,
+                &out.pixels()[size_t(row) * width * channels]);
+    }
+  }
+  return out;
+}
+
 }  // namespace pbgi

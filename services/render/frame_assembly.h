@@ -37,6 +37,11 @@ std::string regionsText(const std::vector<TileRect>& regions);
 // `outPath` atomically (temporary then rename) with the first tile's metadata (less its
 // regions). A missing or wrong tile fails the frame naming the tile and its file; nothing is
 // written then. Returns the frame as written.
+// The pixels of `regions` of a whole frame, stacked top to bottom and left-aligned as a tile's
+// EXR holds them (the inverse of assembly, for comparing a frame with a tile rendered alone).
+// InvalidArgument when a rectangle leaves the frame.
+absl::StatusOr<Image> cropRegions(const Image& frame, const std::vector<TileRect>& regions);
+
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
                                     const std::string& outPath);

@@ -6,9 +6,11 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <malloc.h>
 #include <unistd.h>
 
@@ -18,6 +20,8 @@
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/image/compare.h"
+#include "formats/image/image_io.h"
 #include "formats/pbgi/remote_page_file.h"
 #include "formats/pbgi/tree_file.h"
 #include "formats/scene/frame_scene.h"
@@ -140,6 +144,7 @@ class Heartbeat {
     request_.set_worker(worker);
     request_.set_task(task.task());
     request_.set_attempt(task.attempt());
+    request_.set_audit(taskKindOf(task) == v1::TASK_KIND_AUDIT);
     // Four beats per lease: one lost call does not lose the lease.
     const double period = std::clamp(task.lease_seconds() / 4.0, 0.05, 10.0);
     thread_ = std::thread([this, period] { loop(period); });
@@ -193,6 +198,7 @@ struct TaskResult {
   uint64_t cacheHits = 0;
   uint64_t cacheMisses = 0;
   uint64_t treeBytesStreamed = 0;
+  std::optional<AuditResult> audit;  // an audit's measurement
 };
 
 class Worker {
@@ -224,6 +230,8 @@ class Worker {
   absl::StatusOr<TaskResult> tile(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
                                   Heartbeat& beat);
   absl::StatusOr<TaskResult> assemble(const ShotDesc& shot, const v1::LeaseTaskResponse& task);
+  absl::StatusOr<TaskResult> audit(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                   Heartbeat& beat);
   void report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
               double seconds);
 
@@ -408,6 +416,73 @@ absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
   return result;
 }
 
+// The frame's audit: each audited tile path traced at the audit's spp (into the job folder's
+// audit/ beside the tiles) and compared with the same pixels of the assembled frame.
+absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
+                                         Heartbeat& beat) {
+  const std::vector<FarmTile> tiles = farmTiles(shot, task.tile_size());
+  if (static_cast<int>(tiles.size()) != task.tiles_per_frame() || task.audit_tiles().empty() ||
+      task.audit_spp() <= 0) {
+    return absl::InvalidArgumentError(fmt::format(
+        "audit of tiles [{}] at {} spp: this worker makes {} tiles of the frame, not {}",
+        fmt::join(task.audit_tiles(), " "), task.audit_spp(), tiles.size(),
+        task.tiles_per_frame()));
+  }
+  PBGI_ASSIGN_OR_RETURN(const Image frame, readImage(task.output_path()));
+  TaskResult result;
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const FrameScene> scene,
+                        scenes_.get(shot, task.frame(), &result.log));
+  double weightedRelMse = 0, pixels = 0, sumJob = 0, sumPath = 0;
+  for (int i = 0; i < task.audit_tiles_size(); ++i) {
+    const int t = task.audit_tiles(i);
+    if (t < 0 || static_cast<size_t>(t) >= tiles.size()) {
+      return absl::InvalidArgumentError(
+          fmt::format("audit tile {}: the frame has tiles 0..{}", t, tiles.size() - 1));
+    }
+    FrameRenderRequest request;
+    request.frame = task.frame();
+    request.integrator = "path";
+    request.spp = task.audit_spp();
+    request.threads = options_.threads;
+    request.outPath = (fs::path(task.work_dir()) / "audit" /
+                       fmt::format("frame.{:04d}.tile.{:04d}.exr", task.frame(), t))
+                          .string();
+    request.preview = false;
+    request.regions = tiles[static_cast<size_t>(t)];
+    request.scene = scene.get();
+    const int n = task.audit_tiles_size();
+    request.progress = [&beat, i, n](int done, int total) {
+      if (total > 0) beat.progress((i + double(done) / total) / n);
+    };
+    PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
+    PBGI_ASSIGN_OR_RETURN(const Image reference, readImage(report.exrPath));
+    PBGI_ASSIGN_OR_RETURN(const Image job, cropRegions(frame, request.regions));
+    PBGI_ASSIGN_OR_RETURN(const ImageMetrics m, compareImages(job, reference));
+    if (m.nonFiniteImage > 0 || m.nonFiniteReference > 0) {
+      return absl::DataLossError(fmt::format(
+          "audit tile {}: {} non-finite pixels in the job's frame, {} in the path tracer's", t,
+          m.nonFiniteImage, m.nonFiniteReference));
+    }
+    const double n_pixels = static_cast<double>(m.comparedPixels);
+    weightedRelMse += m.relMse * n_pixels;
+    pixels += n_pixels;
+    for (const ChannelMetrics& c : m.channels) {
+      sumJob += c.meanImage * n_pixels;
+      sumPath += c.meanReference * n_pixels;
+    }
+    result.log += fmt::format("audit tile {} ({} pixels, path {} spp): relMSE {:.4g}\n", t,
+                              m.comparedPixels, task.audit_spp(), m.relMse);
+  }
+  AuditResult audit;
+  audit.relMse = pixels > 0 ? weightedRelMse / pixels : 0.0;
+  // A black reference (a dark frame) has no relative bias to speak of.
+  audit.bias = sumPath > 0 ? sumJob / sumPath - 1.0 : 0.0;
+  result.audit = audit;
+  result.log += fmt::format("audit: relMSE {:.4g}, bias {:+.2f} %\n", audit.relMse,
+                            100.0 * audit.bias);
+  return result;
+}
+
 absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& task, Heartbeat& beat) {
   const std::vector<std::string> overrides(task.overrides().begin(), task.overrides().end());
   PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
@@ -419,6 +494,8 @@ absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& task, He
       return tile(shot, task, beat);
     case v1::TASK_KIND_ASSEMBLE:
       return assemble(shot, task);
+    case v1::TASK_KIND_AUDIT:
+      return audit(shot, task, beat);
     default:
       return absl::InvalidArgumentError(
           fmt::format("task kind {} ('{}'): this worker runs bake, tile and assemble",
@@ -441,6 +518,11 @@ void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<Task
     request.set_cache_hits(result->cacheHits);
     request.set_cache_misses(result->cacheMisses);
     request.set_tree_bytes_streamed(result->treeBytesStreamed);
+    if (result->audit) {
+      request.set_audit(true);
+      request.set_audit_rel_mse(result->audit->relMse);
+      request.set_audit_bias(result->audit->bias);
+    }
     sent = callPatiently([&] { return client_.completeTask(request); }, patience, "CompleteTask")
                .status();
     if (sent.ok()) {
@@ -455,6 +537,7 @@ void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<Task
     request.set_task(task.task());
     request.set_attempt(task.attempt());
     request.set_error(std::string(result.status().message()));
+    request.set_audit(taskKindOf(task) == v1::TASK_KIND_AUDIT);
     sent = callPatiently([&] { return client_.failTask(request); }, patience, "FailTask").status();
   }
   if (!sent.ok()) {
@@ -494,6 +577,7 @@ int Worker::run(const std::atomic<bool>& stop) {
             cacheDir_);
   v1::LeaseTaskRequest ask;
   ask.set_worker(id_);
+  ask.set_runs_audits(true);
   double backoff = options_.pollSeconds;
   while (!stop.load()) {
     ask.clear_held();

@@ -88,7 +88,8 @@ function renderJobs() {
       class: j.id === view.selectedJob ? 'selected' : '', onclick: () => selectJob(j.id)},
     el('td', {}, j.id), el('td', {}, j.name),
     el('td', {}, el('span', {class: `state ${j.state}`}, j.state),
-      j.deadCount ? ` ${j.deadCount} dead` : ''),
+      j.deadCount ? ` ${j.deadCount} dead` : '',
+      j.flagged ? el('span', {class: 'flag'}, ` ${j.flagged} frame(s) flagged by the audit`) : ''),
     el('td', {}, bar, `${j.done} / ${j.total}`),
     el('td', {}, j.state === 'active' ? duration(j.eta) : ''),
     el('td', {}, j.priority), actions);
@@ -169,6 +170,16 @@ function renderJob() {
         style: `border-color:${COLOURS[STATES[Number(f[kind])]]}`,
         onclick: () => selectTask(f.frame, -1, kind)}, `${kind}: ${STATES[Number(f[kind])]}`));
     }
+    const a = f.audit;
+    fig.dataset.audit = a ? (a.relMse != null ? (a.flagged ? 'flagged' : 'ok') : a.state) : 'none';
+    if (a) {
+      const text = a.relMse != null
+        ? `audit: relMSE ${a.relMse.toPrecision(3)}, bias ${(100 * a.bias).toFixed(1)} % ` +
+          `(path ${a.spp} spp, ${a.tiles.length} tiles)` + (a.flagged ? ` FLAGGED > ${a.threshold}` : '')
+        : `audit ${a.state}${a.error ? `: ${a.error}` : ''}`;
+      caption.append(el('div', {class: `audit ${fig.dataset.audit}`,
+        title: `tiles ${a.tiles.join(', ')} path traced and compared with this frame`}, text));
+    }
     fig.dataset.done = f.done;
     fig.dataset.assembled = f.assemble === '3' ? '1' : '0';
     drawGrid(fig.querySelector('canvas'), job, f);
@@ -230,9 +241,7 @@ function renderWorkers(now) {
   body.replaceChildren();
   $('no-workers').hidden = view.workers.length > 0;
   for (const w of view.workers) {
-    const c = w.current;
-    const doing = c ? `job ${c.job} frame ${c.frame} ${c.kind === 'tile' ? `tile ${c.tile}` : c.kind}` +
-      ` (${Math.round(w.progress * 100)} %)` : 'idle';
+    const doing = w.current ? `${w.current} (${Math.round(w.progress * 100)} %)` : 'idle';
     const held = w.held.map(([j, f]) => `job ${j} frame ${f}`).join(', ');
     const lookups = w.cacheHits + w.cacheMisses;
     body.append(el('tr', {dataset: {worker: w.id}}, el('td', {}, w.id), el('td', {}, w.host),
