@@ -175,8 +175,19 @@ int runEmbedded(const RunOptions& o) {
     }
     const farm::v1::JobStatus& js = status->jobs(0);
     const JobProgress p = jobProgress(js);
-    progress.update(static_cast<uint64_t>(p.done), static_cast<uint64_t>(p.total));
-    if (farm::jobStateOf(js) != farm::v1::JOB_STATE_ACTIVE) break;
+    // A done job's frames are audited next (the workers take audits once no task is left):
+    // the run waits for them, so that it can say how the frames compare with the path tracer.
+    const int audited = static_cast<int>(
+        std::count_if(js.audits().begin(), js.audits().end(), [](const farm::v1::FrameAudit& a) {
+          return a.state() == "done" || a.state() == "failed" || a.state() == "cancelled";
+        }));
+    progress.update(static_cast<uint64_t>(p.done + audited),
+                    static_cast<uint64_t>(p.total + js.audits_size()));
+    const farm::v1::JobState state = farm::jobStateOf(js);
+    if (state != farm::v1::JOB_STATE_ACTIVE &&
+        (state != farm::v1::JOB_STATE_DONE || audited == js.audits_size())) {
+      break;
+    }
     // A worker that died (a crash, the OOM killer) is started again, a few times.
     for (Child& c : children) {
       int wstatus = 0;

@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include "services/cli/farm_cli.h"
 #include "tests/support/farm_fixtures.h"
 
 namespace pbgi {
@@ -105,6 +106,38 @@ TEST_F(FarmCliTest, RefusedWithoutTheTokenAndOutsideTheOutputRoot) {
   EXPECT_NE(outside.err.find("outside the coordinator's output root"), std::string::npos)
       << outside.err;
   EXPECT_NE(daemon_.log().find("refused peer="), std::string::npos);
+}
+
+TEST(FarmCliText, AuditsSayTheirNumbersAndFlagTheFramesBeyondTheirThreshold) {
+  farm::v1::JobStatus job;
+  farm::v1::FrameAudit* ok = job.add_audits();
+  ok->set_frame(1);
+  ok->set_state("done");
+  ok->set_has_result(true);
+  ok->set_rel_mse(0.0041);
+  ok->set_bias(-0.012);
+  ok->set_spp(256);
+  ok->set_threshold(0.05);
+  ok->add_tiles(3);
+  ok->add_tiles(9);
+  farm::v1::FrameAudit* bad = job.add_audits();
+  *bad = *ok;
+  bad->set_frame(2);
+  bad->set_rel_mse(0.2);
+  bad->set_flagged(true);
+  farm::v1::FrameAudit* waiting = job.add_audits();
+  waiting->set_frame(3);
+  waiting->set_state("ready");
+  const std::string text = cli::describeAudits(job);
+  EXPECT_NE(text.find("audit frame    1: relMSE 0.0041, bias -1.20 % against the path tracer at "
+                      "256 spp on 2 tile(s)\n"),
+            std::string::npos)
+      << text;
+  EXPECT_NE(text.find("audit frame    2: relMSE 0.2, bias -1.20 %"), std::string::npos) << text;
+  EXPECT_NE(text.find("FLAGGED (above 0.05)"), std::string::npos) << text;
+  EXPECT_NE(text.find("audit frame    3: ready\n"), std::string::npos) << text;
+  EXPECT_EQ(cli::auditSummary(job), ", audited 2/3 frames, 1 FLAGGED");
+  EXPECT_EQ(cli::auditSummary(farm::v1::JobStatus()), "");
 }
 
 TEST(DaemonCliTest, ConfigFilesAreStrict) {

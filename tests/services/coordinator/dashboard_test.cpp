@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "services/coordinator/dashboard.h"
+#include "services/coordinator/farm_job.h"
 #include "tests/support/coordinator_fixture.h"
 
 namespace pbgi::farm {
@@ -55,7 +56,7 @@ TEST_F(DashboardTest, ThePageAndItsFilesAreServedFromTheBinary) {
 
 TEST_F(DashboardTest, AJobsFramesAreOneStateStringEachWithTheirTilesPlaces) {
   start();
-  const int64_t job = submitSmall();  // 64x64 in tiles of 32: 4 tiles, frames 1..3
+  const int64_t job = submitSmall();  // 64x64 in tiles of 32: 4 tiles, frames 1 and 2
   auto c = http();
   auto list = c.Get("/api/jobs");
   ASSERT_TRUE(list);
@@ -88,6 +89,31 @@ TEST_F(DashboardTest, AJobsFramesAreOneStateStringEachWithTheirTilesPlaces) {
   ASSERT_TRUE(task);
   EXPECT_EQ(task->status, 200) << task->body;
   EXPECT_NE(task->body.find("\"event\":\"leased\""), std::string::npos) << task->body;
+}
+
+TEST_F(DashboardTest, PbgiJobsAreAuditedByDefaultPathTracedOnesAreNotAndBadAuditsAreRefused) {
+  start();
+  pbgi::testing::SmallShot pbgi;
+  pbgi.integrator = "pbgi";
+  const int64_t audited = client_->submitJob(shotRequest(pbgi))->job();
+  const int64_t plain = submitSmall();  // the path tracer: its own reference
+  auto a = coordinator_->store().audits(audited);
+  ASSERT_TRUE(a.ok()) << a.status();
+  ASSERT_EQ(a->size(), 2u);  // frames 1 and 2
+  EXPECT_EQ((*a)[0].spec.tiles, chooseAuditTiles("cornell", 1, 4, 2));
+  EXPECT_EQ((*a)[0].spec.spp, kDefaultAuditSpp);
+  EXPECT_EQ(coordinator_->store().audits(plain)->size(), 0u);
+  auto detail = http().Get(fmt::format("/api/jobs/{}", audited));
+  ASSERT_TRUE(detail);
+  EXPECT_NE(detail->body.find("\"audit\":{\"state\":\"ready\""), std::string::npos)
+      << detail->body;
+  v1::SubmitJobRequest bad = shotRequest(pbgi);
+  bad.set_audit_threshold(-1);
+  EXPECT_EQ(client_->submitJob(bad).status().code(), absl::StatusCode::kInvalidArgument);
+  bad = shotRequest({});
+  bad.set_audit_tiles(1);
+  bad.set_audit_spp(-4);
+  EXPECT_EQ(client_->submitJob(bad).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 TEST_F(DashboardTest, ChangingAJobNeedsTheFarmTokenAndRefusalsAreCounted) {

@@ -140,3 +140,33 @@ TEST(FarmRegion, TextRoundTripsAndBadTextIsRejected) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+TEST_F(FrameAssembly, CroppingAFrameToATilesRegionsGivesTheTilesPixels) {
+  // A camera array of 2x1 views: a farm tile is one square in each view, stacked in its EXR.
+  shot_.camera.views = {2, 1};
+  const FrameRenderRequest whole = request("whole");
+  ASSERT_TRUE(renderShotFrame(shot_, whole).ok());
+  auto frame = readImage(whole.outPath);
+  ASSERT_TRUE(frame.ok()) << frame.status();
+  const std::vector<FarmTile> tiles = farmTiles(shot_, 16);
+  ASSERT_EQ(tiles[4].size(), 2u);
+  const std::vector<std::string> paths = renderTiles({tiles[4]});
+  auto tile = readImage(paths[0]);
+  ASSERT_TRUE(tile.ok()) << tile.status();
+  auto crop = cropRegions(*frame, tiles[4]);
+  ASSERT_TRUE(crop.ok()) << crop.status();
+  ASSERT_EQ(crop->width(), tile->width());
+  ASSERT_EQ(crop->height(), tile->height());
+  ASSERT_EQ(crop->channels(), tile->channels());
+  EXPECT_EQ(crop->pixels(), tile->pixels());
+  // A rectangle outside the frame is refused by name.
+  auto outside = cropRegions(*frame, {TileRect{70, 0, 90, 8}});
+  EXPECT_EQ(outside.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(outside.status().message().find("70 0 90 8"), std::string::npos) << outside.status();
+}
+
+}  // namespace
+}  // namespace pbgi
