@@ -144,4 +144,16 @@ std::vector<int> chooseAuditTiles(std::string_view shotName, int frame, int tile
   return all;
 }
 
+std::vector<TileRect> auditWindows(const std::vector<TileRect>& tile) {
+  std::vector<TileRect> windows;
+  for (const TileRect& r : tile) {
+    const int w = std::min(r.width(), kAuditWindow);
+    const int h = std::min(r.height(), kAuditWindow);
+    const int x0 = r.x0 + (r.width() - w) / 2;
+    const int y0 = r.y0 + (r.height() - h) / 2;
+    windows.push_back({x0, y0, x0 + w, y0 + h});
+  }
+  return windows;
+}
+
 }  // namespace pbgi::farm

@@ -57,6 +57,11 @@ inline constexpr double kDefaultAuditThreshold = 0.05;
 // (all of them when count >= tileCount), from a hash of the shot's name and the frame, so the
 // same job audits the same tiles wherever and whenever it is submitted. Sorted.
 std::vector<int> chooseAuditTiles(std::string_view shotName, int frame, int tileCount, int count);
+// What an audit renders of an audited tile: the central kAuditWindow x kAuditWindow pixels of
+// each of its rectangles (all of a smaller one), so that an audit costs the same few seconds
+// whatever the farm's tile size.
+inline constexpr int kAuditWindow = 64;
+std::vector<TileRect> auditWindows(const std::vector<TileRect>& tile);
 
 // `path`, made absolute and normal, when it lies inside `root` (symbolic links resolved as far
 // as they exist); PermissionDenied naming both otherwise.

@@ -416,8 +416,9 @@ absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
   return result;
 }
 
-// The frame's audit: each audited tile path traced at the audit's spp (into the job folder's
-// audit/ beside the tiles) and compared with the same pixels of the assembled frame.
+// The frame's audit: the window of each audited tile (auditWindows) path traced at the
+// audit's spp (into the job folder's audit/ beside the tiles) and compared with the same
+// pixels of the assembled frame.
 absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
                                          Heartbeat& beat) {
   const std::vector<FarmTile> tiles = farmTiles(shot, task.tile_size());
@@ -448,7 +449,7 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
                        fmt::format("frame.{:04d}.tile.{:04d}.exr", task.frame(), t))
                           .string();
     request.preview = false;
-    request.regions = tiles[static_cast<size_t>(t)];
+    request.regions = auditWindows(tiles[static_cast<size_t>(t)]);
     request.scene = scene.get();
     const int n = task.audit_tiles_size();
     request.progress = [&beat, i, n](int done, int total) {

@@ -29,5 +29,12 @@ TEST(AuditTiles, TheSeededRuleIsStableDistinctInRangeAndSpreadsOverFrames) {
   EXPECT_TRUE(chooseAuditTiles("sponza", 1, 4, 0).empty());
 }
 
+TEST(AuditTiles, AnAuditRendersTheCentralWindowOfEachOfATilesRectangles) {
+  // A 256-pixel tile in two views, and a ragged 40x20 one: the centre 64x64, or all of it.
+  EXPECT_EQ(auditWindows({{0, 0, 256, 256}, {512, 0, 768, 256}}),
+            (std::vector<TileRect>{{96, 96, 160, 160}, {608, 96, 672, 160}}));
+  EXPECT_EQ(auditWindows({{256, 512, 296, 532}}), (std::vector<TileRect>{{256, 512, 296, 532}}));
+}
+
 }  // namespace
 }  // namespace pbgi::farm
