@@ -51,8 +51,14 @@ std::string shotText(const std::string& integrator) {
 class Sequence {
  public:
   Sequence& submit(const std::string& integrator, std::vector<int> frames = {},
-                   std::vector<std::string> overrides = {}, const std::string& text = {}) {
+                   std::vector<std::string> overrides = {}, const std::string& text = {},
+                   int auditTiles = -1) {
     v1::SubmitJobRequest r;
+    if (auditTiles >= 0) {
+      r.set_audit_tiles(auditTiles);
+      r.set_audit_spp(4);
+      r.set_audit_threshold(0.05);
+    }
     r.set_shot_path("shots/fuzz.shot.toml");
     r.set_shot_text(text.empty() ? shotText(integrator) : text);
     r.set_output_dir("frames");
@@ -69,9 +75,11 @@ class Sequence {
     r.set_cache_bytes(uint64_t{1} << 30);
     return add(FarmRpc::kRegisterWorker, r);
   }
-  Sequence& lease(const std::string& worker, int64_t heldJob = 0, int heldFrame = 0) {
+  Sequence& lease(const std::string& worker, int64_t heldJob = 0, int heldFrame = 0,
+                  bool runsAudits = false) {
     v1::LeaseTaskRequest r;
     r.set_worker(worker);
+    r.set_runs_audits(runsAudits);
     if (heldJob != 0) {
       v1::HeldFrame* h = r.add_held();
       h->set_job(heldJob);
@@ -79,16 +87,22 @@ class Sequence {
     }
     return add(FarmRpc::kLeaseTask, r);
   }
-  Sequence& heartbeat(int64_t task, int attempt, double progress) {
+  Sequence& heartbeat(int64_t task, int attempt, double progress, bool audit = false) {
     v1::HeartbeatRequest r;
+    r.set_audit(audit);
     r.set_task(task);
     r.set_attempt(attempt);
     r.set_progress(progress);
     r.set_worker("w1");
     return add(FarmRpc::kHeartbeat, r);
   }
-  Sequence& complete(int64_t task, int attempt) {
+  Sequence& complete(int64_t task, int attempt, bool audit = false) {
     v1::CompleteTaskRequest r;
+    if (audit) {
+      r.set_audit(true);
+      r.set_audit_rel_mse(0.01);
+      r.set_audit_bias(-0.002);
+    }
     r.set_task(task);
     r.set_attempt(attempt);
     r.set_worker("w1");
@@ -98,8 +112,9 @@ class Sequence {
     r.set_cache_misses(2);
     return add(FarmRpc::kCompleteTask, r);
   }
-  Sequence& fail(int64_t task, int attempt, const std::string& error) {
+  Sequence& fail(int64_t task, int attempt, const std::string& error, bool audit = false) {
     v1::FailTaskRequest r;
+    r.set_audit(audit);
     r.set_task(task);
     r.set_attempt(attempt);
     r.set_worker("w1");
@@ -188,6 +203,21 @@ std::map<std::string, std::string> seeds() {
       .lease("w1", 1, 2)
       .status(1, true);
   out["pbgi_job_pages"] = pbgi.bytes();
+
+  // A PBGI job's accuracy audit (2 tiles), leased once its frame is assembled to a worker that
+  // runs audits: task 1 is the bake, 2-5 the tiles, 6 the assemble; audit 1 fails once.
+  Sequence audit;
+  audit.registerWorker("w1").submit("pbgi", {1}, {}, {}, 2);
+  for (int64_t task = 1; task <= 6; ++task) audit.lease("w1", 1, 1, true).complete(task, 1);
+  audit.lease("w1", 0, 0, true)
+      .heartbeat(1, 1, 0.5, true)
+      .fail(1, 1, "out of memory", true)
+      .lease("w1", 0, 0, false)
+      .lease("w1", 0, 0, true)
+      .complete(1, 2, true)
+      .status(1, true)
+      .logs(1);
+  out["pbgi_job_audit"] = audit.bytes();
 
   // A lease lost, failures up to the cap (2 attempts) that kill a tile and blocklist its
   // worker, a stale completion, then retries and a cancel. Task 1 is frame 1's tile 0, 2 its
@@ -296,6 +326,15 @@ TEST(CoordinatorFuzzCorpusTest, SeedsReachTheirJobsEnd) {
     replay(c, all.at("pbgi_job_pages"));
     EXPECT_EQ(c.metrics().treesOpened->value(), 1u);
     EXPECT_EQ(c.metrics().pagesServed->value(), 2u);
+  }
+  {
+    FarmFuzzCoordinator c(bakedTree());
+    replay(c, all.at("pbgi_job_audit"));
+    const auto audits = c.store().audits(1);
+    ASSERT_TRUE(audits.ok()) << audits.status();
+    ASSERT_EQ(audits->size(), 1u);
+    EXPECT_EQ((*audits)[0].state, farm::AuditState::kDone);
+    EXPECT_EQ((*audits)[0].attempt, 2);
   }
   {
     FarmFuzzCoordinator c(bakedTree());
