@@ -22,6 +22,7 @@
 #include "services/coordinator/farm_job.h"
 #include "services/coordinator/farm_service.h"
 #include "services/coordinator/farm_wire.h"
+#include "services/coordinator/file_service.h"
 #include "services/coordinator/frame_previews.h"
 #include "services/coordinator/job_views.h"
 #include "services/coordinator/lease_reaper.h"
@@ -58,7 +59,8 @@ class FarmService final : public v1::Coordinator::Service {
         jobs_(jobs),
         pages_(pages),
         metrics_(metrics),
-        activity_(activity) {}
+        activity_(activity),
+        files_(store, jobs) {}
 
   grpc::Status SubmitJob(grpc::ServerContext*, const v1::SubmitJobRequest* request,
                          v1::SubmitJobResponse* response) override {
@@ -250,6 +252,26 @@ class FarmService final : public v1::Coordinator::Service {
     return toGrpc(pages_.openTree(*request, response));
   }
 
+  grpc::Status PutFile(grpc::ServerContext*, grpc::ServerReader<v1::PutFileChunk>* reader,
+                       v1::PutFileResponse*) override {
+    const absl::StatusOr<std::string> path =
+        files_.put([reader](v1::PutFileChunk* chunk) { return reader->Read(chunk); });
+    if (!path.ok()) {
+      if (path.status().code() == absl::StatusCode::kFailedPrecondition) {
+        metrics_.staleCompletions->add();  // an upload of a lost lease, like its completion
+      }
+      log::warn("refused an upload: {}", path.status().message());
+      return toGrpc(path.status());
+    }
+    return grpc::Status::OK;
+  }
+
+  grpc::Status GetFile(grpc::ServerContext*, const v1::GetFileRequest* request,
+                       grpc::ServerWriter<v1::FileChunk>* writer) override {
+    return toGrpc(files_.get(
+        *request, [writer](const v1::FileChunk& chunk) { return writer->Write(chunk); }));
+  }
+
   grpc::Status FetchPages(grpc::ServerContext*, const v1::FetchPagesRequest* request,
                           grpc::ServerWriter<v1::PageChunk>* writer) override {
     return toGrpc(pages_.fetchPages(
@@ -276,6 +298,7 @@ class FarmService final : public v1::Coordinator::Service {
   PageService& pages_;
   CoordinatorMetrics& metrics_;
   FarmActivity& activity_;
+  FileService files_;
 };
 
 absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request) {

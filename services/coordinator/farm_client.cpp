@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 
 #include <unistd.h>
 
@@ -13,6 +14,7 @@
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "services/coordinator/file_transfer.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::farm {
@@ -141,6 +143,56 @@ absl::StatusOr<PageFileHead> FarmClient::openTree(int64_t job, int frame) {
   head.tail.assign(response.tail().begin(), response.tail().end());
   head.fileSize = response.file_size();
   return head;
+}
+
+absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string& path) {
+  grpc::ClientContext context;
+  impl_->prepare(context);
+  v1::PutFileResponse response;
+  auto writer = impl_->stub->PutFile(&context, &response);
+  bool first = true;
+  const absl::Status sent = sendFile(path, [&](const FileDigest& digest, std::string_view data) {
+    v1::PutFileChunk chunk;
+    if (first) {
+      chunk = head;
+      chunk.set_size(digest.size);
+      chunk.set_xxh3(digest.xxh3);
+      first = false;
+    }
+    chunk.set_data(std::string(data));
+    return writer->Write(chunk);
+  });
+  writer->WritesDone();
+  const grpc::Status finished = writer->Finish();
+  // The coordinator's reason beats "it stopped reading".
+  if (!finished.ok()) return impl_->failed(finished, "PutFile");
+  return sent;
+}
+
+absl::Status FarmClient::getFile(const v1::GetFileRequest& request, const std::string& path) {
+  grpc::ClientContext context;
+  impl_->prepare(context);
+  auto reader = impl_->stub->GetFile(&context, request);
+  v1::FileChunk chunk;
+  std::optional<FileReceiver> file;
+  absl::Status failed;
+  while (failed.ok() && reader->Read(&chunk)) {
+    if (!file) {
+      auto begun = FileReceiver::begin(path, {chunk.size(), chunk.xxh3()});
+      if (!begun.ok()) {
+        failed = begun.status();
+        break;
+      }
+      file.emplace(*std::move(begun));
+    }
+    failed = file->add(chunk.data());
+  }
+  if (!failed.ok()) context.TryCancel();
+  const grpc::Status finished = reader->Finish();
+  if (failed.ok() && !finished.ok()) failed = impl_->failed(finished, "GetFile");
+  if (failed.ok() && !file) failed = absl::DataLossError(fmt::format("{}: nothing arrived", path));
+  if (!failed.ok()) return failed;
+  return file->finish();
 }
 
 absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(

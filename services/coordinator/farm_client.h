@@ -59,6 +59,12 @@ class FarmClient {
                                                                uint64_t treeId,
                                                                std::span<const uint32_t> pages);
 
+  // File transfer for a worker that does not see the job folder (farm.proto: PutFile,
+  // GetFile): sends the file at `path` as what `head` says it is (task, attempt, kind, tile),
+  // and receives a tile or frame into `path` (renamed into place once whole and checked).
+  absl::Status putFile(const v1::PutFileChunk& head, const std::string& path);
+  absl::Status getFile(const v1::GetFileRequest& request, const std::string& path);
+
  private:
   struct Impl;
   std::string address_;

@@ -182,6 +182,8 @@ class JobStore {
   virtual absl::StatusOr<JobInfo> job(int64_t job) = 0;
   virtual absl::StatusOr<std::vector<JobInfo>> jobs() = 0;
   virtual absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) = 0;
+  // One task by id; NotFound when there is none.
+  virtual absl::StatusOr<TaskInfo> task(int64_t task) = 0;
 
   virtual absl::Status registerWorker(const WorkerInfo& worker) = 0;
   virtual absl::StatusOr<std::vector<WorkerInfo>> workers() = 0;

@@ -175,6 +175,7 @@ class PostgresJobStore final : public JobStore {
   absl::StatusOr<JobInfo> job(int64_t job) override;
   absl::StatusOr<std::vector<JobInfo>> jobs() override;
   absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
+  absl::StatusOr<TaskInfo> task(int64_t task) override;
   absl::Status registerWorker(const WorkerInfo& worker) override;
   absl::StatusOr<std::vector<WorkerInfo>> workers() override;
   absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
@@ -472,6 +473,10 @@ absl::StatusOr<std::vector<JobInfo>> PostgresJobStore::jobs() {
     }
     return out;
   });
+}
+
+absl::StatusOr<TaskInfo> PostgresJobStore::task(int64_t task) {
+  return transaction(PgAccess::kRead, [&](PgTx& tx) { return loadTask(tx, task, false); });
 }
 
 absl::StatusOr<std::vector<TaskInfo>> PostgresJobStore::tasks(int64_t job) {

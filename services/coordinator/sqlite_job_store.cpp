@@ -160,6 +160,7 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<JobInfo> job(int64_t job) override;
   absl::StatusOr<std::vector<JobInfo>> jobs() override;
   absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
+  absl::StatusOr<TaskInfo> task(int64_t task) override;
   absl::Status registerWorker(const WorkerInfo& worker) override;
   absl::StatusOr<std::vector<WorkerInfo>> workers() override;
   absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
@@ -652,6 +653,10 @@ absl::StatusOr<std::vector<JobInfo>> SqliteJobStore::jobs() {
     for (JobInfo& info : out) PBGI_RETURN_IF_ERROR(addTaskSummary(info));
     return out;
   });
+}
+
+absl::StatusOr<TaskInfo> SqliteJobStore::task(int64_t task) {
+  return transaction(Access::kRead, [&]() { return loadTask(task); });
 }
 
 absl::StatusOr<std::vector<TaskInfo>> SqliteJobStore::tasks(int64_t job) {

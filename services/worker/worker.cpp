@@ -4,6 +4,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -232,6 +233,13 @@ class Worker {
   absl::StatusOr<TaskResult> assemble(const ShotDesc& shot, const v1::LeaseTaskResponse& task);
   absl::StatusOr<TaskResult> audit(const ShotDesc& shot, const v1::LeaseTaskResponse& task,
                                    Heartbeat& beat);
+  // A worker that does not see the job folder works in a copy of it (FileSource): the lease
+  // with its paths moved there, the inputs fetched before and the results sent after.
+  bool worksInCopy(const v1::LeaseTaskResponse& task) const;
+  v1::LeaseTaskResponse inCopy(const v1::LeaseTaskResponse& task) const;
+  absl::Status fetchInputs(const ShotDesc& shot, const v1::LeaseTaskResponse& copy);
+  absl::Status sendResults(const ShotDesc& shot, const v1::LeaseTaskResponse& copy,
+                           std::string* log);
   void report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
               double seconds);
 
@@ -484,24 +492,133 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
   return result;
 }
 
-absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& task, Heartbeat& beat) {
-  const std::vector<std::string> overrides(task.overrides().begin(), task.overrides().end());
-  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
-                        jobShot(task.shot_text(), task.shot_path(), overrides));
+// A file transfer, tried again while the coordinator is away (a minute and more: the lease is
+// heartbeaten meanwhile).
+absl::Status patiently(const std::function<absl::Status()>& transfer, const char* what) {
+  constexpr double kFilePatienceSeconds = 120.0;
+  return callPatiently(
+             [&]() -> absl::StatusOr<bool> {
+               PBGI_RETURN_IF_ERROR(transfer());
+               return true;
+             },
+             kFilePatienceSeconds, what)
+      .status();
+}
+
+bool Worker::worksInCopy(const v1::LeaseTaskResponse& task) const {
+  switch (options_.fileSource) {
+    case FileSource::kShared: return false;
+    case FileSource::kCopy: return true;
+    case FileSource::kAuto: break;
+  }
+  std::error_code ec;
+  return !fs::is_directory(task.work_dir(), ec);
+}
+
+v1::LeaseTaskResponse Worker::inCopy(const v1::LeaseTaskResponse& task) const {
+  v1::LeaseTaskResponse copy = task;
+  const std::string dir = (fs::path(cacheDir_) / "jobs" / std::to_string(task.job())).string();
+  copy.set_work_dir(dir);
   switch (taskKindOf(task)) {
     case v1::TASK_KIND_BAKE:
-      return bake(shot, task, beat);
+      copy.set_output_path(jobBakeDir(dir));
+      break;
     case v1::TASK_KIND_TILE:
-      return tile(shot, task, beat);
-    case v1::TASK_KIND_ASSEMBLE:
-      return assemble(shot, task);
+      copy.set_output_path(farmTilePath(dir, task.frame(), task.tile()));
+      break;
+    default:  // the assembled frame (audits read it)
+      copy.set_output_path(
+          (fs::path(dir) / "output" / fs::path(task.output_path()).filename()).string());
+      break;
+  }
+  return copy;
+}
+
+absl::Status Worker::fetchInputs(const ShotDesc& shot, const v1::LeaseTaskResponse& copy) {
+  v1::GetFileRequest request;
+  request.set_job(copy.job());
+  request.set_frame(copy.frame());
+  const auto fetch = [&](const std::string& path) {
+    return patiently([&] { return client_.getFile(request, path); }, "GetFile");
+  };
+  switch (taskKindOf(copy)) {
+    case v1::TASK_KIND_ASSEMBLE: {
+      // Every tile, as the coordinator has it (another worker may have rendered any of them).
+      request.set_kind(v1::FILE_KIND_TILE);
+      const size_t tiles = farmTiles(shot, copy.tile_size()).size();
+      for (size_t t = 0; t < tiles; ++t) {
+        request.set_tile(static_cast<int>(t));
+        PBGI_RETURN_IF_ERROR(
+            fetch(farmTilePath(copy.work_dir(), copy.frame(), static_cast<int>(t))));
+      }
+      return absl::OkStatus();
+    }
     case v1::TASK_KIND_AUDIT:
-      return audit(shot, task, beat);
+      request.set_kind(v1::FILE_KIND_FRAME);
+      return fetch(copy.output_path());
+    default:  // a bake reads the scene; a tile its tree, through the page service
+      return absl::OkStatus();
+  }
+}
+
+absl::Status Worker::sendResults(const ShotDesc& shot, const v1::LeaseTaskResponse& copy,
+                                 std::string* log) {
+  v1::PutFileChunk head;
+  head.set_task(copy.task());
+  head.set_attempt(copy.attempt());
+  const auto send = [&](v1::FileKind kind, const std::string& path) -> absl::Status {
+    head.set_kind(kind);
+    PBGI_RETURN_IF_ERROR(patiently([&] { return client_.putFile(head, path); }, "PutFile"));
+    *log += fmt::format("sent {} to the coordinator\n", path);
+    return absl::OkStatus();
+  };
+  switch (taskKindOf(copy)) {
+    case v1::TASK_KIND_BAKE: {
+      PBGI_ASSIGN_OR_RETURN(const std::string tree,
+                            jobTreePath(shot, copy.work_dir(), copy.frame()));
+      return send(v1::FILE_KIND_TREE, tree);
+    }
+    case v1::TASK_KIND_TILE:
+      head.set_tile(copy.tile());
+      return send(v1::FILE_KIND_TILE, copy.output_path());
+    case v1::TASK_KIND_ASSEMBLE: {
+      PBGI_RETURN_IF_ERROR(send(v1::FILE_KIND_FRAME, copy.output_path()));
+      const std::string preview = fs::path(copy.output_path()).replace_extension(".png").string();
+      return fs::exists(preview) ? send(v1::FILE_KIND_PREVIEW, preview) : absl::OkStatus();
+    }
+    default:  // an audit's result travels in its completion
+      return absl::OkStatus();
+  }
+}
+
+absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& leased, Heartbeat& beat) {
+  const std::vector<std::string> overrides(leased.overrides().begin(), leased.overrides().end());
+  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
+                        jobShot(leased.shot_text(), leased.shot_path(), overrides));
+  const bool copied = worksInCopy(leased);
+  const v1::LeaseTaskResponse task = copied ? inCopy(leased) : leased;
+  if (copied) PBGI_RETURN_IF_ERROR(fetchInputs(shot, task));
+  absl::StatusOr<TaskResult> result;
+  switch (taskKindOf(task)) {
+    case v1::TASK_KIND_BAKE:
+      result = bake(shot, task, beat);
+      break;
+    case v1::TASK_KIND_TILE:
+      result = tile(shot, task, beat);
+      break;
+    case v1::TASK_KIND_ASSEMBLE:
+      result = assemble(shot, task);
+      break;
+    case v1::TASK_KIND_AUDIT:
+      result = audit(shot, task, beat);
+      break;
     default:
       return absl::InvalidArgumentError(
-          fmt::format("task kind {} ('{}'): this worker runs bake, tile and assemble",
+          fmt::format("task kind {} ('{}'): this worker runs bake, tile, assemble and audit",
                       static_cast<int>(task.task_kind()), task.kind()));
   }
+  if (copied && result.ok()) PBGI_RETURN_IF_ERROR(sendResults(shot, task, &result->log));
+  return result;
 }
 
 void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,

@@ -26,6 +26,13 @@ enum class TreeSource {
   kStream,  // only the page service
 };
 
+enum class FileSource {
+  kAuto,  // the coordinator's job folder when it is visible here, else a local copy
+  kShared,  // only the job folder (a task whose folder is not visible fails)
+  kCopy,  // always a local copy: tasks read and write under <cache dir>/jobs/<job>, their
+          // results are sent to the coordinator (PutFile) and their inputs fetched (GetFile)
+};
+
 struct WorkerOptions {
   std::string coordinator;   // host:port
   std::string token;
@@ -36,6 +43,7 @@ struct WorkerOptions {
   std::string cacheDir;      // streamed pages; empty: <temp>/pbgi-worker-<id>
   size_t diskCacheBytes = size_t{4} << 30;  // budget of the streamed pages kept on disk
   TreeSource treeSource = TreeSource::kAuto;
+  FileSource fileSource = FileSource::kAuto;
   // Scenes (meshes, BVH, textures) kept between tasks, least recently used out first; each
   // scene counted at the resident memory its loading took.
   size_t sceneCacheBytes = size_t{2} << 30;

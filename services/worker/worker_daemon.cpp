@@ -53,6 +53,15 @@ int workerDaemonMain(int argc, char** argv) {
                                             {"stream", TreeSource::kStream}},
           CLI::ignore_case))
       ->default_str("auto");
+  app.add_option("--files", o.fileSource,
+                 "auto: the coordinator's job folder when visible here, else a local copy whose "
+                 "results are sent to the coordinator; shared; copy")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, FileSource>{{"auto", FileSource::kAuto},
+                                            {"shared", FileSource::kShared},
+                                            {"copy", FileSource::kCopy}},
+          CLI::ignore_case))
+      ->default_str("auto");
   app.add_option("--poll-seconds", o.pollSeconds, "Between lease requests while idle")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
