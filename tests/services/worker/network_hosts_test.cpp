@@ -6,8 +6,9 @@
 // stale. Every frame completes bit-identical to the frame rendered whole, and no task
 // completes twice. Needs root and `ip netns`: it skips elsewhere, saying why.
 //
-// The hosts share this machine's filesystem (the job folder, where tiles are written): the
-// farm has no way yet to move tiles and bakes to the coordinator over the network.
+// Each worker host also has a filesystem of its own: in its mount namespace an empty tmpfs
+// lies over the test folder (the coordinator's job folder and output root), so its tiles reach
+// the coordinator over its link (PutFile) and an assembling worker fetches them (GetFile).
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -40,6 +41,17 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   start();
   const std::string port = coordinator_->address().substr(coordinator_->address().rfind(':') + 1);
   const auto coordinatorFrom = [&](int h) { return hosts.localAddress(h) + ":" + port; };
+  // Host h's network, and a disk of its own where this machine has the test folder.
+  const auto onHost = [&](int h) {
+    std::vector<std::string> words = hosts.launcher(h);
+    for (const std::string& w :
+         {std::string("/usr/bin/unshare"), std::string("--mount"), std::string("--propagation"),
+          std::string("private"), std::string("/bin/sh"), std::string("-c"),
+          "mount -t tmpfs worker-host-disk \"" + dir_.string() + "\" && exec \"$0\" \"$@\""}) {
+      words.push_back(w);
+    }
+    return words;
+  };
   SmallShot shot;
   shot.width = 128;
   shot.height = 64;
@@ -48,7 +60,7 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   const int64_t job = submit(shot, {1, 2, 3, 4});
 
   // Host 1's worker holds a tile when its link goes down.
-  startWorker("cut-off", {}, coordinatorFrom(1), hosts.launcher(1));
+  startWorker("cut-off", {}, coordinatorFrom(1), onHost(1));
   ASSERT_TRUE(waitFor(
       [&] {
         auto s = jobStatus(job);
@@ -62,13 +74,13 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
       << workerLogs();
   ASSERT_TRUE(hosts.setLink(1, false));
   // Hosts 0 and 2 work on; host 0's worker is killed every 2 s and started again.
-  startWorker("steady", {}, coordinatorFrom(2), hosts.launcher(2));
+  startWorker("steady", {}, coordinatorFrom(2), onHost(2));
   std::atomic<bool> stop{false};
   std::atomic<int> kills{0};
   std::thread killer([&] {
     for (int generation = 0; !stop.load(); ++generation) {
       Process w = launchWorker(fmt::format("doomed-{}", generation), {}, coordinatorFrom(0),
-                               hosts.launcher(0));
+                               onHost(0));
       for (int i = 0; i < 40 && !stop.load(); ++i) {
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
       }
@@ -124,6 +136,12 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   for (const auto& [task, count] : done) EXPECT_EQ(count, 1) << "task " << task;
   EXPECT_GT(lostDoneAttempt, lostAttempt) << "the tile whose lease expired was done by a later "
                                              "attempt (another worker's, or the cut-off one's anew)";
+  // Every tile and frame came over the links: each completion's log says what it sent.
+  int sent = 0;
+  for (const farm::TaskEvent& e : *events) {
+    sent += e.event == "done" && e.text.find("to the coordinator") != std::string::npos;
+  }
+  EXPECT_EQ(sent, 12) << "8 tiles and 4 frames, each sent by the worker that made it";
   for (int frame = 1; frame <= 4; ++frame) expectFrameEqualsWholeRender(frame);
 }
 
