@@ -75,8 +75,17 @@ absl::Status writeAtomically(const std::string& path, const char* format,
     const bool wrote = out->write_image(pixelType, pixels);
     const bool closed = out->close();
     if (!wrote || !closed) {
-      return absl::UnavailableError(
-          absl::StrCat(path, ": writing ", format, " failed: ", oiioError(out->geterror())));
+      // OIIO's message rarely says why; a full disk is the usual reason, and worth saying.
+      const uint64_t needed = uint64_t(spec.image_bytes());
+      std::error_code ec;
+      const fs::space_info space = fs::space(fs::path(tmp).parent_path(), ec);
+      const std::string full =
+          !ec && space.available < needed
+              ? absl::StrFormat(" (the disk is full: %d bytes free in %s, %d needed)",
+                                space.available, fs::path(tmp).parent_path().string(), needed)
+              : "";
+      return absl::ResourceExhaustedError(absl::StrCat(path, ": writing ", format, " failed: ",
+                                                       oiioError(out->geterror()), full));
     }
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrCat(path, ": writing ", format, ": ", e.what()));

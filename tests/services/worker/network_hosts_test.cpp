@@ -9,6 +9,7 @@
 // Each worker host also has a filesystem of its own: in its mount namespace an empty tmpfs
 // lies over the test folder (the coordinator's job folder and output root), so its tiles reach
 // the coordinator over its link (PutFile) and an assembling worker fetches them (GetFile).
+// One more worker's disk is full: its tiles fail, saying so, and are done elsewhere.
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -42,12 +43,13 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   const std::string port = coordinator_->address().substr(coordinator_->address().rfind(':') + 1);
   const auto coordinatorFrom = [&](int h) { return hosts.localAddress(h) + ":" + port; };
   // Host h's network, and a disk of its own where this machine has the test folder.
-  const auto onHost = [&](int h) {
+  const auto onHost = [&](int h, const std::string& size = "") {
     std::vector<std::string> words = hosts.launcher(h);
     for (const std::string& w :
          {std::string("/usr/bin/unshare"), std::string("--mount"), std::string("--propagation"),
           std::string("private"), std::string("/bin/sh"), std::string("-c"),
-          "mount -t tmpfs worker-host-disk \"" + dir_.string() + "\" && exec \"$0\" \"$@\""}) {
+          "mount -t tmpfs " + (size.empty() ? "" : "-o size=" + size + " ") +
+              "worker-host-disk \"" + dir_.string() + "\" && exec \"$0\" \"$@\""}) {
       words.push_back(w);
     }
     return words;
@@ -75,6 +77,9 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   ASSERT_TRUE(hosts.setLink(1, false));
   // Hosts 0 and 2 work on; host 0's worker is killed every 2 s and started again.
   startWorker("steady", {}, coordinatorFrom(2), onHost(2));
+  // And beside it a worker whose disk is full (16 KiB): each tile it takes fails, saying so,
+  // and is done elsewhere; three failures blocklist it for the job.
+  startWorker("full-disk", {}, coordinatorFrom(2), onHost(2, "16k"));
   std::atomic<bool> stop{false};
   std::atomic<int> kills{0};
   std::thread killer([&] {
@@ -136,6 +141,14 @@ TEST_F(NetworkHostsTest, KilledWorkersAndALostLinkLoseNothingAndCommitNothingTwi
   for (const auto& [task, count] : done) EXPECT_EQ(count, 1) << "task " << task;
   EXPECT_GT(lostDoneAttempt, lostAttempt) << "the tile whose lease expired was done by a later "
                                              "attempt (another worker's, or the cut-off one's anew)";
+  // The full disk's failures said why, and cost nothing but retries.
+  int fullDiskFailures = 0;
+  for (const farm::TaskEvent& e : *events) {
+    if (e.worker != "full-disk" || e.event != "failed") continue;
+    ++fullDiskFailures;
+    EXPECT_NE(e.text.find("the disk is full"), std::string::npos) << e.text;
+  }
+  EXPECT_GE(fullDiskFailures, 1) << workerLogs();
   // Every tile and frame came over the links: each completion's log says what it sent.
   int sent = 0;
   for (const farm::TaskEvent& e : *events) {
