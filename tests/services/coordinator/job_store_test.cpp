@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <map>
 #include <mutex>
@@ -1107,6 +1108,43 @@ TEST_P(JobStoreTest, SubmitRejectsMalformedAudits) {
 
 // Two store objects (two coordinators, by mistake for SQLite), two threads each, lease the
 // audits of many assembled frames at once: each is leased once and completed once.
+// Threads racing over stores (thread t uses stores[t % size]): each calls `take` until it says
+// to stop; `take` leases and completes one item and returns its id, nullopt to go round again
+// (the other store holds what this one waits on) or an error. What each took, by whom.
+struct Race {
+  std::multiset<int64_t> taken;
+  std::vector<int> perStore;
+  std::vector<std::string> errors;
+};
+enum class Take { kTook, kAgain, kStop };
+Race race(const std::vector<JobStore*>& stores, int threads,
+          const std::function<Take(JobStore& store, const std::string& worker, int64_t* id,
+                                   std::string* error)>& take) {
+  Race r;
+  r.perStore.assign(stores.size(), 0);
+  std::mutex mutex;
+  std::vector<std::thread> running;
+  for (int t = 0; t < threads; ++t) {
+    running.emplace_back([&, t] {
+      const size_t at = static_cast<size_t>(t) % stores.size();
+      const std::string worker = fmt::format("coordinator{}-worker{}", at, t);
+      for (int spins = 0; spins < 100000; ++spins) {
+        int64_t id = 0;
+        std::string error;
+        const Take what = take(*stores[at], worker, &id, &error);
+        std::lock_guard lock(mutex);
+        if (!error.empty()) r.errors.push_back(error);
+        if (what == Take::kStop) return;
+        if (what == Take::kAgain) continue;
+        r.taken.insert(id);
+        ++r.perStore[at];
+      }
+    });
+  }
+  for (std::thread& t : running) t.join();
+  return r;
+}
+
 TEST_P(JobStoreTest, ConcurrentAuditLeasesNeverHandOutAnAuditTwice) {
   constexpr int kFrames = 60;
   std::vector<int> frames(kFrames);
@@ -1117,35 +1155,23 @@ TEST_P(JobStoreTest, ConcurrentAuditLeasesNeverHandOutAnAuditTwice) {
   ASSERT_EQ(runReady("w0", 0), 2 * kFrames);
   std::unique_ptr<JobStore> second = openAnother();
   ASSERT_NE(second, nullptr);
-  std::vector<JobStore*> stores = {store_.get(), second.get()};
-
-  std::mutex mutex;
-  std::multiset<int64_t> leased;
-  std::vector<int> perStore(2, 0);
-  std::vector<std::string> errors;
-  std::vector<std::thread> threads;
-  for (int t = 0; t < 4; ++t) {
-    threads.emplace_back([&, t] {
-      JobStore& store = *stores[t % 2];
-      const std::string worker = fmt::format("coordinator{}-worker{}", t % 2, t);
-      for (int spins = 0; spins < 100000; ++spins) {
-        auto l = store.leaseAudit(worker, 1, kLease);
-        if (!l.ok() || !*l) {
-          std::lock_guard lock(mutex);
-          if (!l.ok()) errors.push_back(std::string(l.status().message()));
-          return;  // every frame is assembled: none ready means none left
-        }
-        const absl::Status s = store.completeAudit((*l)->audit, (*l)->attempt, {0.01, 0, 1}, 1);
-        std::lock_guard lock(mutex);
-        if (!s.ok()) errors.push_back(std::string(s.message()));
-        EXPECT_EQ((*l)->attempt, 1) << "audit " << (*l)->audit;
-        leased.insert((*l)->audit);
-        ++perStore[t % 2];
-      }
-    });
-  }
-  for (std::thread& t : threads) t.join();
-  EXPECT_TRUE(errors.empty()) << errors.front();
+  const Race r = race({store_.get(), second.get()}, 4,
+                      [](JobStore& store, const std::string& worker, int64_t* id,
+                         std::string* error) {
+                        auto l = store.leaseAudit(worker, 1, kLease);
+                        if (!l.ok()) *error = std::string(l.status().message());
+                        // Every frame is assembled: none ready means none left.
+                        if (!l.ok() || !*l) return Take::kStop;
+                        const absl::Status s =
+                            store.completeAudit((*l)->audit, (*l)->attempt, {0.01, 0, 1}, 1);
+                        if (!s.ok()) *error = std::string(s.message());
+                        EXPECT_EQ((*l)->attempt, 1) << "audit " << (*l)->audit;
+                        *id = (*l)->audit;
+                        return Take::kTook;
+                      });
+  const std::multiset<int64_t>& leased = r.taken;
+  const std::vector<int>& perStore = r.perStore;
+  EXPECT_TRUE(r.errors.empty()) << r.errors.front();
   EXPECT_EQ(leased.size(), static_cast<size_t>(kFrames));
   EXPECT_EQ(std::set<int64_t>(leased.begin(), leased.end()).size(), static_cast<size_t>(kFrames))
       << "an audit was leased twice";
@@ -1168,37 +1194,27 @@ TEST_F(PostgresJobStoreTest, TwoCoordinatorsLeaseEveryTaskOfABigJobExactlyOnce) 
   const int64_t id = submit(makeSpec({1}, kTiles, false));
   std::unique_ptr<JobStore> second = openAnother();
   ASSERT_NE(second, nullptr);
-  std::vector<JobStore*> stores = {store_.get(), second.get()};
-
-  std::mutex mutex;
-  std::multiset<int64_t> leased;
-  std::vector<int> perStore(2, 0);
-  std::vector<std::string> errors;
-  std::vector<std::thread> threads;
-  for (int t = 0; t < 2; ++t) {
-    threads.emplace_back([&, t] {
-      JobStore& store = *stores[t];
-      const std::string worker = fmt::format("coordinator{}-worker", t);
-      for (int spins = 0; spins < 100000; ++spins) {
-        auto l = store.lease(worker, 0, kLease);
-        if (!l.ok() || !*l) {
-          auto info = store.job(id);
-          std::lock_guard lock(mutex);
-          if (!l.ok()) errors.push_back(std::string(l.status().message()));
-          if (!l.ok() || !info.ok() || info->state != JobState::kActive) return;
-          continue;  // the assemble waits on a tile the other coordinator holds
-        }
-        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
-        std::lock_guard lock(mutex);
-        if (!s.ok()) errors.push_back(std::string(s.message()));
-        EXPECT_EQ((*l)->attempt, 1) << (*l)->ref.toString();
-        leased.insert((*l)->task);
-        ++perStore[t];
-      }
-    });
-  }
-  for (std::thread& t : threads) t.join();
-  EXPECT_TRUE(errors.empty()) << errors.front();
+  const Race r = race({store_.get(), second.get()}, 2,
+                      [id](JobStore& store, const std::string& worker, int64_t* task,
+                           std::string* error) {
+                        auto l = store.lease(worker, 0, kLease);
+                        if (!l.ok()) *error = std::string(l.status().message());
+                        if (!l.ok()) return Take::kStop;
+                        if (!*l) {
+                          // The assemble waits on a tile the other coordinator holds.
+                          auto info = store.job(id);
+                          return info.ok() && info->state == JobState::kActive ? Take::kAgain
+                                                                                : Take::kStop;
+                        }
+                        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
+                        if (!s.ok()) *error = std::string(s.message());
+                        EXPECT_EQ((*l)->attempt, 1) << (*l)->ref.toString();
+                        *task = (*l)->task;
+                        return Take::kTook;
+                      });
+  const std::multiset<int64_t>& leased = r.taken;
+  const std::vector<int>& perStore = r.perStore;
+  EXPECT_TRUE(r.errors.empty()) << r.errors.front();
   EXPECT_EQ(leased.size(), kTiles + 1u);
   EXPECT_EQ(std::set<int64_t>(leased.begin(), leased.end()).size(), kTiles + 1u)
       << "a task was leased twice";
