@@ -14,9 +14,13 @@
 //   - kRehashed: with its UUID replaced by the hash of its contents, as writeSurfelVdb makes
 //     it, so that mutations reach OpenVDB's parser and pbgi's checks of the grid behind it.
 //     OpenVDB trusts every size it reads, as the header says: there the fuzzer finds
-//     OpenVDB's faults (allocations of sizes it never checked, writes past its buffers,
-//     invalid bools, leaks when a read throws) before pbgi's, so tests/fuzz/surfel_vdb_fuzz.cpp
-//     rehashes only when asked (PBGI_VDB_FUZZ_REHASH=1), for runs whose crashes are triaged.
+//     OpenVDB's faults before pbgi's: in 6 minutes, allocations of sizes it never checked
+//     (string lengths, metadata values, blosc chunks, attribute descriptors), assertions in
+//     Debian's libopenvdb (Page::readHeader, Page::doLoad) and its headers, which abort, an
+//     invalid bool in RootNode::readTopology, and leaks when a read throws; its writes past
+//     its buffers are known (tests/data/vdb/crashes_openvdb.vdb). So
+//     tests/fuzz/surfel_vdb_fuzz.cpp rehashes only when asked (PBGI_VDB_FUZZ_REHASH=1), for
+//     runs whose crashes are triaged.
 //
 // What must hold, beyond "no crash, no sanitizer report": every refusal names the input, and
 // inspect agrees with read (a file that reads inspects without a problem, with as many points).
