@@ -54,7 +54,10 @@
 // make, it rejects with an error naming the problem: another grid type, a missing attribute
 // or metadata entry, an attribute of the wrong type, inconsistent point offsets, duplicate or
 // out-of-range ids, non-finite or out-of-range fields, and a pbgi_checksum that does not
-// match. What OpenVDB allocates while reading such a file is up to OpenVDB.
+// match. What OpenVDB allocates while reading such a file is up to OpenVDB. The hash keeps out
+// damage, not malice: a file crafted with a matching hash reaches OpenVDB's parser, which a
+// fuzzer makes allocate any size, abort on its own assertions or write past its buffers
+// (tests/fuzz/surfel_vdb_fuzz_input.h, rehashed mode). Read only files that pbgi wrote.
 
 #include <cstdint>
 #include <iosfwd>
