@@ -80,6 +80,14 @@ struct MaterialDesc {
 
 enum class LightType { kQuad, kSphere, kPoint, kSpot, kDirectional, kEnvironment };
 
+// The most light a shot may emit, per component: radiance (quad, sphere and environment
+// lights, after the map's scale; emissive materials), intensity (point, spot) and irradiance
+// (directional). PBGI holds a cluster's power (radiance times area) and a receiver's
+// irradiance in float: at 1e20 a room of 1e6 units keeps its clusters near 1e34, under
+// float's 3.4e38, where a radiance of 1e30 at that size, or of 2.5e37 at any, overflowed them
+// and a render failed on non-finite irradiance. The sun is about 2e7 W/(sr m^2), 1.6e9 cd/m^2.
+inline constexpr float kMaxEmission = 1e20f;
+
 struct LightDesc {
   LightType type = LightType::kPoint;
   // quad

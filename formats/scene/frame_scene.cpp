@@ -42,6 +42,10 @@ struct Transform {
   }
 };
 
+std::string transformText(const TransformParams& p) {
+  return fmt::format("scale {}, rotate_deg {}, translate {}", p.scale, p.rotateDeg, p.translate);
+}
+
 Material toMaterial(const MaterialDesc& d) {
   Material m;
   m.name = d.name;
@@ -123,12 +127,23 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
         remap[i] = it->second;
         continue;
       }
+      if (fileMaterial.type == MaterialType::kEmissive && isFinite(fileMaterial.radiance) &&
+          maxComponent(fileMaterial.radiance) > kMaxEmission) {
+        return withContext(absl::InvalidArgumentError(fmt::format(
+                               "geometry file '{}': material '{}' emits radiance {}: expected at "
+                               "most {:g}",
+                               g.file, fileMaterial.name, fileMaterial.radiance, kMaxEmission)),
+                           g.where.toString());
+      }
       auto index = addMaterial(fileMaterial);
       if (!index.ok()) return index.status();
       materialIndex[fileMaterial.name] = *index;
       remap[i] = *index;
     }
-    const Transform xf(transformAt(g, shot.firstFrame, frame));
+    const TransformParams at = transformAt(g, shot.firstFrame, frame);
+    const Transform xf(at);
+    size_t kept = 0;
+    std::vector<std::string> transformDrops;
     for (MeshData& mesh : loaded->meshes) {
       for (uint32_t& m : mesh.materials) m = remap.at(m);
       if (!xf.identity()) {
@@ -138,9 +153,30 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
           const float len = length(r);
           n = len > 0.0f ? r / len : Vec3f(0.0f);
         }
+        // The loader kept what was usable as the file has it; scaled by 1e-30 (or 1e30, or
+        // moved far off) a triangle's area can underflow or its edges overflow in float.
+        const MeshCleanReport transformed = cleanMesh(mesh);
+        if (transformed.droppedTriangles() > 0) {
+          // Only the drops: the loader reported the repaired normals and uvs already.
+          MeshCleanReport drops = transformed;
+          drops.badNormals = drops.badUvs = 0;
+          transformDrops.push_back(fmt::format("mesh '{}': {}", mesh.name, drops.toString()));
+        }
       }
+      kept += mesh.triangleCount();
       coincident += triangles.dropCoincident(mesh);
       builder.addMesh(std::move(mesh));
+    }
+    if (kept == 0) {
+      return withContext(
+          absl::InvalidArgumentError(fmt::format(
+              "geometry file '{}': no usable triangles under the transform at frame {} ({}): {}",
+              g.file, frame, transformText(at), fmt::join(transformDrops, "; "))),
+          g.where.toString());
+    }
+    if (!transformDrops.empty()) {
+      warnings.push_back(fmt::format("{}: under the transform at frame {} ({}): {}", g.file, frame,
+                                     transformText(at), fmt::join(transformDrops, "; ")));
     }
     if (usesFileMaterials) {
       for (std::string& w : loaded->libraryWarnings) warnings.push_back(std::move(w));
@@ -159,6 +195,18 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
       auto image = readLatLong(l.file);
       if (!image.ok()) {
         return withContext(image.status(), l.where.toString());
+      }
+      float brightest = 0.0f;  // non-finite texels are black to the light
+      for (const Rgb& c : image->texels) {
+        if (isFinite(c)) brightest = std::max(brightest, maxComponent(c));
+      }
+      if (static_cast<double>(brightest) * l.scale > kMaxEmission) {
+        return withContext(
+            absl::InvalidArgumentError(fmt::format(
+                "environment map '{}': texels of radiance up to {:g} times scale {:g}: expected "
+                "at most {:g}",
+                l.file, brightest, l.scale, kMaxEmission)),
+            l.where.toString());
       }
       builder.addLight(l, std::make_shared<const LatLongImage>(std::move(*image)));
     } else {

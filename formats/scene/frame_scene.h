@@ -22,7 +22,9 @@ struct FrameScene {
 };
 
 // Loads what the frame needs. Geometry, textures and environment maps are read once per
-// call; render many frames of one shot through a ShotCache to reuse them.
+// call; render many frames of one shot through a ShotCache to reuse them. Triangles that a
+// geometry's transform makes unusable (its area underflows, its edges overflow) are dropped
+// and counted in a warning; a geometry left with none is refused, naming its file.
 absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame);
 
 }  // namespace pbgi

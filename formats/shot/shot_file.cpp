@@ -297,6 +297,25 @@ absl::StatusOr<GeometryDesc> parseGeometry(const Section& s) {
   return geometry;
 }
 
+// --- emission, of materials and lights ----------------------------------------------------
+
+// Light past kMaxEmission (core/scene/shot.h says why), with the key that gave it.
+absl::Status tooBright(const Section& s, std::string_view key, const std::string& value) {
+  return s.error(*s.find(key),
+                 fmt::format("'{}' {}: expected at most {:g} per component, past which PBGI's "
+                             "sums of light overflow float",
+                             key, value, kMaxEmission));
+}
+
+// Radiance, intensity or irradiance: components from 0 to kMaxEmission.
+absl::StatusOr<Vec3f> needEmission(const Section& s, std::string_view key) {
+  PBGI_ASSIGN_OR_RETURN(const Vec3f v, s.need<Vec3f>(key, kNonNegative));
+  if (maxComponent(v) > kMaxEmission) {
+    return tooBright(s, key, fmt::format("{}", v));
+  }
+  return v;
+}
+
 // --- [[material]] ------------------------------------------------------------------------
 
 // The keys each type allows, in the order of MaterialType.
@@ -378,7 +397,7 @@ absl::StatusOr<MaterialDesc> parseMaterial(const Section& s) {
       break;
     }
     case MaterialType::kEmissive: {
-      PBGI_ASSIGN_OR_RETURN(m.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(m.radiance, needEmission(s, "radiance"));
       break;
     }
   }
@@ -437,30 +456,30 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
             fmt::format("edge_u {} and edge_v {} are parallel or zero: the quad has no area",
                         l.edgeU, l.edgeV));
       }
-      PBGI_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.radiance, needEmission(s, "radiance"));
       break;
     }
     case LightType::kSphere: {
       PBGI_ASSIGN_OR_RETURN(l.center, s.need<Vec3f>("center"));
       PBGI_ASSIGN_OR_RETURN(l.radius, s.need<float>("radius", kPositive));
-      PBGI_ASSIGN_OR_RETURN(l.radiance, s.need<Vec3f>("radiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.radiance, needEmission(s, "radiance"));
       break;
     }
     case LightType::kPoint: {
       PBGI_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
-      PBGI_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.intensity, needEmission(s, "intensity"));
       break;
     }
     case LightType::kSpot: {
       PBGI_ASSIGN_OR_RETURN(l.position, s.need<Vec3f>("position"));
       PBGI_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
       PBGI_ASSIGN_OR_RETURN(l.coneDeg, s.need<float>("cone_deg", kConeRange));
-      PBGI_ASSIGN_OR_RETURN(l.intensity, s.need<Vec3f>("intensity", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.intensity, needEmission(s, "intensity"));
       break;
     }
     case LightType::kDirectional: {
       PBGI_ASSIGN_OR_RETURN(l.direction, needDirection(s, "direction"));
-      PBGI_ASSIGN_OR_RETURN(l.irradiance, s.need<Vec3f>("irradiance", kNonNegative));
+      PBGI_ASSIGN_OR_RETURN(l.irradiance, needEmission(s, "irradiance"));
       break;
     }
     case LightType::kEnvironment: {
@@ -468,6 +487,7 @@ absl::StatusOr<LightDesc> parseLight(const Section& s) {
       PBGI_ASSIGN_OR_RETURN(const std::optional<std::string> file, s.existingFile("file"));
       l.file = *file;
       PBGI_ASSIGN_OR_RETURN(l.scale, s.getOr<float>("scale", 1.0f, kNonNegative));
+      if (l.scale > kMaxEmission) return tooBright(s, "scale", fmt::format("{}", l.scale));
       PBGI_ASSIGN_OR_RETURN(l.rotateDeg, s.getOr<float>("rotate_deg", 0.0f));
       break;
     }

@@ -63,13 +63,15 @@ struct StressCase {
   int bakePoints = 8000;
   int spp = 16;
   std::string materials;  // [[material]] tables beside white, red and green
+  std::string geometry;   // more keys for [[geometry]] (a transform)
 };
 
-inline std::string defaultLight(double s) {
+// The room's quad light under its ceiling; `radiance` as TOML writes a float.
+inline std::string defaultLight(double s, const std::string& radiance = "8.0") {
   return fmt::format(
       "[[light]]\ntype = \"quad\"\ncorner = [{0:.9g}, {1:.9g}, {2:.9g}]\n"
-      "edge_u = [0.0, 0.0, {3:.9g}]\nedge_v = [{4:.9g}, 0.0, 0.0]\nradiance = [8.0, 8.0, 8.0]\n",
-      0.25 * s, 0.99 * s, -0.25 * s, 0.5 * s, -0.5 * s);
+      "edge_u = [0.0, 0.0, {3:.9g}]\nedge_v = [{4:.9g}, 0.0, 0.0]\nradiance = [{5}, {5}, {5}]\n",
+      0.25 * s, 0.99 * s, -0.25 * s, 0.5 * s, -0.5 * s, radiance);
 }
 
 // The room's light and, in view of the room, a sphere a million times brighter.
@@ -94,13 +96,13 @@ inline std::filesystem::path writeStressShot(const std::filesystem::path& dir, c
   std::ofstream(shot) << fmt::format(
       "version = 1\n[shot]\nname = \"stress\"\nframes = [1, 1]\nresolution = [32, 32]\n"
       "output = \"{}.exr\"\n[camera]\n{}up = [0.0, 1.0, 0.0]\nfov_y_deg = 40.0\n"
-      "[[geometry]]\nfile = \"scene.obj\"\n"
+      "[[geometry]]\nfile = \"scene.obj\"\n{}"
       "[[material]]\nname = \"white\"\ntype = \"diffuse\"\nalbedo = [0.7, 0.7, 0.7]\n"
       "[[material]]\nname = \"red\"\ntype = \"diffuse\"\nalbedo = [0.6, 0.1, 0.1]\n"
       "[[material]]\nname = \"green\"\ntype = \"diffuse\"\nalbedo = [0.1, 0.6, 0.1]\n"
       "{}{}[render]\nintegrator = \"{}\"\nspp = {}\n{}",
-      integrator + gather, c.camera.empty() ? defaultCamera(c.scale) : c.camera, c.materials,
-      c.lights.empty() ? defaultLight(c.scale) : c.lights, integrator, c.spp,
+      integrator + gather, c.camera.empty() ? defaultCamera(c.scale) : c.camera, c.geometry,
+      c.materials, c.lights.empty() ? defaultLight(c.scale) : c.lights, integrator, c.spp,
       integrator == "pbgi" ? fmt::format("gather = \"{}\"\nbake_points = {}\nquality = \"draft\"\n",
                                          gather, c.bakePoints)
                            : std::string());
