@@ -14,8 +14,10 @@
 # keeps rebuilds short). $PBGI_FUZZ_TARGETS picks targets (default: all five, in that order);
 # with $PBGI_FUZZ_BIN_DIR set it skips the build and runs pbgi_<target>_fuzz from that folder.
 # Inputs the fuzzer finds interesting go to build-fuzz/new_corpus_<target>, never into the
-# committed corpus; a crash leaves its input in the current folder as crash-<sha1>, which is
-# what to add to tests/data/ with a test once fixed.
+# committed corpus; a crash leaves its input in the repository root as crash-<sha1>, which is
+# what to add to tests/data/ with a test once fixed. LeakSanitizer leaves out the leaks that
+# tests/fuzz/lsan_suppressions.txt explains (OpenVDB's). surfel_vdb stops at the file's content
+# hash unless PBGI_VDB_FUZZ_REHASH=1 (tests/fuzz/surfel_vdb_fuzz_input.h says why).
 # Needs clang with libFuzzer's runtime (Debian 12: clang-14, which pulls in libclang-rt-14-dev).
 set -eu
 cd "$(dirname "$0")/../.."
