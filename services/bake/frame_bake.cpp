@@ -72,10 +72,42 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
   return request;
 }
 
+namespace {
+
+// What the bake reads besides the shot: each geometry file (and the MTL beside an OBJ),
+// textures and environment maps, as size and modification time. Editing a mesh must bake
+// again, as editing the shot does; reading every byte of every file to key the cache would
+// cost as much as a scene load.
+std::string inputFilesKey(const ShotDesc& shot) {
+  std::vector<std::string> files;
+  for (const GeometryDesc& g : shot.geometry) {
+    files.push_back(g.file);
+    files.push_back(std::filesystem::path(g.file).replace_extension(".mtl").string());
+  }
+  for (const MaterialDesc& m : shot.materials) {
+    if (m.albedoTexture) files.push_back(*m.albedoTexture);
+  }
+  for (const LightDesc& l : shot.lights) {
+    if (!l.file.empty()) files.push_back(l.file);
+  }
+  std::string key;
+  for (const std::string& f : files) {
+    std::error_code ec;
+    const auto size = std::filesystem::file_size(f, ec);
+    const auto time = std::filesystem::last_write_time(f, ec);
+    key += ec ? fmt::format("|{}:absent", f)
+              : fmt::format("|{}:{}:{}", f, size, time.time_since_epoch().count());
+  }
+  return key;
+}
+
+}  // namespace
+
 uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
   // The bytes the shot was parsed from, not the file as it is now: a farm job renders the
-  // text it was submitted with, whatever the file says by the time its bake runs.
-  std::string text = shot.source;
+  // text it was submitted with, whatever the file says by the time its bake runs. The files
+  // it names are keyed as they are now (inputFilesKey).
+  std::string text = shot.source + inputFilesKey(shot);
   const uint64_t points = request.points > 0 ? request.points : kDefaultBakePoints;
   text += fmt::format(
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_cut={}|encoding={}|leaf={}"

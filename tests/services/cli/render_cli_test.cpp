@@ -65,3 +65,33 @@ TEST(RenderCliTest, BadInputExitsTwoWithFileAndLine) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+TEST(RenderCliTest, AnEditedMeshIsBakedAgainAndAnUntouchedOneReused) {
+  const auto dir = testing::makeTempDir("render-rebake");
+  const auto sample = testing::sourceDir() / "config/scenes/cornell";
+  std::filesystem::copy_file(sample / "cornell_box.obj", dir / "cornell_box.obj");
+  const std::string shot = testing::slurpFile(sample / "cornell.shot.toml");
+  const std::filesystem::path shotPath = dir / "cornell.shot.toml";
+  std::ofstream(shotPath) << shot;
+  const std::string args = "render " + shotPath.string() +
+                           " --frame 1 --spp 1 --threads 2 --set bake_points=2000 --out " +
+                           (dir / "f.exr").string();
+  const Result first = runPbgi(args);
+  ASSERT_EQ(first.exitCode, 0) << first.output();
+  EXPECT_NE(first.out.find("(baked now)"), std::string::npos) << first.out;
+  const Result again = runPbgi(args);
+  ASSERT_EQ(again.exitCode, 0) << again.output();
+  EXPECT_NE(again.out.find("(reused)"), std::string::npos) << again.out;
+  // The mesh changes (a comment is enough to say so): the tree is not the scene's any more.
+  std::ofstream(dir / "cornell_box.obj", std::ios::app) << "\n# edited\n";
+  const Result edited = runPbgi(args);
+  ASSERT_EQ(edited.exitCode, 0) << edited.output();
+  EXPECT_NE(edited.out.find("(baked now)"), std::string::npos) << edited.out;
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace pbgi
