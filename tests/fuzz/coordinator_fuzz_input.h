@@ -287,25 +287,17 @@ class FarmFuzzCoordinator {
   }
 
   // The process's scratch folder, on /dev/shm where there is one (the store's fsyncs cost
-  // nothing there); removed at exit.
+  // nothing there).
   static const std::filesystem::path& scratch() {
-    static const std::filesystem::path dir = [] {
+    static const ScratchFolder dir([] {
       namespace fs = std::filesystem;
       const fs::path shm = "/dev/shm";
       const fs::path base = fs::is_directory(shm) && ::access(shm.c_str(), W_OK) == 0
                                 ? shm
                                 : fs::temp_directory_path();
-      const fs::path d = base / fmt::format("pbgi-coordinator-fuzz-{}", ::getpid());
-      std::error_code ec;
-      fs::remove_all(d, ec);
-      fs::create_directories(d);
-      std::atexit([] {
-        std::error_code ec;
-        fs::remove_all(scratch(), ec);
-      });
-      return d;
-    }();
-    return dir;
+      return base / fmt::format("pbgi-coordinator-fuzz-{}", ::getpid());
+    }());
+    return dir.path();
   }
   static const std::filesystem::path& emptyStore() {
     static const std::filesystem::path db = [] {

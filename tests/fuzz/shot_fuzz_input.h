@@ -23,6 +23,7 @@
 #include <string>
 #include <string_view>
 #include <system_error>
+#include <utility>
 
 #include <absl/status/statusor.h>
 #include <fmt/format.h>
@@ -39,20 +40,38 @@ inline constexpr const char* kShotFuzzFiles[] = {
     "caustic.obj", "plates.obj",  "cornell_box_glossy.obj",
 };
 
-// The scratch folder, made once per process and removed at its exit.
+// A folder of this process's, removed when it exits (a run that crashes leaves it).
+class ScratchFolder {
+ public:
+  explicit ScratchFolder(std::filesystem::path path) : path_(std::move(path)) {
+    std::error_code ec;
+    std::filesystem::remove_all(path_, ec);
+    std::filesystem::create_directories(path_);
+  }
+  ~ScratchFolder() {
+    std::error_code ec;
+    std::filesystem::remove_all(path_, ec);
+  }
+  ScratchFolder(const ScratchFolder&) = delete;
+  ScratchFolder& operator=(const ScratchFolder&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// The shot target's scratch folder, made once per process.
 inline const std::filesystem::path& shotFuzzDir() {
-  static const std::filesystem::path dir = [] {
-    namespace fs = std::filesystem;
-    const fs::path root = fs::temp_directory_path() / fmt::format("pbgi-shot-fuzz-{}", ::getpid());
-    fs::create_directories(root / "shots");
-    for (const char* name : kShotFuzzFiles) std::ofstream(root / "shots" / name).put('\n');
-    std::atexit([] {
-      std::error_code ec;
-      fs::remove_all(shotFuzzDir(), ec);
-    });
-    return root;
-  }();
-  return dir;
+  struct Folder : ScratchFolder {
+    Folder()
+        : ScratchFolder(std::filesystem::temp_directory_path() /
+                        fmt::format("pbgi-shot-fuzz-{}", ::getpid())) {
+      std::filesystem::create_directories(path() / "shots");
+      for (const char* name : kShotFuzzFiles) std::ofstream(path() / "shots" / name).put('\n');
+    }
+  };
+  static const Folder dir;
+  return dir.path();
 }
 
 inline std::string shotFuzzPath() { return (shotFuzzDir() / "shots" / "fuzz.shot.toml").string(); }
