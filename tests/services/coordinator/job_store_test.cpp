@@ -161,6 +161,17 @@ class JobStoreFixture : public ::testing::Test {
     FAIL() << "job " << job << " frame " << frame << " never assembled";
   }
 
+  // After a migration: a job with an audit submits, and its audit leases once its frame is
+  // assembled (times from 9 on).
+  void expectAnAuditedJobRuns() {
+    JobSpec audited = makeSpec({1}, 1, false, 9);
+    audited.audits = {makeAudit(1, {0})};
+    const int64_t withAudit = submit(audited, 10);
+    finishFrame(withAudit, 1, 11);
+    auto a = leaseAudit("w2", 12);
+    ASSERT_TRUE(a.has_value());
+    EXPECT_EQ(a->job, withAudit);
+  }
   std::optional<AuditLease> leaseAudit(const std::string& worker, Seconds now) {
     auto l = store_->leaseAudit(worker, now, kLease);
     EXPECT_TRUE(l.ok()) << l.status();
@@ -1386,13 +1397,7 @@ TEST_F(SqliteJobStoreTest, AnOlderFileGainsTheAuditsTableWithItsJobsIntact) {
     EXPECT_EQ(events->size(), version == 1 ? 0u : 1u);
     ASSERT_TRUE(store_->complete(bake->task, bake->attempt, 9).ok()) << "the lease survived";
 
-    JobSpec audited = makeSpec({1}, 1, false, 9);
-    audited.audits = {makeAudit(1, {0})};
-    const int64_t withAudit = submit(audited, 10);
-    finishFrame(withAudit, 1, 11);
-    auto a = leaseAudit("w2", 12);
-    ASSERT_TRUE(a.has_value());
-    EXPECT_EQ(a->job, withAudit);
+    expectAnAuditedJobRuns();
     store_.reset();
 
     ASSERT_EQ(sqlite3_open(spec_.c_str(), &raw), SQLITE_OK);
@@ -1433,13 +1438,7 @@ TEST_F(PostgresJobStoreTest, AVersion1DatabaseGainsTheAuditsTableWithItsJobsInta
   EXPECT_EQ(count(info, TaskState::kBlocked), 6);
   EXPECT_TRUE(audits(id).empty());
   ASSERT_TRUE(store_->complete(bake->task, bake->attempt, 9).ok()) << "the lease survived";
-  JobSpec audited = makeSpec({1}, 1, false, 9);
-  audited.audits = {makeAudit(1, {0})};
-  const int64_t withAudit = submit(audited, 10);
-  finishFrame(withAudit, 1, 11);
-  auto a = leaseAudit("w2", 12);
-  ASSERT_TRUE(a.has_value());
-  EXPECT_EQ(a->job, withAudit);
+  expectAnAuditedJobRuns();
   const absl::Status version = cluster_->execute(
       database_,
       "DO $$ BEGIN IF (SELECT version FROM pbgi_schema) <> 2 OR (SELECT COUNT(*) FROM "
