@@ -151,17 +151,18 @@ absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string
   v1::PutFileResponse response;
   auto writer = impl_->stub->PutFile(&context, &response);
   bool first = true;
-  const absl::Status sent = sendFile(path, [&](const FileDigest& digest, std::string_view data) {
-    v1::PutFileChunk chunk;
-    if (first) {
-      chunk = head;
-      chunk.set_size(digest.size);
-      chunk.set_xxh3(digest.xxh3);
-      first = false;
-    }
-    chunk.set_data(std::string(data));
-    return writer->Write(chunk);
-  });
+  const absl::Status sent =
+      sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
+        v1::PutFileChunk chunk;
+        if (first) {
+          chunk = head;
+          chunk.set_size(size);
+          first = false;
+        }
+        if (xxh3) chunk.set_xxh3(*xxh3);
+        chunk.set_data(std::string(data));
+        return writer->Write(chunk);
+      });
   writer->WritesDone();
   const grpc::Status finished = writer->Finish();
   // The coordinator's reason beats "it stopped reading".
@@ -175,10 +176,12 @@ absl::Status FarmClient::getFile(const v1::GetFileRequest& request, const std::s
   auto reader = impl_->stub->GetFile(&context, request);
   v1::FileChunk chunk;
   std::optional<FileReceiver> file;
+  uint64_t xxh3 = 0;  // the last chunk's
   absl::Status failed;
   while (failed.ok() && reader->Read(&chunk)) {
+    xxh3 = chunk.xxh3();
     if (!file) {
-      auto begun = FileReceiver::begin(path, {chunk.size(), chunk.xxh3()});
+      auto begun = FileReceiver::begin(path, chunk.size());
       if (!begun.ok()) {
         failed = begun.status();
         break;
@@ -192,7 +195,7 @@ absl::Status FarmClient::getFile(const v1::GetFileRequest& request, const std::s
   if (failed.ok() && !finished.ok()) failed = impl_->failed(finished, "GetFile");
   if (failed.ok() && !file) failed = absl::DataLossError(fmt::format("{}: nothing arrived", path));
   if (!failed.ok()) return failed;
-  return file->finish();
+  return file->finish(xxh3);
 }
 
 absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(

@@ -64,12 +64,13 @@ absl::StatusOr<std::string> FileService::put(
   }
   PBGI_ASSIGN_OR_RETURN(const std::string path,
                         pathOf(task.ref.job, kind, task.ref.frame, task.ref.tile));
-  PBGI_ASSIGN_OR_RETURN(FileReceiver file,
-                        FileReceiver::begin(path, {chunk.size(), chunk.xxh3()}));
+  PBGI_ASSIGN_OR_RETURN(FileReceiver file, FileReceiver::begin(path, chunk.size()));
+  uint64_t xxh3 = 0;
   do {
     PBGI_RETURN_IF_ERROR(file.add(chunk.data()));
+    xxh3 = chunk.xxh3();  // the last chunk's counts
   } while (next(&chunk));
-  PBGI_RETURN_IF_ERROR(file.finish());
+  PBGI_RETURN_IF_ERROR(file.finish(xxh3));
   return path;
 }
 
@@ -83,13 +84,13 @@ absl::Status FileService::get(const v1::GetFileRequest& request,
   PBGI_ASSIGN_OR_RETURN(const std::string path, pathOf(request.job(), request.kind(),
                                                        request.frame(), request.tile()));
   bool first = true;
-  return sendFile(path, [&](const FileDigest& digest, std::string_view data) {
+  return sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
     v1::FileChunk chunk;
     if (first) {
-      chunk.set_size(digest.size);
-      chunk.set_xxh3(digest.xxh3);
+      chunk.set_size(size);
       first = false;
     }
+    if (xxh3) chunk.set_xxh3(*xxh3);
     chunk.set_data(std::string(data));
     return write(chunk);
   });

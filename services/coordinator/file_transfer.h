@@ -7,6 +7,7 @@
 #include <fstream>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -21,36 +22,34 @@ namespace pbgi::farm {
 
 inline constexpr size_t kFileChunkBytes = 1 << 20;
 
-struct FileDigest {
-  uint64_t size = 0;
-  uint64_t xxh3 = 0;
-};
-// The file's size and XXH3-64 (NotFound naming it when it cannot be read).
-absl::StatusOr<FileDigest> digestFile(const std::string& path);
-
-// Calls `send(digest, data)` for each chunk of the file in order (at least one, empty for an
-// empty file); stops, with Cancelled, when `send` returns false.
-absl::Status sendFile(const std::string& path,
-                      const std::function<bool(const FileDigest&, std::string_view)>& send);
+// Calls `send(size, data, xxh3)` for each chunk of the file in order (at least one, empty for
+// an empty file), reading it once: `size` is the whole file's, and the last chunk carries the
+// XXH3-64 of the whole file (nullopt before). Stops, with Cancelled, when `send` returns
+// false; DataLoss when the file changed size while it was read.
+absl::Status sendFile(
+    const std::string& path,
+    const std::function<bool(uint64_t size, std::string_view data, std::optional<uint64_t> xxh3)>&
+        send);
 
 class FileReceiver {
  public:
-  // Ready to receive `expected` into `path` (its folder made when missing).
-  static absl::StatusOr<FileReceiver> begin(const std::string& path, FileDigest expected);
+  // Ready to receive `size` bytes into `path` (its folder made when missing).
+  static absl::StatusOr<FileReceiver> begin(const std::string& path, uint64_t size);
   FileReceiver(FileReceiver&&) noexcept;
   FileReceiver& operator=(FileReceiver&&) noexcept;
   ~FileReceiver();
 
   // DataLoss when the data runs past the announced size.
   absl::Status add(std::string_view data);
-  // Renames the file into place when its size and hash are the announced ones; DataLoss
-  // naming the file otherwise (nothing is written then).
-  absl::Status finish();
+  // Renames the file into place when its size is the announced one and its XXH3-64 is
+  // `xxh3` (the sender's, from the last chunk); DataLoss naming the file otherwise (nothing is
+  // written then).
+  absl::Status finish(uint64_t xxh3);
 
  private:
-  FileReceiver(AtomicFile file, FileDigest expected);
+  FileReceiver(AtomicFile file, uint64_t size);
   AtomicFile file_;
-  FileDigest expected_;
+  uint64_t size_ = 0;
   uint64_t received_ = 0;
   std::unique_ptr<std::ofstream> out_;
   XXH3_state_s* hash_ = nullptr;

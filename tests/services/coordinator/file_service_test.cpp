@@ -83,26 +83,42 @@ TEST_F(FileServiceTest, OnlyTheCurrentAttemptOfTheTaskThatMakesAFileMaySendIt) {
 TEST(FileReceiverTest, ADamagedOrShortFileIsNeverRenamedIntoPlace) {
   const fs::path dir = pbgi::testing::makeTempDir("file-receiver");
   const std::string path = (dir / "out.bin").string();
-  auto digest = [&](const std::string& bytes) {
+  // The hash a sender announces, in the last of its chunks.
+  auto hashOf = [&](const std::string& bytes) {
     std::ofstream((dir / "src").string(), std::ios::binary) << bytes;
-    return *digestFile((dir / "src").string());
+    uint64_t last = 0;
+    int chunks = 0;
+    EXPECT_TRUE(sendFile((dir / "src").string(),
+                         [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
+                           EXPECT_EQ(size, bytes.size());
+                           EXPECT_EQ(data, bytes);
+                           EXPECT_TRUE(xxh3.has_value()) << "one chunk: the last, with the hash";
+                           last = xxh3.value_or(0);
+                           ++chunks;
+                           return true;
+                         })
+                    .ok());
+    EXPECT_EQ(chunks, 1);
+    return last;
   };
-  auto r = FileReceiver::begin(path, digest("hello world"));
+  const uint64_t hello = hashOf("hello world");
+  EXPECT_NE(hashOf("hello wurld"), hello);
+  auto r = FileReceiver::begin(path, 11);
   ASSERT_TRUE(r.ok());
   ASSERT_TRUE(r->add("hello").ok());
-  EXPECT_EQ(r->finish().code(), absl::StatusCode::kDataLoss);  // cut short
+  EXPECT_EQ(r->finish(hello).code(), absl::StatusCode::kDataLoss);  // cut short
   EXPECT_FALSE(fs::exists(path));
-  r = FileReceiver::begin(path, digest("hello world"));
+  r = FileReceiver::begin(path, 11);
   ASSERT_TRUE(r->add("hello wurld").ok());
-  const absl::Status damaged = r->finish();
+  const absl::Status damaged = r->finish(hello);
   EXPECT_EQ(damaged.code(), absl::StatusCode::kDataLoss);
   EXPECT_NE(damaged.message().find("damaged"), std::string::npos) << damaged;
   EXPECT_FALSE(fs::exists(path));
-  r = FileReceiver::begin(path, digest("hi"));
+  r = FileReceiver::begin(path, 2);
   EXPECT_EQ(r->add("hello").code(), absl::StatusCode::kDataLoss);  // more than announced
-  r = FileReceiver::begin(path, digest("hello world"));
+  r = FileReceiver::begin(path, 11);
   ASSERT_TRUE(r->add("hello ").ok() && r->add("world").ok());
-  ASSERT_TRUE(r->finish().ok());
+  ASSERT_TRUE(r->finish(hello).ok());
   EXPECT_TRUE(fs::exists(path));
   fs::remove_all(dir);
 }
