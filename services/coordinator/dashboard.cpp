@@ -300,8 +300,8 @@ bool authorized(const DashboardParts& p, const httplib::Request& req, httplib::R
 }
 
 // One text/event-stream: a "data: <version>" event at once and after each change (bursts
-// of changes coalesce into one event a tenth of a second), a comment every 15 s otherwise so
-// that proxies keep the connection.
+// of changes coalesce: at most four events a second, each a page's reads of the store), a
+// comment every 15 s otherwise so that proxies keep the connection.
 void streamEvents(const DashboardParts& p, std::shared_ptr<std::atomic<int>> streams,
                   httplib::Response& res) {
   constexpr int kMaxStreams = 48;
@@ -332,7 +332,7 @@ void streamEvents(const DashboardParts& p, std::shared_ptr<std::atomic<int>> str
           *seen = v;
         }
         if (!sink.write(message.data(), message.size())) return false;
-        std::this_thread::sleep_for(milliseconds(100));
+        std::this_thread::sleep_for(milliseconds(250));
         return true;
       },
       [streams](bool) { streams->fetch_sub(1); });

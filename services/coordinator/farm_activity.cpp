@@ -55,9 +55,9 @@ void FarmActivity::heartbeat(const std::string& worker, double progress, Seconds
     WorkerActivity& w = workers_[worker];
     w.lastHeard = now;
     w.progress = progress;
-    ++version_;
   }
-  cv_.notify_all();
+  // No new version: a farm's heartbeats come many a second, and each would send every page
+  // back to the store for the whole job. Progress shows at the next change of state.
 }
 
 void FarmActivity::taskFinished(const std::string& worker, bool done, uint64_t cacheHits,

@@ -32,8 +32,8 @@ struct WorkerActivity {
 
 class FarmActivity {
  public:
-  // A job's tasks changed (submitted, leased, progress, done, failed, expired, cancelled,
-  // retried): the version moves and every waiter wakes.
+  // A job's tasks changed (submitted, leased, done, failed, expired, cancelled, retried): the
+  // version moves and every waiter wakes. Heartbeats (progress) do not move it.
   void changed();
   uint64_t version() const;
   // Blocks until the version is not `seen`, `timeout` passes or stop(); returns the version.
