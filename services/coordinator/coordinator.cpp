@@ -389,8 +389,7 @@ void FarmService::describeAudit(const AuditLease& audit, const JobView& view,
   response->set_has_task(true);
   response->set_task(audit.audit);
   response->set_attempt(audit.attempt);
-  response->set_kind("audit");
-  response->set_task_kind(v1::TASK_KIND_AUDIT);
+  setAuditKind(response);
   response->set_job(audit.job);
   response->set_frame(audit.spec.frame);
   response->set_tile(-1);

@@ -61,7 +61,7 @@ std::string wordIn(const std::pair<Store, Wire> (&table)[N], Wire value) {
 template <typename Message>
 v1::TaskKind kindOf(const Message& m) {
   if (m.task_kind() != v1::TASK_KIND_UNSPECIFIED) return m.task_kind();
-  return m.kind() == "audit" ? v1::TASK_KIND_AUDIT : named(kKinds, m.kind());
+  return m.kind() == kAuditWord ? v1::TASK_KIND_AUDIT : named(kKinds, m.kind());
 }
 
 }  // namespace
@@ -74,8 +74,7 @@ std::optional<TaskState> fromWire(v1::TaskState state) { return fromWireIn(kTask
 std::optional<JobState> fromWire(v1::JobState state) { return fromWireIn(kJobStates, state); }
 
 std::string wireWord(v1::TaskKind kind) {
-  // Audits are not store tasks (job_store.h keeps them apart): no TaskKind of their own.
-  return kind == v1::TASK_KIND_AUDIT ? "audit" : wordIn(kKinds, kind);
+  return kind == v1::TASK_KIND_AUDIT ? kAuditWord : wordIn(kKinds, kind);
 }
 std::string wireWord(v1::TaskState state) { return wordIn(kTaskStates, state); }
 std::string wireWord(v1::JobState state) { return wordIn(kJobStates, state); }
@@ -111,6 +110,11 @@ std::array<int, v1::TaskState_ARRAYSIZE> taskCounts(const v1::JobStatus& job) {
 void setKind(TaskKind kind, v1::LeaseTaskResponse* out) {
   out->set_task_kind(toWire(kind));
   out->set_kind(toString(kind));
+}
+
+void setAuditKind(v1::LeaseTaskResponse* out) {
+  out->set_task_kind(v1::TASK_KIND_AUDIT);
+  out->set_kind(kAuditWord);
 }
 
 void setKind(TaskKind kind, v1::LogEntry* out) {

@@ -37,8 +37,13 @@ v1::JobState jobStateOf(const v1::JobStatus& job);
 // tasks_by_state words.
 std::array<int, v1::TaskState_ARRAYSIZE> taskCounts(const v1::JobStatus& job);
 
+// Audits are not store tasks (job_store.h keeps them apart), so they have no TaskKind: their
+// wire kind is TASK_KIND_AUDIT, and this its word.
+inline constexpr const char* kAuditWord = "audit";
+
 // Both forms into a message: the enum and the word.
 void setKind(TaskKind kind, v1::LeaseTaskResponse* out);
+void setAuditKind(v1::LeaseTaskResponse* out);
 void setKind(TaskKind kind, v1::LogEntry* out);
 void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out);
 void setState(JobState state, const std::array<int, 6>& tasksByState, v1::JobStatus* out);
