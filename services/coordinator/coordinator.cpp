@@ -146,52 +146,7 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status LeaseTask(grpc::ServerContext*, const v1::LeaseTaskRequest* request,
                          v1::LeaseTaskResponse* response) override {
-    // A job whose stored shot no longer parses (a newer file format, a damaged row) must not
-    // stop the farm: its task fails with the reason and the next one is offered.
-    std::vector<HeldFrame> held;
-    for (const v1::HeldFrame& h : request->held()) held.push_back({h.job(), h.frame()});
-    const std::span<const HeldFrame> prefer =
-        options_.localityDispatch ? std::span<const HeldFrame>(held) : std::span<const HeldFrame>();
-    for (;;) {
-      auto lease = store_.lease(request->worker(), wallClock(), options_.leaseSeconds, prefer);
-      if (!lease.ok()) return toGrpc(lease.status());
-      if (!lease->has_value()) {
-        // Nothing of any job's frames is ready for this worker: an audit, if it runs them.
-        std::optional<AuditLease> audit;
-        if (request->runs_audits()) {
-          auto a = store_.leaseAudit(request->worker(), wallClock(), options_.leaseSeconds);
-          if (!a.ok()) return toGrpc(a.status());
-          audit = *std::move(a);
-        }
-        if (audit) {
-          auto view = jobs_.get(audit->job);
-          if (!view.ok()) {
-            (void)store_.failAudit(audit->audit, audit->attempt,
-                                   std::string(view.status().message()), wallClock());
-            continue;
-          }
-          activity_.leaseAsked(request->worker(), std::move(held),
-                               fmt::format("job {} frame {} audit", audit->job,
-                                           audit->spec.frame),
-                               wallClock());
-          describeAudit(*audit, **view, response);
-          return grpc::Status::OK;
-        }
-        activity_.leaseAsked(request->worker(), std::move(held), std::nullopt, wallClock());
-        response->set_has_task(false);
-        return grpc::Status::OK;
-      }
-      const Lease& l = **lease;
-      auto view = jobs_.get(l.ref.job);
-      if (!view.ok()) {
-        (void)store_.fail(l.task, l.attempt, std::string(view.status().message()), wallClock());
-        continue;
-      }
-      metrics_.leases->add();
-      activity_.leaseAsked(request->worker(), std::move(held), l.ref.toString(), wallClock());
-      describeLease(l, **view, response);
-      return grpc::Status::OK;
-    }
+    return lease(*request, response);
   }
 
   grpc::Status Heartbeat(grpc::ServerContext*, const v1::HeartbeatRequest* request,
@@ -213,22 +168,17 @@ class FarmService final : public v1::Coordinator::Service {
   }
 
   grpc::Status CompleteTask(grpc::ServerContext*, const v1::CompleteTaskRequest* request,
-                            v1::CompleteTaskResponse*) override {
-    if (request->audit()) return completeAudit(*request);
-    const absl::StatusOr<TaskRef> done =
-        store_.complete(request->task(), request->attempt(), wallClock(), request->log());
-    if (done.status().code() == absl::StatusCode::kFailedPrecondition) {
-      metrics_.staleCompletions->add();
-      log::warn("dropped stale completion worker={}: {}", request->worker(),
-                done.status().message());
+                            v1::CompleteTaskResponse* response) override {
+    const grpc::Status done = request->audit() ? completeAudit(*request) : complete(*request);
+    if (!done.ok() || !request->has_next()) return done;
+    // The completion stands whatever the lease does: a lease that fails here leaves no next
+    // task, and the worker asks again with LeaseTask.
+    if (const grpc::Status leased = lease(request->next(), response->mutable_next());
+        !leased.ok()) {
+      response->clear_next();
+      log::warn("worker={}: no next lease with its completion: {}", request->worker(),
+                leased.error_message());
     }
-    if (!done.ok()) return toGrpc(done.status());
-    metrics_.cacheHits->add(request->cache_hits());
-    metrics_.cacheMisses->add(request->cache_misses());
-    metrics_.treeBytesStreamed->add(request->tree_bytes_streamed());
-    metrics_.taskSeconds->observe(toString(done->kind), request->seconds());
-    activity_.taskFinished(request->worker(), true, request->cache_hits(), request->cache_misses(),
-                           request->tree_bytes_streamed(), wallClock());
     return grpc::Status::OK;
   }
 
@@ -279,6 +229,75 @@ class FarmService final : public v1::Coordinator::Service {
   }
 
  private:
+  // LeaseTask's work, also done for a completion that asks for its worker's next task.
+  grpc::Status lease(const v1::LeaseTaskRequest& request, v1::LeaseTaskResponse* response) {
+    // A job whose stored shot no longer parses (a newer file format, a damaged row) must not
+    // stop the farm: its task fails with the reason and the next one is offered.
+    std::vector<HeldFrame> held;
+    for (const v1::HeldFrame& h : request.held()) held.push_back({h.job(), h.frame()});
+    const std::span<const HeldFrame> prefer =
+        options_.localityDispatch ? std::span<const HeldFrame>(held) : std::span<const HeldFrame>();
+    for (;;) {
+      auto lease = store_.lease(request.worker(), wallClock(), options_.leaseSeconds, prefer);
+      if (!lease.ok()) return toGrpc(lease.status());
+      if (!lease->has_value()) {
+        // Nothing of any job's frames is ready for this worker: an audit, if it runs them.
+        std::optional<AuditLease> audit;
+        if (request.runs_audits()) {
+          auto a = store_.leaseAudit(request.worker(), wallClock(), options_.leaseSeconds);
+          if (!a.ok()) return toGrpc(a.status());
+          audit = *std::move(a);
+        }
+        if (audit) {
+          auto view = jobs_.get(audit->job);
+          if (!view.ok()) {
+            (void)store_.failAudit(audit->audit, audit->attempt,
+                                   std::string(view.status().message()), wallClock());
+            continue;
+          }
+          activity_.leaseAsked(request.worker(), std::move(held),
+                               fmt::format("job {} frame {} audit", audit->job,
+                                           audit->spec.frame),
+                               wallClock());
+          describeAudit(*audit, **view, response);
+          return grpc::Status::OK;
+        }
+        activity_.leaseAsked(request.worker(), std::move(held), std::nullopt, wallClock());
+        response->set_has_task(false);
+        return grpc::Status::OK;
+      }
+      const Lease& l = **lease;
+      auto view = jobs_.get(l.ref.job);
+      if (!view.ok()) {
+        (void)store_.fail(l.task, l.attempt, std::string(view.status().message()), wallClock());
+        continue;
+      }
+      metrics_.leases->add();
+      activity_.leaseAsked(request.worker(), std::move(held), l.ref.toString(), wallClock());
+      describeLease(l, **view, response);
+      return grpc::Status::OK;
+    }
+  }
+
+  // CompleteTask's work for a task (not an audit).
+  grpc::Status complete(const v1::CompleteTaskRequest& request) {
+    const absl::StatusOr<TaskRef> done =
+        store_.complete(request.task(), request.attempt(), wallClock(), request.log());
+    if (done.status().code() == absl::StatusCode::kFailedPrecondition) {
+      metrics_.staleCompletions->add();
+      log::warn("dropped stale completion worker={}: {}", request.worker(),
+                done.status().message());
+    }
+    if (!done.ok()) return toGrpc(done.status());
+    metrics_.cacheHits->add(request.cache_hits());
+    metrics_.cacheMisses->add(request.cache_misses());
+    metrics_.treeBytesStreamed->add(request.tree_bytes_streamed());
+    metrics_.taskSeconds->observe(toString(done->kind), request.seconds());
+    activity_.taskFinished(request.worker(), true, request.cache_hits(), request.cache_misses(),
+                           request.tree_bytes_streamed(), wallClock());
+    return grpc::Status::OK;
+  }
+
   // A store call's status; when it succeeded, the dashboard hears that a job changed.
   grpc::Status changed(const absl::Status& s) {
     if (s.ok()) activity_.changed();

@@ -324,6 +324,12 @@ inline constexpr std::array<Dependency, 3> kDependencies = {{
     {TaskKind::kTile, TaskKind::kBake},
     {TaskKind::kAssemble, TaskKind::kTile},
 }};
+// Whether promoting `d`'s blocked tasks can find any after a task of `completed` is done
+// (nullopt: after something else, a retry say). A completion changes only what waits on its
+// kind: the other promotions would be statements that find nothing, on every completion.
+inline bool mayRelease(const Dependency& d, std::optional<TaskKind> completed) {
+  return !completed || d.waitsOn == completed;
+}
 // The kinds of the same frame that can never run once a task of `kind` is dead.
 std::vector<TaskKind> dependentKinds(TaskKind kind);
 // The last error of a task that dies because `dead` did.

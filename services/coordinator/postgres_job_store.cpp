@@ -217,7 +217,8 @@ class PostgresJobStore final : public JobStore {
   void addEvent(PgTx& tx, const TaskInfo& task, int attempt, const std::string& worker,
                 std::string_view event, std::string_view text, Seconds now);
   void touchWorker(PgTx& tx, const std::string& worker, Seconds now);
-  void promoteBlocked(PgTx& tx, int64_t job, std::optional<int> frame);
+  void promoteBlocked(PgTx& tx, int64_t job, std::optional<int> frame,
+                      std::optional<TaskKind> completed = std::nullopt);
   void killDependents(PgTx& tx, const TaskInfo& dead);
   absl::Status recordFailure(PgTx& tx, const TaskInfo& task, const std::string& error, Seconds now,
                              std::string_view event, std::string_view log);
@@ -331,8 +332,10 @@ void PostgresJobStore::touchWorker(PgTx& tx, const std::string& worker, Seconds 
 }
 
 // kDependencies, in its order.
-void PostgresJobStore::promoteBlocked(PgTx& tx, int64_t job, std::optional<int> frame) {
+void PostgresJobStore::promoteBlocked(PgTx& tx, int64_t job, std::optional<int> frame,
+                                      std::optional<TaskKind> completed) {
   for (const Dependency& d : kDependencies) {
+    if (!mayRelease(d, completed)) continue;
     const NullableInt waitsOn = d.waitsOn ? NullableInt{false, number(*d.waitsOn)} : NullableInt{};
     tx.exec(
         "UPDATE tasks SET state = 1 WHERE job = $1 AND ($2::integer IS NULL OR "
@@ -611,7 +614,7 @@ absl::StatusOr<TaskRef> PostgresJobStore::complete(int64_t task, int attempt, Se
         "UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = $1 "
         "AND attempt = $2 AND state = 2",
         task, attempt);
-    promoteBlocked(tx, info.ref.job, info.ref.frame);
+    promoteBlocked(tx, info.ref.job, info.ref.frame, info.ref.kind);
     touchWorker(tx, info.worker, now);
     PBGI_RETURN_IF_ERROR(settleJob(tx, info.ref.job));
     return info.ref;

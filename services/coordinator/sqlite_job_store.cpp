@@ -215,7 +215,8 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<TaskInfo> loadTask(int64_t task);
   absl::StatusOr<TaskInfo> currentLease(int64_t task, int attempt);
   absl::Status touchWorker(const std::string& worker, Seconds now);
-  absl::Status promoteBlocked(int64_t job, std::optional<int> frame);
+  absl::Status promoteBlocked(int64_t job, std::optional<int> frame,
+                              std::optional<TaskKind> completed = std::nullopt);
   absl::Status killDependents(const TaskInfo& dead);
   absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
                              std::string_view event, std::string_view log);
@@ -497,18 +498,23 @@ absl::Status SqliteJobStore::touchWorker(const std::string& worker, Seconds now)
 }
 
 // kDependencies, in its order.
-absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> frame) {
+absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> frame,
+                                            std::optional<TaskKind> completed) {
   for (const Dependency& d : kDependencies) {
+    if (!mayRelease(d, completed)) continue;
     // Two statements, not `(?2 IS NULL OR frame = ?2)`: with the OR, SQLite's plan walks every
     // blocked task of the job (a frame's assemble each: thousands in a long shot) per call.
+    // The unfinished states listed, not `state != 3`: with `!=` the probe for an unfinished
+    // tile walks the frame's tiles in tile order through every done one (thousands, on every
+    // tile's completion); with the list it is one probe of tasks_by_job_state per state.
     Query q = frame ? query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
                             "frame = ?2 AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 "
                             "FROM tasks d WHERE d.job = tasks.job AND d.frame = tasks.frame AND "
-                            "d.kind = ?4 AND d.state != 3))")
+                            "d.kind = ?4 AND d.state IN (0, 1, 2, 4, 5)))")
                     : query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
                             "kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d "
                             "WHERE d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 "
-                            "AND d.state != 3))");
+                            "AND d.state IN (0, 1, 2, 4, 5)))");
     q.bind(1, job).bind(3, d.kind).bind(4, d.waitsOn);
     if (frame) q.bind(2, *frame);
     PBGI_RETURN_IF_ERROR(q.run());
@@ -566,13 +572,18 @@ absl::Status SqliteJobStore::settleJob(int64_t job) {
   PBGI_ASSIGN_OR_RETURN(const JobState current, jobState(job));
   if (current == JobState::kCancelled) return absl::OkStatus();
   // Every completion settles its job: an index probe per state, not a count of every task
-  // of the job (4096 a frame for a big one).
+  // of the job (4096 a frame for a big one). A ready or leased task decides it alone (the job
+  // is active), so those are probed first and, on a busy farm, are the only probes.
   std::array<bool, 6> present{};
-  for (size_t s = 0; s < present.size(); ++s) {
-    if (s == static_cast<size_t>(TaskState::kDone)) continue;  // decides nothing
+  for (const TaskState s : {TaskState::kReady, TaskState::kLeased, TaskState::kBlocked,
+                            TaskState::kDead, TaskState::kCancelled}) {
     Query q = query("SELECT 1 FROM tasks WHERE job = ?1 AND state = ?2 LIMIT 1");
     q.bind(1, job).bind(2, static_cast<int>(s));
-    PBGI_ASSIGN_OR_RETURN(present[s], q.step());
+    PBGI_ASSIGN_OR_RETURN(present[static_cast<size_t>(s)], q.step());
+    if (present[static_cast<size_t>(s)] &&
+        (s == TaskState::kReady || s == TaskState::kLeased)) {
+      break;
+    }
   }
   const JobState next = settledJobState(current, present);
   if (next == current) return absl::OkStatus();
@@ -796,7 +807,7 @@ absl::StatusOr<TaskRef> SqliteJobStore::complete(int64_t task, int attempt, Seco
       q.bind(1, task);
       PBGI_RETURN_IF_ERROR(q.run());
     }
-    PBGI_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame));
+    PBGI_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame, info.ref.kind));
     PBGI_RETURN_IF_ERROR(touchWorker(info.worker, now));
     PBGI_RETURN_IF_ERROR(settleJob(info.ref.job));
     return info.ref;

@@ -240,8 +240,11 @@ class Worker {
   absl::Status fetchInputs(const ShotDesc& shot, const v1::LeaseTaskResponse& copy);
   absl::Status sendResults(const ShotDesc& shot, const v1::LeaseTaskResponse& copy,
                            std::string* log);
-  void report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
-              double seconds);
+  // Sends a task's result; with `next`, asks for the next task in the same call, and returns
+  // it when the coordinator took the result.
+  std::optional<v1::LeaseTaskResponse> report(const v1::LeaseTaskResponse& task,
+                                              const absl::StatusOr<TaskResult>& result,
+                                              double seconds, const v1::LeaseTaskRequest* next);
 
   // The disk cache of streamed pages, opened at the first tile that streams.
   absl::StatusOr<std::shared_ptr<PageDiskCache>> pageDisk();
@@ -621,8 +624,10 @@ absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& leased, 
   return result;
 }
 
-void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<TaskResult>& result,
-                    double seconds) {
+std::optional<v1::LeaseTaskResponse> Worker::report(const v1::LeaseTaskResponse& task,
+                                                    const absl::StatusOr<TaskResult>& result,
+                                                    double seconds,
+                                                    const v1::LeaseTaskRequest* next) {
   // The coordinator may be restarting; a result is worth waiting for.
   const double patience = std::max(120.0, 4.0 * task.lease_seconds());
   absl::Status sent;
@@ -641,11 +646,14 @@ void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<Task
       request.set_audit_rel_mse(result->audit->relMse);
       request.set_audit_bias(result->audit->bias);
     }
-    sent = callPatiently([&] { return client_.completeTask(request); }, patience, "CompleteTask")
-               .status();
+    if (next != nullptr) *request.mutable_next() = *next;
+    auto answer =
+        callPatiently([&] { return client_.completeTask(request); }, patience, "CompleteTask");
+    sent = answer.status();
     if (sent.ok()) {
       log::info("done job={} frame={} {} task={} attempt={} seconds={:.2f}", task.job(),
                 task.frame(), taskLabel(task), task.task(), task.attempt(), seconds);
+      if (answer->has_next()) return std::move(*answer->mutable_next());
     }
   } else {
     log::warn("failed job={} frame={} {} task={} attempt={}: {}", task.job(), task.frame(),
@@ -664,6 +672,7 @@ void Worker::report(const v1::LeaseTaskResponse& task, const absl::StatusOr<Task
     log::warn("task={} attempt={}: the coordinator did not take the result: {}", task.task(),
               task.attempt(), sent.message());
   }
+  return std::nullopt;
 }
 
 int Worker::run(const std::atomic<bool>& stop) {
@@ -696,15 +705,26 @@ int Worker::run(const std::atomic<bool>& stop) {
   v1::LeaseTaskRequest ask;
   ask.set_worker(id_);
   ask.set_runs_audits(true);
-  double backoff = options_.pollSeconds;
-  while (!stop.load()) {
+  const auto refreshHeld = [&] {
     ask.clear_held();
     for (const HeldFrame& h : held_) {
       v1::HeldFrame* out = ask.add_held();
       out->set_job(h.job);
       out->set_frame(h.frame);
     }
-    auto task = client_.leaseTask(ask);
+  };
+  double backoff = options_.pollSeconds;
+  // The next task, when the last completion brought one.
+  std::optional<v1::LeaseTaskResponse> next;
+  while (!stop.load()) {
+    absl::StatusOr<v1::LeaseTaskResponse> task;
+    if (next) {
+      task = *std::move(next);
+      next.reset();
+    } else {
+      refreshHeld();
+      task = client_.leaseTask(ask);
+    }
     if (!task.ok()) {
       if (!isTransient(task.status())) {
         log::error("worker={}: lease refused: {}", id_, task.status().message());
@@ -731,7 +751,14 @@ int Worker::run(const std::atomic<bool>& stop) {
     } else if (!result.ok() && kind == v1::TASK_KIND_TILE) {
       remoteTrees_.erase({task->job(), task->frame()});  // the frame baked again, say
     }
-    report(*task, result, std::chrono::duration<double>(Clock::now() - started).count());
+    // A worker that goes on asks for its next task with this one's result.
+    refreshHeld();
+    next = report(*task, result, std::chrono::duration<double>(Clock::now() - started).count(),
+                  stop.load() ? nullptr : &ask);
+  }
+  if (next && next->has_task()) {
+    // Stopped with a task leased and not started: its lease expires and it runs elsewhere.
+    log::info("worker={}: leaving task={} to its lease's expiry", id_, next->task());
   }
   log::info("worker={} stopping", id_);
   return 0;

@@ -6,7 +6,7 @@
 //   2. 1 against 2 pbgi-worker processes on a 4-frame Cornell box job through `pbgi run`;
 //   3. the page service: every page of a baked tree fetched over loopback, MB/s and pages/s.
 //   4. locality-aware dispatch against plain: 2 workers streaming pages, bytes sent and time.
-// Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|
+// Reports numbers; never fails on time. Run: build/bin/farm_bench [--workers-only|--leases-only|--sqlite-leases-only|
 //   --scaling-only|--stream-only|--dispatch-only]
 
 #include <algorithm>
@@ -25,6 +25,7 @@
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_client.h"
 #include "services/coordinator/farm_job.h"
+#include "services/coordinator/job_store.h"
 #include "tests/support/farm_fixtures.h"
 #include "tests/support/postgres_cluster.h"
 
@@ -79,8 +80,11 @@ std::optional<std::string> postgresDatabase() {
 // 200 simulated workers, each a thread of its own that leases a task and completes it over
 // gRPC as fast as the coordinators answer, for 5 s; the workers take the coordinators in turn.
 // Every state change is committed (SQLite: synchronous=FULL, grouped; PostgreSQL: its default
-// synchronous_commit) before its call returns.
-void leaseRoundTrips(const std::string& label, const std::string& store, int coordinators) {
+// synchronous_commit) before its call returns. `merged`: as pbgi-worker does, each completion
+// asks for the next task in the same call (one RPC a task); otherwise LeaseTask and
+// CompleteTask each (two, as v1 workers do).
+void leaseRoundTrips(const std::string& label, const std::string& store, int coordinators,
+                     bool merged) {
   const fs::path dir = pbgi::testing::makeTempDir("farm-bench-lease");
   pbgi::testing::SmallShot big;
   big.width = 2048;
@@ -101,10 +105,13 @@ void leaseRoundTrips(const std::string& label, const std::string& store, int coo
   for (int w = 0; w < kWorkers; ++w) {
     threads.emplace_back([&, w] {
       FarmClient own(farm[w % coordinators]->address(), "bench");
+      v1::LeaseTaskRequest ask;
+      ask.set_worker(fmt::format("sim-{}", w));
+      std::optional<v1::LeaseTaskResponse> next;
       while (!stop.load()) {
-        v1::LeaseTaskRequest ask;
-        ask.set_worker(fmt::format("sim-{}", w));
-        auto lease = own.leaseTask(ask);
+        absl::StatusOr<v1::LeaseTaskResponse> lease =
+            next ? *std::move(next) : own.leaseTask(ask);
+        next.reset();
         if (!lease.ok() || !lease->has_task()) {
           errors.fetch_add(1);
           continue;
@@ -114,7 +121,14 @@ void leaseRoundTrips(const std::string& label, const std::string& store, int coo
         done.set_task(lease->task());
         done.set_attempt(lease->attempt());
         done.set_seconds(0.001);
-        if (own.completeTask(done).ok()) trips.fetch_add(1); else errors.fetch_add(1);
+        if (merged) *done.mutable_next() = ask;
+        auto answer = own.completeTask(done);
+        if (!answer.ok()) {
+          errors.fetch_add(1);
+          continue;
+        }
+        trips.fetch_add(1);
+        if (answer->has_next()) next = std::move(*answer->mutable_next());
       }
     });
   }
@@ -122,9 +136,11 @@ void leaseRoundTrips(const std::string& label, const std::string& store, int coo
   stop.store(true);
   for (auto& th : threads) th.join();
   const double seconds = since(t0);
-  std::printf("lease round trips, %s: %d simulated workers, %d coordinator%s, %.1f s: %llu round "
-              "trips (lease + complete), %.0f per second, %.1f ms each; %llu empty or failed\n",
-              label.c_str(), kWorkers, coordinators, coordinators > 1 ? "s" : "", seconds,
+  std::printf("lease round trips, %s, %s: %d simulated workers, %d coordinator%s, %.1f s: %llu "
+              "round trips (lease + complete), %.0f per second, %.1f ms each; %llu empty or "
+              "failed\n",
+              label.c_str(), merged ? "one call a task" : "two calls a task (v1 workers)",
+              kWorkers, coordinators, coordinators > 1 ? "s" : "", seconds,
               static_cast<unsigned long long>(trips.load()), trips.load() / seconds,
               1000.0 * seconds * kWorkers / std::max<uint64_t>(trips.load(), 1),
               static_cast<unsigned long long>(errors.load()));
@@ -132,10 +148,61 @@ void leaseRoundTrips(const std::string& label, const std::string& store, int coo
   fs::remove_all(dir);
 }
 
-void leaseThroughput() {
-  leaseRoundTrips("SQLite", "", 1);
-  if (const auto postgres = postgresDatabase()) leaseRoundTrips("PostgreSQL", *postgres, 1);
-  if (const auto postgres = postgresDatabase()) leaseRoundTrips("PostgreSQL", *postgres, 2);
+// The store alone, without gRPC: `threads` threads lease and complete on one store for 3 s,
+// so that the RPC round trip's share of the figure above can be read off.
+void storeRoundTrips(const std::string& label, const std::string& store, int threads) {
+  const fs::path dir = pbgi::testing::makeTempDir("farm-bench-store");
+  auto opened = openJobStore(store.empty() ? (dir / "farm.sqlite").string() : store, RetryPolicy{});
+  if (!opened.ok()) {
+    std::fprintf(stderr, "farm_bench: %s\n", std::string(opened.status().message()).c_str());
+    std::exit(1);
+  }
+  JobStore& jobs = **opened;
+  JobSpec spec;
+  spec.name = "bench";
+  spec.shotPath = (dir / "bench.shot.toml").string();
+  spec.shotText = "[camera]\n";
+  spec.outputPattern = (dir / "bench.####.exr").string();
+  for (int f = 1; f <= 16; ++f) spec.frames.push_back(f);
+  spec.tileCount = 4096;
+  if (!jobs.submit(spec, 0).ok()) std::exit(1);
+  std::atomic<uint64_t> trips{0};
+  std::atomic<bool> stop{false};
+  std::vector<std::thread> pool;
+  const auto t0 = Clock::now();
+  for (int w = 0; w < threads; ++w) {
+    pool.emplace_back([&, w] {
+      const std::string worker = fmt::format("sim-{}", w);
+      while (!stop.load()) {
+        auto lease = jobs.lease(worker, 1, 600, {});
+        if (!lease.ok() || !lease->has_value()) continue;
+        if (jobs.complete((*lease)->task, (*lease)->attempt, 1, "").ok()) trips.fetch_add(1);
+      }
+    });
+  }
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+  stop.store(true);
+  for (auto& th : pool) th.join();
+  const double seconds = since(t0);
+  std::printf("  the %s store alone, no RPC: %d threads, %.0f lease + complete per second\n",
+              label.c_str(), threads, trips.load() / seconds);
+  opened->reset();
+  fs::remove_all(dir);
+}
+
+void leaseThroughput(bool sqliteOnly) {
+  storeRoundTrips("SQLite", "", 200);
+  leaseRoundTrips("SQLite", "", 1, /*merged=*/true);
+  leaseRoundTrips("SQLite", "", 1, /*merged=*/false);
+  if (sqliteOnly) return;
+  if (const auto postgres = postgresDatabase()) storeRoundTrips("PostgreSQL", *postgres, 200);
+  for (const int coordinators : {1, 2}) {
+    for (const bool merged : {true, false}) {
+      if (const auto postgres = postgresDatabase()) {
+        leaseRoundTrips("PostgreSQL", *postgres, coordinators, merged);
+      }
+    }
+  }
 }
 
 // The dispatch query as the task table grows (OpenCue's users see theirs slow down): a job of
@@ -358,7 +425,9 @@ void localityDispatch() {
 int main(int argc, char** argv) {
   const std::string only = argc > 1 ? argv[1] : "";
   pbgi::log::setLevel(pbgi::log::Level::kError);
-  if (only.empty() || only == "--leases-only") pbgi::farm::leaseThroughput();
+  if (only.empty() || only == "--leases-only" || only == "--sqlite-leases-only") {
+    pbgi::farm::leaseThroughput(only == "--sqlite-leases-only");
+  }
   if (only.empty() || only == "--scaling-only") pbgi::farm::dispatchScaling();
   if (only.empty() || only == "--workers-only") pbgi::farm::workerScaling();
   if (only.empty() || only == "--stream-only") pbgi::farm::pageStream();

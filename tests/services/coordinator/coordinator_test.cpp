@@ -180,6 +180,58 @@ TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
                                               "leased/worker-b", "done/worker-b"}));
 }
 
+TEST_F(CoordinatorTest, ACompletionThatAsksForTheNextTaskGetsItInTheSameCallUnlessRefused) {
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);  // 4 tiles and the assemble
+  ASSERT_TRUE(client_->submitJob(request).ok());
+  v1::LeaseTaskRequest ask;
+  ask.set_worker("worker-a");
+  auto lease = client_->leaseTask(ask);
+  ASSERT_TRUE(lease.ok() && lease->has_task()) << lease.status();
+  std::vector<int> tiles{lease->tile()};
+  // Each completion brings the next tile, then the assemble the last tile released, then an
+  // answer that there is nothing left.
+  for (int step = 0; step < 5; ++step) {
+    v1::CompleteTaskRequest done;
+    done.set_worker(ask.worker());
+    done.set_task(lease->task());
+    done.set_attempt(lease->attempt());
+    *done.mutable_next() = ask;
+    auto answer = client_->completeTask(done);
+    ASSERT_TRUE(answer.ok()) << answer.status();
+    ASSERT_TRUE(answer->has_next());
+    if (step == 4) {
+      EXPECT_FALSE(answer->next().has_task());
+      break;
+    }
+    ASSERT_TRUE(answer->next().has_task()) << step;
+    EXPECT_EQ(answer->next().attempt(), 1);
+    if (step < 3) {
+      EXPECT_EQ(answer->next().task_kind(), v1::TASK_KIND_TILE);
+      tiles.push_back(answer->next().tile());
+    } else {
+      EXPECT_EQ(answer->next().task_kind(), v1::TASK_KIND_ASSEMBLE);
+    }
+    lease = answer->next();
+  }
+  EXPECT_EQ(tiles, (std::vector<int>{0, 1, 2, 3}));
+  // A completion that is refused (here, of a task already done) leases nothing: the worker asks
+  // again with LeaseTask, and no task is left leased to it in the meantime.
+  v1::CompleteTaskRequest again;
+  again.set_worker(ask.worker());
+  again.set_task(lease->task());
+  again.set_attempt(lease->attempt());
+  *again.mutable_next() = ask;
+  EXPECT_EQ(client_->completeTask(again).status().code(), absl::StatusCode::kFailedPrecondition);
+  auto status = client_->getStatus(v1::GetStatusRequest());
+  ASSERT_TRUE(status.ok());
+  ASSERT_EQ(status->jobs_size(), 1);
+  EXPECT_EQ(status->jobs(0).state(), "done");
+  // 4 tiles and the assemble: the refused completion leased nothing.
+  EXPECT_NE(metrics().find("pbgi_leases_total 5"), std::string::npos) << metrics();
+}
+
 TEST_F(CoordinatorTest, StatusJsonAndMetricsAreServedOverHttp) {
   start();
   ASSERT_TRUE(client_->submitJob(shotRequest({})).ok());
