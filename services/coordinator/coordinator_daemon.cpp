@@ -103,8 +103,10 @@ int coordinatorDaemonMain(int argc, char** argv) {
   }
   const std::string addressPath =
       addressFile.empty() ? (fs::path(stateDir) / "coordinator.addr").string() : addressFile;
-  if (absl::Status s = writeFileAtomic(addressPath, (*coordinator)->address() + "\n", 0644);
-      !s.ok()) {
+  // The gRPC address, then the HTTP one when there is one (either may have been port 0).
+  std::string addresses = (*coordinator)->address() + "\n";
+  if (!(*coordinator)->httpAddress().empty()) addresses += (*coordinator)->httpAddress() + "\n";
+  if (absl::Status s = writeFileAtomic(addressPath, addresses, 0644); !s.ok()) {
     log::warn("{}", s.message());
   }
   std::printf("pbgi-coordinator: listening on %s\n", (*coordinator)->address().c_str());
