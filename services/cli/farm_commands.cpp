@@ -135,10 +135,14 @@ int runLogs(const JobOptions& o) {
   if (!response.ok()) return reportError(response.status());
   for (const v1::LogEntry& e : response->entries()) {
     const v1::TaskKind kind = farm::taskKindOf(e);
+    const v1::TaskEventKind event = farm::taskEventKindOf(e);
+    // An event this build does not know (a newer coordinator's) shows the word it came with.
+    const std::string eventWord =
+        farm::fromWire(event) || e.event().empty() ? farm::wireWord(event) : e.event();
     std::printf("%s frame %d %s%s attempt %d %s on %s\n", timeText(e.time()).c_str(), e.frame(),
                 farm::wireWord(kind).c_str(),
                 kind == v1::TASK_KIND_TILE ? fmt::format(" {}", e.tile()).c_str() : "", e.attempt(),
-                e.event().c_str(), e.worker().c_str());
+                eventWord.c_str(), e.worker().c_str());
     if (!e.text().empty()) {
       std::string text = e.text();
       if (text.back() != '\n') text += '\n';

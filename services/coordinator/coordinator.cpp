@@ -97,6 +97,8 @@ class FarmService final : public v1::Coordinator::Service {
                        v1::GetLogsResponse* response) override {
     auto events = store_.events(request->job(), optionalFrame(*request), optionalTile(*request));
     if (!events.ok()) return toGrpc(events.status());
+    int unknown = 0;
+    std::string firstUnknown;
     for (const TaskEvent& e : *events) {
       v1::LogEntry* entry = response->add_entries();
       entry->set_time(e.time);
@@ -106,8 +108,24 @@ class FarmService final : public v1::Coordinator::Service {
       entry->set_tile(e.ref.tile);
       entry->set_attempt(e.attempt);
       entry->set_worker(e.worker);
-      entry->set_event(e.event);
+      if (const auto kind = parseTaskEventKind(e.event); kind.ok()) {
+        setEvent(*kind, entry);
+      } else {
+        // A word this coordinator does not know (a newer one's, in a shared database): the
+        // line is still shown, with its word and no enum, and reported here once per call.
+        entry->set_event(e.event);
+        if (unknown++ == 0) {
+          firstUnknown =
+              fmt::format("task {} attempt {}: {}", e.task, e.attempt, kind.status().message());
+        }
+      }
       entry->set_text(e.text);
+    }
+    if (unknown > 0) {
+      log::warn(
+          "logs job={}: {} event(s) of kinds this coordinator does not know, sent as words "
+          "only; the first: {}",
+          request->job(), unknown, firstUnknown);
     }
     return grpc::Status::OK;
   }

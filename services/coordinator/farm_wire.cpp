@@ -26,6 +26,12 @@ constexpr std::pair<JobState, v1::JobState> kJobStates[] = {
     {JobState::kFailed, v1::JOB_STATE_FAILED},
     {JobState::kCancelled, v1::JOB_STATE_CANCELLED},
 };
+constexpr std::pair<TaskEventKind, v1::TaskEventKind> kEventKinds[] = {
+    {TaskEventKind::kLeased, v1::TASK_EVENT_KIND_LEASED},
+    {TaskEventKind::kDone, v1::TASK_EVENT_KIND_DONE},
+    {TaskEventKind::kFailed, v1::TASK_EVENT_KIND_FAILED},
+    {TaskEventKind::kExpired, v1::TASK_EVENT_KIND_EXPIRED},
+};
 
 template <typename Store, typename Wire, size_t N>
 Wire toWireIn(const std::pair<Store, Wire> (&table)[N], Store value) {
@@ -69,15 +75,20 @@ v1::TaskKind kindOf(const Message& m) {
 v1::TaskKind toWire(TaskKind kind) { return toWireIn(kKinds, kind); }
 v1::TaskState toWire(TaskState state) { return toWireIn(kTaskStates, state); }
 v1::JobState toWire(JobState state) { return toWireIn(kJobStates, state); }
+v1::TaskEventKind toWire(TaskEventKind kind) { return toWireIn(kEventKinds, kind); }
 std::optional<TaskKind> fromWire(v1::TaskKind kind) { return fromWireIn(kKinds, kind); }
 std::optional<TaskState> fromWire(v1::TaskState state) { return fromWireIn(kTaskStates, state); }
 std::optional<JobState> fromWire(v1::JobState state) { return fromWireIn(kJobStates, state); }
+std::optional<TaskEventKind> fromWire(v1::TaskEventKind kind) {
+  return fromWireIn(kEventKinds, kind);
+}
 
 std::string wireWord(v1::TaskKind kind) {
   return kind == v1::TASK_KIND_AUDIT ? kAuditWord : wordIn(kKinds, kind);
 }
 std::string wireWord(v1::TaskState state) { return wordIn(kTaskStates, state); }
 std::string wireWord(v1::JobState state) { return wordIn(kJobStates, state); }
+std::string wireWord(v1::TaskEventKind kind) { return wordIn(kEventKinds, kind); }
 
 v1::TaskKind taskKindOf(const v1::LeaseTaskResponse& task) { return kindOf(task); }
 v1::TaskKind taskKindOf(const v1::TaskStatus& task) { return kindOf(task); }
@@ -91,6 +102,11 @@ v1::TaskState taskStateOf(const v1::TaskStatus& task) {
 v1::JobState jobStateOf(const v1::JobStatus& job) {
   return job.job_state() != v1::JOB_STATE_UNSPECIFIED ? job.job_state()
                                                       : named(kJobStates, job.state());
+}
+
+v1::TaskEventKind taskEventKindOf(const v1::LogEntry& entry) {
+  return entry.event_kind() != v1::TASK_EVENT_KIND_UNSPECIFIED ? entry.event_kind()
+                                                               : named(kEventKinds, entry.event());
 }
 
 std::array<int, v1::TaskState_ARRAYSIZE> taskCounts(const v1::JobStatus& job) {
@@ -120,6 +136,11 @@ void setAuditKind(v1::LeaseTaskResponse* out) {
 void setKind(TaskKind kind, v1::LogEntry* out) {
   out->set_task_kind(toWire(kind));
   out->set_kind(toString(kind));
+}
+
+void setEvent(TaskEventKind kind, v1::LogEntry* out) {
+  out->set_event_kind(toWire(kind));
+  out->set_event(toString(kind));
 }
 
 void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out) {

@@ -1,8 +1,9 @@
 #pragma once
-// The wire's closed sets (task kinds, task and job states; farm.proto) against the store's
-// enums, converted in this one place. A message carries the enum and, for v1 readers from
-// before the enums, the word ("tile", "leased", "active"); readers here take the enum, and
-// the word only when the enum is unset (a message from a coordinator older than the enums).
+// The wire's closed sets (task kinds, task and job states, log events; farm.proto) against
+// the store's enums, converted in this one place. A message carries the enum and, for v1
+// readers from before the enums, the word ("tile", "leased", "active", "expired"); readers
+// here take the enum, and the word only when the enum is unset (a message from a coordinator
+// older than the enums).
 #include <array>
 #include <optional>
 #include <string>
@@ -15,16 +16,19 @@ namespace pbgi::farm {
 v1::TaskKind toWire(TaskKind kind);
 v1::TaskState toWire(TaskState state);
 v1::JobState toWire(JobState state);
+v1::TaskEventKind toWire(TaskEventKind kind);
 // nullopt for UNSPECIFIED and for numbers this build does not know (a newer sender).
 std::optional<TaskKind> fromWire(v1::TaskKind kind);
 std::optional<TaskState> fromWire(v1::TaskState state);
 std::optional<JobState> fromWire(v1::JobState state);
+std::optional<TaskEventKind> fromWire(v1::TaskEventKind kind);
 
 // The word a v1 reader knows (the store's toString): "bake", "leased", "active"; "unknown"
 // for UNSPECIFIED.
 std::string wireWord(v1::TaskKind kind);
 std::string wireWord(v1::TaskState state);
 std::string wireWord(v1::JobState state);
+std::string wireWord(v1::TaskEventKind kind);
 
 // What a message says, from the enum, else from the word (UNSPECIFIED when neither is known).
 v1::TaskKind taskKindOf(const v1::LeaseTaskResponse& task);
@@ -32,6 +36,7 @@ v1::TaskKind taskKindOf(const v1::TaskStatus& task);
 v1::TaskKind taskKindOf(const v1::LogEntry& entry);
 v1::TaskState taskStateOf(const v1::TaskStatus& task);
 v1::JobState jobStateOf(const v1::JobStatus& job);
+v1::TaskEventKind taskEventKindOf(const v1::LogEntry& entry);
 
 // A job's tasks in each state, indexed by v1::TaskState: from task_counts, else from the
 // tasks_by_state words.
@@ -45,6 +50,7 @@ inline constexpr const char* kAuditWord = "audit";
 void setKind(TaskKind kind, v1::LeaseTaskResponse* out);
 void setAuditKind(v1::LeaseTaskResponse* out);
 void setKind(TaskKind kind, v1::LogEntry* out);
+void setEvent(TaskEventKind kind, v1::LogEntry* out);
 void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out);
 void setState(JobState state, const std::array<int, 6>& tasksByState, v1::JobStatus* out);
 

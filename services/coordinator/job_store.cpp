@@ -4,8 +4,10 @@
 #include <cmath>
 #include <limits>
 #include <set>
+#include <utility>
 
 #include <absl/strings/ascii.h>
+#include <absl/strings/escaping.h>
 #include <absl/strings/match.h>
 #include <absl/strings/numbers.h>
 #include <absl/strings/str_join.h>
@@ -75,6 +77,37 @@ std::string toString(AuditState state) {
       return "cancelled";
   }
   return fmt::format("AuditState({})", static_cast<int>(state));
+}
+
+namespace {
+
+// The stored words, each once: toString and parseTaskEventKind read this.
+constexpr std::pair<TaskEventKind, std::string_view> kEventWords[] = {
+    {TaskEventKind::kLeased, "leased"},
+    {TaskEventKind::kDone, "done"},
+    {TaskEventKind::kFailed, "failed"},
+    {TaskEventKind::kExpired, "expired"},
+};
+
+}  // namespace
+
+std::string toString(TaskEventKind kind) {
+  for (const auto& [k, word] : kEventWords) {
+    if (k == kind) return std::string(word);
+  }
+  return fmt::format("TaskEventKind({})", static_cast<int>(kind));
+}
+
+absl::StatusOr<TaskEventKind> parseTaskEventKind(std::string_view word) {
+  for (const auto& [kind, known] : kEventWords) {
+    if (known == word) return kind;
+  }
+  std::vector<std::string_view> expected;
+  for (const auto& [kind, known] : kEventWords) expected.push_back(known);
+  // Escaped: the word comes from a database row and goes into logs.
+  const std::string escaped = absl::CEscape(absl::string_view(word.data(), word.size()));
+  return absl::DataLossError(
+      fmt::format("event '{}': expected one of {}", escaped, fmt::join(expected, ", ")));
 }
 
 std::string TaskRef::toString() const {

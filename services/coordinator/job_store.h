@@ -153,6 +153,14 @@ struct JobInfo {
   std::vector<TaskInfo> dead;
 };
 
+// What a line of a job's log records. Both stores keep it as its word (toString: "leased",
+// "done", "failed", "expired") in a TEXT column, the words every version has written.
+enum class TaskEventKind { kLeased = 0, kDone = 1, kFailed = 2, kExpired = 3 };
+std::string toString(TaskEventKind kind);
+// A stored word back; DataLoss naming the word and the words expected when it is not one of
+// them (a row written by a newer coordinator sharing the database, or by hand).
+absl::StatusOr<TaskEventKind> parseTaskEventKind(std::string_view word);
+
 // One line of a job's log: a lease, a completion or failure (with what the worker printed),
 // an expiry. Appended in the same transaction as the change it records.
 struct TaskEvent {
@@ -161,8 +169,10 @@ struct TaskEvent {
   TaskRef ref;
   int attempt = 0;
   std::string worker;
-  std::string event;  // leased | done | failed | expired
-  std::string text;   // the error, or the worker's log
+  // The word as stored, toString(TaskEventKind) for every row this build writes; read it with
+  // parseTaskEventKind. Kept as stored so that a word this build does not know is still shown.
+  std::string event;
+  std::string text;  // the error, or the worker's log
 };
 
 struct WorkerInfo {

@@ -215,13 +215,13 @@ class PostgresJobStore final : public JobStore {
   absl::StatusOr<TaskInfo> loadTask(PgTx& tx, int64_t task, bool lock = false);
   absl::StatusOr<TaskInfo> lockCurrentLease(PgTx& tx, int64_t task, int attempt);
   void addEvent(PgTx& tx, const TaskInfo& task, int attempt, const std::string& worker,
-                std::string_view event, std::string_view text, Seconds now);
+                TaskEventKind event, std::string_view text, Seconds now);
   void touchWorker(PgTx& tx, const std::string& worker, Seconds now);
   void promoteBlocked(PgTx& tx, int64_t job, std::optional<int> frame,
                       std::optional<TaskKind> completed = std::nullopt);
   void killDependents(PgTx& tx, const TaskInfo& dead);
   absl::Status recordFailure(PgTx& tx, const TaskInfo& task, const std::string& error, Seconds now,
-                             std::string_view event, std::string_view log);
+                             TaskEventKind event, std::string_view log);
   absl::Status settleJob(PgTx& tx, int64_t job);
   absl::StatusOr<AuditInfo> readAudit(const pqxx::row& r) const;
   absl::StatusOr<AuditInfo> loadAudit(PgTx& tx, int64_t audit, bool lock = false);
@@ -318,12 +318,12 @@ absl::StatusOr<TaskInfo> PostgresJobStore::lockCurrentLease(PgTx& tx, int64_t ta
 }
 
 void PostgresJobStore::addEvent(PgTx& tx, const TaskInfo& task, int attempt,
-                                const std::string& worker, std::string_view event,
+                                const std::string& worker, TaskEventKind event,
                                 std::string_view text, Seconds now) {
   tx.exec(
       "INSERT INTO task_events (task, job, attempt, worker, time, event, text) "
       "VALUES ($1, $2, $3, $4, $5, $6, $7)",
-      task.id, task.ref.job, attempt, worker, now, std::string(event),
+      task.id, task.ref.job, attempt, worker, now, toString(event),
       pqxx::binarystring(text.data(), text.size()));
 }
 
@@ -359,7 +359,7 @@ void PostgresJobStore::killDependents(PgTx& tx, const TaskInfo& dead) {
 // The caller holds the job's and the task's rows.
 absl::Status PostgresJobStore::recordFailure(PgTx& tx, const TaskInfo& task,
                                              const std::string& error, Seconds now,
-                                             std::string_view event, std::string_view log) {
+                                             TaskEventKind event, std::string_view log) {
   addEvent(tx, task, task.attempt, task.worker, event, failureEventText(error, log), now);
   const FailureOutcome outcome = failureOutcome(policy_, task.failures, now);
   tx.exec(
@@ -582,7 +582,7 @@ absl::StatusOr<std::optional<Lease>> PostgresJobStore::lease(const std::string& 
     TaskInfo leased;
     leased.id = lease.task;
     leased.ref = lease.ref;
-    addEvent(tx, leased, lease.attempt, worker, "leased", "", now);
+    addEvent(tx, leased, lease.attempt, worker, TaskEventKind::kLeased, "", now);
     return std::optional<Lease>(lease);
   });
 }
@@ -609,7 +609,7 @@ absl::StatusOr<TaskRef> PostgresJobStore::complete(int64_t task, int attempt, Se
                                                    const std::string& log) {
   return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::StatusOr<TaskRef> {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, lockCurrentLease(tx, task, attempt));
-    addEvent(tx, info, attempt, info.worker, "done", log, now);
+    addEvent(tx, info, attempt, info.worker, TaskEventKind::kDone, log, now);
     tx.exec(
         "UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = $1 "
         "AND attempt = $2 AND state = 2",
@@ -625,7 +625,7 @@ absl::Status PostgresJobStore::fail(int64_t task, int attempt, const std::string
                                     Seconds now, const std::string& log) {
   return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::Status {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, lockCurrentLease(tx, task, attempt));
-    return recordFailure(tx, info, error, now, "failed", log);
+    return recordFailure(tx, info, error, now, TaskEventKind::kFailed, log);
   });
 }
 
@@ -649,8 +649,8 @@ absl::StatusOr<int> PostgresJobStore::expireLeases(Seconds now) {
                                      job, now);
       for (const auto& row : r) {
         const TaskInfo info = readTask(row);
-        PBGI_RETURN_IF_ERROR(
-            recordFailure(tx, info, leaseExpiredError(info.worker), now, "expired", ""));
+        PBGI_RETURN_IF_ERROR(recordFailure(tx, info, leaseExpiredError(info.worker), now,
+                                           TaskEventKind::kExpired, ""));
         ++expired;
       }
     }

@@ -191,7 +191,7 @@ class SqliteJobStore final : public JobStore {
 
  private:
   absl::Status addEvent(const TaskInfo& task, int attempt, const std::string& worker,
-                        std::string_view event, std::string_view text, Seconds now);
+                        TaskEventKind event, std::string_view text, Seconds now);
   absl::Status exec(const char* sql);
   Query query(const char* sql);
   template <typename Body>
@@ -219,7 +219,7 @@ class SqliteJobStore final : public JobStore {
                               std::optional<TaskKind> completed = std::nullopt);
   absl::Status killDependents(const TaskInfo& dead);
   absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
-                             std::string_view event, std::string_view log);
+                             TaskEventKind event, std::string_view log);
   absl::Status settleJob(int64_t job);
   absl::StatusOr<AuditInfo> readAudit(const Query& q) const;
   absl::StatusOr<AuditInfo> loadAudit(int64_t audit);
@@ -475,9 +475,8 @@ absl::StatusOr<TaskInfo> SqliteJobStore::currentLease(int64_t task, int attempt)
   return info;
 }
 
-absl::Status SqliteJobStore::addEvent(const TaskInfo& task, int attempt,
-                                      const std::string& worker, std::string_view event,
-                                      std::string_view text, Seconds now) {
+absl::Status SqliteJobStore::addEvent(const TaskInfo& task, int attempt, const std::string& worker,
+                                      TaskEventKind event, std::string_view text, Seconds now) {
   Query q = query(
       "INSERT INTO task_events (task, job, attempt, worker, time, event, text) "
       "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)");
@@ -486,7 +485,7 @@ absl::Status SqliteJobStore::addEvent(const TaskInfo& task, int attempt,
       .bind(3, attempt)
       .bind(4, worker)
       .bind(5, now)
-      .bind(6, event)
+      .bind(6, toString(event))
       .bind(7, text);
   return q.run();
 }
@@ -537,8 +536,7 @@ absl::Status SqliteJobStore::killDependents(const TaskInfo& dead) {
 }
 
 absl::Status SqliteJobStore::recordFailure(const TaskInfo& task, const std::string& error,
-                                           Seconds now, std::string_view event,
-                                           std::string_view log) {
+                                           Seconds now, TaskEventKind event, std::string_view log) {
   PBGI_RETURN_IF_ERROR(
       addEvent(task, task.attempt, task.worker, event, failureEventText(error, log), now));
   const FailureOutcome outcome = failureOutcome(policy_, task.failures, now);
@@ -780,7 +778,7 @@ absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& wo
     TaskInfo leased;
     leased.id = lease.task;
     leased.ref = lease.ref;
-    PBGI_RETURN_IF_ERROR(addEvent(leased, lease.attempt, worker, "leased", "", now));
+    PBGI_RETURN_IF_ERROR(addEvent(leased, lease.attempt, worker, TaskEventKind::kLeased, "", now));
     return std::optional<Lease>(lease);
   });
 }
@@ -801,7 +799,7 @@ absl::StatusOr<TaskRef> SqliteJobStore::complete(int64_t task, int attempt, Seco
                                                  const std::string& log) {
   return transaction(Access::kWrite, [&]() -> absl::StatusOr<TaskRef> {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    PBGI_RETURN_IF_ERROR(addEvent(info, attempt, info.worker, "done", log, now));
+    PBGI_RETURN_IF_ERROR(addEvent(info, attempt, info.worker, TaskEventKind::kDone, log, now));
     {
       Query q = query("UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = ?1");
       q.bind(1, task);
@@ -818,7 +816,7 @@ absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& 
                                   Seconds now, const std::string& log) {
   return transaction(Access::kWrite, [&]() -> absl::Status {
     PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    return recordFailure(info, error, now, "failed", log);
+    return recordFailure(info, error, now, TaskEventKind::kFailed, log);
   });
 }
 
@@ -837,7 +835,8 @@ absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
     }
     for (int64_t id : expired) {
       PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
-      PBGI_RETURN_IF_ERROR(recordFailure(info, leaseExpiredError(info.worker), now, "expired", ""));
+      PBGI_RETURN_IF_ERROR(
+          recordFailure(info, leaseExpiredError(info.worker), now, TaskEventKind::kExpired, ""));
     }
     std::vector<AuditInfo> expiredAudits;
     {

@@ -44,8 +44,8 @@ TEST(FarmApi, CompletionCarriesTheAttempt) {
   EXPECT_EQ(hex(c.SerializeAsString()), "0a01771009" "1804");
 }
 
-// Kinds and states became enums in new fields beside the strings v1 readers from before them
-// read; both numbers and the enums' values are pinned.
+// Kinds, states and log events became enums in new fields beside the strings v1 readers from
+// before them read; both numbers and the enums' values are pinned.
 TEST(FarmApi, EnumFieldsHaveNewNumbersBesideTheStrings) {
   farm::v1::LeaseTaskResponse lease;
   lease.set_kind("tile");                         // 4, still there
@@ -74,6 +74,13 @@ TEST(FarmApi, EnumFieldsHaveNewNumbersBesideTheStrings) {
   farm::v1::LogEntry entry;
   entry.set_task_kind(farm::v1::TASK_KIND_ASSEMBLE);  // 10
   EXPECT_EQ(hex(entry.SerializeAsString()), "5003");
+
+  farm::v1::LogEntry event;
+  event.set_event("done");                                  // 8, still there
+  event.set_event_kind(farm::v1::TASK_EVENT_KIND_EXPIRED);  // 11
+  EXPECT_EQ(hex(event.SerializeAsString()),
+            "4204646f6e65"
+            "5804");
 }
 
 TEST(FarmApi, EnumValuesAreStable) {
@@ -93,6 +100,11 @@ TEST(FarmApi, EnumValuesAreStable) {
   EXPECT_EQ(farm::v1::JOB_STATE_DONE, 2);
   EXPECT_EQ(farm::v1::JOB_STATE_FAILED, 3);
   EXPECT_EQ(farm::v1::JOB_STATE_CANCELLED, 4);
+  EXPECT_EQ(farm::v1::TASK_EVENT_KIND_UNSPECIFIED, 0);
+  EXPECT_EQ(farm::v1::TASK_EVENT_KIND_LEASED, 1);
+  EXPECT_EQ(farm::v1::TASK_EVENT_KIND_DONE, 2);
+  EXPECT_EQ(farm::v1::TASK_EVENT_KIND_FAILED, 3);
+  EXPECT_EQ(farm::v1::TASK_EVENT_KIND_EXPIRED, 4);
 }
 
 TEST(FarmApi, ServiceIsVersionedAndHasItsMethods) {

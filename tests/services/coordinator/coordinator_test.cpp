@@ -6,7 +6,10 @@
 
 #include <httplib.h>
 
+#include <sqlite3.h>
+
 #include <fstream>
+#include <memory>
 #include <regex>
 
 #include "formats/pbgi/remote_page_file.h"
@@ -15,6 +18,7 @@
 
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/farm_client.h"
+#include "services/coordinator/farm_wire.h"
 #include "tests/support/coordinator_fixture.h"
 #include "tests/support/farm_fixtures.h"
 
@@ -172,12 +176,56 @@ TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   ASSERT_TRUE(entries.ok());
   std::vector<std::string> events;
   for (const auto& e : entries->entries()) {
-    events.push_back(e.event() + "/" + e.worker());
+    events.push_back(wireWord(e.event_kind()) + "/" + e.worker());
+    EXPECT_EQ(e.event(), wireWord(e.event_kind()));  // for v1 readers from before the enum
     EXPECT_EQ(e.task_kind(), v1::TASK_KIND_TILE);
     EXPECT_EQ(e.kind(), "tile");
   }
   EXPECT_EQ(events, (std::vector<std::string>{"leased/worker-a", "expired/worker-a",
                                               "leased/worker-b", "done/worker-b"}));
+  ASSERT_EQ(entries->entries_size(), 4);
+  EXPECT_EQ(entries->entries(1).event_kind(), v1::TASK_EVENT_KIND_EXPIRED);
+}
+
+// A stored event word this coordinator does not know (a newer coordinator's, sharing the
+// database) reaches the reader as that word without an enum; the call still answers.
+TEST_F(CoordinatorTest, ALogEventOfAKindThisCoordinatorDoesNotKnowIsSentAsItsWord) {
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  auto id = client_->submitJob(request);
+  ASSERT_TRUE(id.ok()) << id.status();
+  v1::LeaseTaskRequest asA;
+  asA.set_worker("worker-a");
+  auto first = client_->leaseTask(asA);
+  ASSERT_TRUE(first.ok() && first->has_task()) << first.status();
+  {
+    sqlite3* raw = nullptr;
+    const std::string path = (fs::path(options_.stateDir) / "jobs.db").string();
+    ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK) << path;
+    std::unique_ptr<sqlite3, decltype(&sqlite3_close)> db(raw, &sqlite3_close);
+    sqlite3_busy_timeout(db.get(), 10'000);
+    ASSERT_EQ(sqlite3_exec(db.get(), "UPDATE task_events SET event = 'paused'", nullptr, nullptr,
+                           nullptr),
+              SQLITE_OK)
+        << sqlite3_errmsg(db.get());
+  }
+  auto second = client_->leaseTask(asA);
+  ASSERT_TRUE(second.ok() && second->has_task()) << second.status();
+
+  v1::GetLogsRequest logs;
+  logs.set_job(id->job());
+  auto entries = client_->getLogs(logs);
+  ASSERT_TRUE(entries.ok()) << entries.status();
+  ASSERT_EQ(entries->entries_size(), 2);
+  const v1::LogEntry& unknown = entries->entries(0);
+  EXPECT_EQ(unknown.event(), "paused");
+  EXPECT_EQ(unknown.event_kind(), v1::TASK_EVENT_KIND_UNSPECIFIED);
+  EXPECT_EQ(taskEventKindOf(unknown), v1::TASK_EVENT_KIND_UNSPECIFIED);
+  EXPECT_EQ(unknown.worker(), "worker-a");
+  const v1::LogEntry& known = entries->entries(1);
+  EXPECT_EQ(known.event_kind(), v1::TASK_EVENT_KIND_LEASED);
+  EXPECT_EQ(known.event(), "leased");
 }
 
 TEST_F(CoordinatorTest, ACompletionThatAsksForTheNextTaskGetsItInTheSameCallUnlessRefused) {

@@ -25,6 +25,23 @@ TEST(FarmWire, EveryStoreValueHasAnEnumAndItsWord) {
     EXPECT_NE(toWire(state), v1::JOB_STATE_UNSPECIFIED) << toString(state);
     EXPECT_EQ(fromWire(toWire(state)), state);
   }
+  for (const TaskEventKind k : {TaskEventKind::kLeased, TaskEventKind::kDone,
+                                TaskEventKind::kFailed, TaskEventKind::kExpired}) {
+    EXPECT_NE(toWire(k), v1::TASK_EVENT_KIND_UNSPECIFIED) << toString(k);
+    EXPECT_EQ(fromWire(toWire(k)), k);
+    EXPECT_EQ(wireWord(toWire(k)), toString(k));
+    // Through a message and back, as GetLogs sends it and `pbgi logs` reads it.
+    v1::LogEntry sent;
+    setEvent(k, &sent);
+    v1::LogEntry received;
+    ASSERT_TRUE(received.ParseFromString(sent.SerializeAsString()));
+    EXPECT_EQ(received.event(), toString(k));  // what a v1 reader from before the enum reads
+    EXPECT_EQ(taskEventKindOf(received), toWire(k));
+    EXPECT_EQ(fromWire(taskEventKindOf(received)), k);
+  }
+  EXPECT_EQ(fromWire(v1::TASK_EVENT_KIND_UNSPECIFIED), std::nullopt);
+  EXPECT_EQ(fromWire(static_cast<v1::TaskEventKind>(99)), std::nullopt);
+  EXPECT_EQ(wireWord(v1::TASK_EVENT_KIND_UNSPECIFIED), "unknown");
   EXPECT_EQ(fromWire(v1::TASK_KIND_UNSPECIFIED), std::nullopt);
   EXPECT_EQ(fromWire(static_cast<v1::TaskKind>(99)), std::nullopt);  // a newer sender's
   EXPECT_EQ(wireWord(v1::TASK_KIND_UNSPECIFIED), "unknown");
@@ -40,6 +57,13 @@ TEST(FarmWire, BothFormsAreWrittenAndTheEnumIsRead) {
   // The enum wins over the word.
   task.set_kind("bake");
   EXPECT_EQ(taskKindOf(task), v1::TASK_KIND_TILE);
+
+  v1::LogEntry entry;
+  setEvent(TaskEventKind::kExpired, &entry);
+  EXPECT_EQ(entry.event(), "expired");
+  EXPECT_EQ(entry.event_kind(), v1::TASK_EVENT_KIND_EXPIRED);
+  entry.set_event("done");
+  EXPECT_EQ(taskEventKindOf(entry), v1::TASK_EVENT_KIND_EXPIRED);
 
   v1::JobStatus job;
   setState(JobState::kActive, {1, 2, 3, 4, 0, 0}, &job);
@@ -71,6 +95,15 @@ TEST(FarmWire, AnOlderCoordinatorsWordsAreRead) {
   v1::LogEntry entry;
   entry.set_kind("bake");
   EXPECT_EQ(taskKindOf(entry), v1::TASK_KIND_BAKE);
+  for (const auto& [word, kind] : {std::pair{"leased", v1::TASK_EVENT_KIND_LEASED},
+                                   std::pair{"done", v1::TASK_EVENT_KIND_DONE},
+                                   std::pair{"failed", v1::TASK_EVENT_KIND_FAILED},
+                                   std::pair{"expired", v1::TASK_EVENT_KIND_EXPIRED}}) {
+    entry.set_event(word);
+    EXPECT_EQ(taskEventKindOf(entry), kind) << word;
+  }
+  entry.set_event("paused");
+  EXPECT_EQ(taskEventKindOf(entry), v1::TASK_EVENT_KIND_UNSPECIFIED);
 }
 
 }  // namespace

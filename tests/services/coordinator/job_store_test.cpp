@@ -1458,6 +1458,29 @@ TEST(JobStoreRulesTest, AStoreSpecPicksItsImplementationAndErrorsShowNoPassword)
   EXPECT_EQ(redactedUri("postgresql://pbgi@db/farm"), "postgresql://pbgi@db/farm");
 }
 
+// The words are what every version has stored in task_events.event: existing databases read
+// unchanged only while these stay.
+TEST(JobStoreRulesTest, EventKindsAreStoredAsTheirWordsAndAnUnknownWordIsDataLoss) {
+  const std::pair<TaskEventKind, const char*> words[] = {{TaskEventKind::kLeased, "leased"},
+                                                         {TaskEventKind::kDone, "done"},
+                                                         {TaskEventKind::kFailed, "failed"},
+                                                         {TaskEventKind::kExpired, "expired"}};
+  for (const auto& [kind, word] : words) {
+    EXPECT_EQ(toString(kind), word);
+    const absl::StatusOr<TaskEventKind> back = parseTaskEventKind(word);
+    ASSERT_TRUE(back.ok()) << back.status();
+    EXPECT_EQ(*back, kind) << word;
+  }
+  for (const std::string_view word : {"paused", "", "Done", "done "}) {
+    const absl::StatusOr<TaskEventKind> unknown = parseTaskEventKind(word);
+    EXPECT_EQ(unknown.status().code(), absl::StatusCode::kDataLoss) << word;
+    EXPECT_NE(unknown.status().message().find(fmt::format("'{}'", word)), std::string::npos)
+        << unknown.status();
+    EXPECT_NE(unknown.status().message().find("leased, done, failed, expired"), std::string::npos)
+        << unknown.status();
+  }
+}
+
 TEST(JobStoreRulesTest, ADeadTaskTakesWhatWaitsOnItInItsFrame) {
   EXPECT_EQ(dependentKinds(TaskKind::kBake),
             (std::vector<TaskKind>{TaskKind::kTile, TaskKind::kAssemble}));
