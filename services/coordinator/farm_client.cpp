@@ -1,10 +1,14 @@
 #include "services/coordinator/farm_client.h"
 
+#include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <mutex>
 #include <optional>
+#include <thread>
 
 #include <unistd.h>
 
@@ -42,6 +46,69 @@ bool mayBeTls(const grpc::Status& s) {
          m.find("Connection reset") != std::string::npos;
 }
 
+// A file transfer's deadline is its silence, not its length: a tree of several GB over a slow
+// link takes as long as it takes, but a stream that moves no chunk for `idleSeconds` (a link
+// gone, a peer that stopped reading or writing) is cancelled. An upload's last chunk leaves
+// the peer that long to drain what the transport still holds (a flow-control window) and
+// answer.
+class StallWatch {
+ public:
+  StallWatch(grpc::ClientContext& context, double idleSeconds)
+      : context_(context),
+        idle_(std::chrono::duration_cast<Clock::duration>(
+            std::chrono::duration<double>(idleSeconds))),
+        last_(Clock::now().time_since_epoch().count()),
+        thread_([this] { watch(); }) {}
+  ~StallWatch() {
+    {
+      std::lock_guard lock(mutex_);
+      done_ = true;
+    }
+    wake_.notify_all();
+    thread_.join();
+  }
+  StallWatch(const StallWatch&) = delete;
+  StallWatch& operator=(const StallWatch&) = delete;
+
+  // A chunk went or came.
+  void moved(uint64_t bytes) {
+    bytes_ += bytes;
+    last_.store(Clock::now().time_since_epoch().count());
+  }
+  // Whether the watch cancelled the call; then why, for `call` of `size` bytes.
+  bool stalled() const { return stalled_.load(); }
+  absl::Status why(const std::string& address, const char* call, uint64_t size) const {
+    return absl::DeadlineExceededError(fmt::format(
+        "coordinator {} did not answer {}: nothing moved for {:g} s ({} of {} bytes moved)",
+        address, call, std::chrono::duration<double>(idle_).count(), bytes_.load(), size));
+  }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  void watch() {
+    std::unique_lock lock(mutex_);
+    while (!done_) {
+      const Clock::time_point due = Clock::time_point(Clock::duration(last_.load())) + idle_;
+      if (Clock::now() >= due) {
+        stalled_.store(true);
+        context_.TryCancel();
+        return;
+      }
+      wake_.wait_until(lock, due);
+    }
+  }
+
+  grpc::ClientContext& context_;
+  const Clock::duration idle_;
+  std::atomic<Clock::rep> last_;
+  std::atomic<uint64_t> bytes_{0};
+  std::atomic<bool> stalled_{false};
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  bool done_ = false;
+  std::thread thread_;  // last: it reads the members above
+};
+
 }  // namespace
 
 absl::StatusOr<std::string> loadClientToken(const std::string& tokenFile) {
@@ -78,9 +145,13 @@ struct FarmClient::Impl {
   }
 
   void prepare(grpc::ClientContext& context) const {
-    context.AddMetadata("authorization", "Bearer " + token);
+    prepareStream(context);
     context.set_deadline(std::chrono::system_clock::now() +
                          std::chrono::milliseconds(static_cast<int64_t>(deadlineSeconds * 1000)));
+  }
+  // A file transfer: no deadline on the whole call (a StallWatch instead).
+  void prepareStream(grpc::ClientContext& context) const {
+    context.AddMetadata("authorization", "Bearer " + token);
   }
 };
 
@@ -147,24 +218,37 @@ absl::StatusOr<PageFileHead> FarmClient::openTree(int64_t job, int frame) {
 
 absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string& path) {
   grpc::ClientContext context;
-  impl_->prepare(context);
+  impl_->prepareStream(context);
   v1::PutFileResponse response;
-  auto writer = impl_->stub->PutFile(&context, &response);
-  bool first = true;
-  const absl::Status sent =
-      sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
-        v1::PutFileChunk chunk;
-        if (first) {
-          chunk = head;
-          chunk.set_size(size);
-          first = false;
-        }
-        if (xxh3) chunk.set_xxh3(*xxh3);
-        chunk.set_data(std::string(data));
-        return writer->Write(chunk);
-      });
-  writer->WritesDone();
-  const grpc::Status finished = writer->Finish();
+  uint64_t total = 0;
+  absl::Status sent;
+  grpc::Status finished;
+  bool stalled = false;
+  std::optional<absl::Status> why;
+  {
+    StallWatch watch(context, impl_->deadlineSeconds);
+    auto writer = impl_->stub->PutFile(&context, &response);
+    bool first = true;
+    sent = sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
+      v1::PutFileChunk chunk;
+      if (first) {
+        chunk = head;
+        chunk.set_size(size);
+        total = size;
+        first = false;
+      }
+      if (xxh3) chunk.set_xxh3(*xxh3);
+      chunk.set_data(std::string(data));
+      const bool written = writer->Write(chunk);
+      if (written) watch.moved(data.size());
+      return written;
+    });
+    writer->WritesDone();
+    finished = writer->Finish();
+    stalled = watch.stalled();
+    if (stalled) why = watch.why(address_, "PutFile", total);
+  }
+  if (stalled) return *why;
   // The coordinator's reason beats "it stopped reading".
   if (!finished.ok()) return impl_->failed(finished, "PutFile");
   return sent;
@@ -172,26 +256,34 @@ absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string
 
 absl::Status FarmClient::getFile(const v1::GetFileRequest& request, const std::string& path) {
   grpc::ClientContext context;
-  impl_->prepare(context);
-  auto reader = impl_->stub->GetFile(&context, request);
-  v1::FileChunk chunk;
+  impl_->prepareStream(context);
   std::optional<FileReceiver> file;
   uint64_t xxh3 = 0;  // the last chunk's
+  uint64_t total = 0;
   absl::Status failed;
-  while (failed.ok() && reader->Read(&chunk)) {
-    xxh3 = chunk.xxh3();
-    if (!file) {
-      auto begun = FileReceiver::begin(path, chunk.size());
-      if (!begun.ok()) {
-        failed = begun.status();
-        break;
+  grpc::Status finished;
+  {
+    StallWatch watch(context, impl_->deadlineSeconds);
+    auto reader = impl_->stub->GetFile(&context, request);
+    v1::FileChunk chunk;
+    while (failed.ok() && reader->Read(&chunk)) {
+      watch.moved(chunk.data().size());
+      xxh3 = chunk.xxh3();
+      if (!file) {
+        total = chunk.size();
+        auto begun = FileReceiver::begin(path, chunk.size());
+        if (!begun.ok()) {
+          failed = begun.status();
+          break;
+        }
+        file.emplace(*std::move(begun));
       }
-      file.emplace(*std::move(begun));
+      failed = file->add(chunk.data());
     }
-    failed = file->add(chunk.data());
+    if (!failed.ok()) context.TryCancel();
+    finished = reader->Finish();
+    if (failed.ok() && watch.stalled()) failed = watch.why(address_, "GetFile", total);
   }
-  if (!failed.ok()) context.TryCancel();
-  const grpc::Status finished = reader->Finish();
   if (failed.ok() && !finished.ok()) failed = impl_->failed(finished, "GetFile");
   if (failed.ok() && !file) failed = absl::DataLossError(fmt::format("{}: nothing arrived", path));
   if (!failed.ok()) return failed;

@@ -1,6 +1,7 @@
 #pragma once
 // A connection to a coordinator, for workers and for `pbgi submit/status/...`. Every call
-// carries the farm's token and a deadline, and comes back as a Status whose message says
+// carries the farm's token and a deadline (for a file transfer, a limit on how long nothing
+// moves rather than on the whole transfer), and comes back as a Status whose message says
 // which coordinator did not answer or what it refused. Over TLS when given a CA (farm_tls.h);
 // a connection that TLS refuses (either way) comes back UNAUTHENTICATED saying why, not as a
 // coordinator that is away. gRPC itself stays inside the .cpp.
@@ -62,6 +63,8 @@ class FarmClient {
   // File transfer for a worker that does not see the job folder (farm.proto: PutFile,
   // GetFile): sends the file at `path` as what `head` says it is (task, attempt, kind, tile),
   // and receives a tile or frame into `path` (renamed into place once whole and checked).
+  // However long a transfer takes, it fails (DeadlineExceeded, saying how far it got) only
+  // when no chunk moved for the client's deadline.
   absl::Status putFile(const v1::PutFileChunk& head, const std::string& path);
   absl::Status getFile(const v1::GetFileRequest& request, const std::string& path);
 
