@@ -44,6 +44,16 @@ TEST(FarmApi, CompletionCarriesTheAttempt) {
   EXPECT_EQ(hex(c.SerializeAsString()), "0a01771009" "1804");
 }
 
+// A completion may carry the worker's next lease request, and its answer the next lease.
+TEST(FarmApi, CompletionMayAskForTheNextTask) {
+  farm::v1::CompleteTaskRequest c;
+  c.mutable_next()->set_worker("w");  // 12, its worker 1
+  EXPECT_EQ(hex(c.SerializeAsString()), "6203" "0a0177");
+  farm::v1::CompleteTaskResponse r;
+  r.mutable_next()->set_has_task(true);  // 1, its has_task 1
+  EXPECT_EQ(hex(r.SerializeAsString()), "0a02" "0801");
+}
+
 // Kinds, states and log events became enums in new fields beside the strings v1 readers from
 // before them read; both numbers and the enums' values are pinned.
 TEST(FarmApi, EnumFieldsHaveNewNumbersBesideTheStrings) {
