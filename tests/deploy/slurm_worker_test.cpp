@@ -37,6 +37,15 @@ fs::path script() { return sourceDir() / "deploy/slurm/pbgi-worker.sbatch"; }
     GTEST_SKIP() << "no Slurm cluster can be started here: " << *why;                 \
   }
 
+// Cancels the array while the cluster runs and waits for it to leave the queue (SIGTERM: an
+// idle worker exits at once); a job step still running when its slurmd is shut down stays
+// behind as a stray slurmstepd.
+void expectArrayStops(const SlurmCluster& slurm, const std::string& arrayJob) {
+  shell(slurm.command("scancel " + arrayJob));
+  EXPECT_TRUE(waitFor([&] { return shell(slurm.command("squeue -h 2>&1")).out.empty(); }, 15.0))
+      << shell(slurm.command("squeue 2>&1")).out;
+}
+
 // A farm whose coordinator serves TLS and asks for client certificates, with the files of
 // make-certs.sh (certs_) and a folder as a studio would share it (shared_: ca.crt, worker.crt,
 // worker.key only).
@@ -158,6 +167,7 @@ TEST_F(SlurmWorkerTest, AWorkerArrayRendersAJobAndAScancelledWorkersTileIsRetrie
   for (const auto& [task, done] : doneByTask) EXPECT_EQ(done, 1) << "task " << task;
   expectFrameEqualsWholeRender(1);
   expectFrameEqualsWholeRender(2);
+  expectArrayStops(slurm, arrayJob);
 }
 
 TEST_F(SlurmWorkerTest, AWorkerArrayWithPbgiTlsDirJoinsACoordinatorThatAsksForCertificates) {
@@ -195,6 +205,7 @@ TEST_F(SlurmWorkerTest, AWorkerArrayWithPbgiTlsDirJoinsACoordinatorThatAsksForCe
                       << slurm.log("slurmd.log");
   EXPECT_EQ(shell("cat " + (dir_ / "slurm-*.log").string()).out.find("holds ca.key"),
             std::string::npos);
+  expectArrayStops(slurm, arrayJob);
 }
 
 TEST_F(SlurmWorkerTest, TheScriptJoinsATlsCoordinatorWithAFolderOrWithVariables) {
