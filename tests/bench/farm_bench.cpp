@@ -13,6 +13,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <optional>
 #include <string>
 #include <thread>
@@ -79,8 +80,8 @@ std::optional<std::string> postgresDatabase() {
 
 // 200 simulated workers, each a thread of its own that leases a task and completes it over
 // gRPC as fast as the coordinators answer, for 5 s; the workers take the coordinators in turn.
-// Every state change is committed (SQLite: synchronous=FULL, grouped; PostgreSQL: its default
-// synchronous_commit) before its call returns. `merged`: as pbgi-worker does, each completion
+// Every state change is committed (SQLite: synchronous=FULL, grouped; PostgreSQL: fsync and
+// synchronous_commit on, its defaults) before its call returns. `merged`: as pbgi-worker does, each completion
 // asks for the next task in the same call (one RPC a task); otherwise LeaseTask and
 // CompleteTask each (two, as v1 workers do).
 void leaseRoundTrips(const std::string& label, const std::string& store, int coordinators,
@@ -424,6 +425,8 @@ void localityDispatch() {
 
 int main(int argc, char** argv) {
   const std::string only = argc > 1 ? argv[1] : "";
+  // The bench's PostgreSQL commits durably, as SQLite's do (the tests' cluster does not).
+  setenv("PBGI_POSTGRES_DURABLE", "1", 0);
   pbgi::log::setLevel(pbgi::log::Level::kError);
   if (only.empty() || only == "--leases-only" || only == "--sqlite-leases-only") {
     pbgi::farm::leaseThroughput(only == "--sqlite-leases-only");

@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <cctype>
 #include <cerrno>
 #include <cstdlib>
@@ -212,11 +213,12 @@ absl::Status PostgresCluster::startServer() {
                              "--auth=trust", "--no-sync", "--encoding=UTF8", "--locale=C"},
                             runAs_, dir_, dir_ / "initdb.log");
   if (!initdb.ok()) return initdb;
-  // Durability is not what these tests are about.
+  // Durability is not what the tests are about; a benchmark comparing stores asks for it.
+  const char* durableEnv = std::getenv("PBGI_POSTGRES_DURABLE");
+  const bool durable = durableEnv != nullptr && *durableEnv != '\0' && std::string(durableEnv) != "0";
   const std::string options = fmt::format(
-      "-k {} -p {} -c listen_addresses='' -c fsync=off -c synchronous_commit=off "
-      "-c full_page_writes=off",
-      dir_.string(), port_);
+      "-k {} -p {} -c listen_addresses=''{}", dir_.string(), port_,
+      durable ? "" : " -c fsync=off -c synchronous_commit=off -c full_page_writes=off");
   absl::Status started = run({(bin_ / "pg_ctl").string(), "-D", data.string(), "-l",
                               (dir_ / "server.log").string(), "-o", options, "-w", "start"},
                              runAs_, dir_, dir_ / "pg_ctl.log");

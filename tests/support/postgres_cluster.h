@@ -13,7 +13,11 @@
 // With PBGI_POSTGRES_SHARED_DIR set (ctest sets it for the services tests, which run a process
 // per test), the cluster lives in that folder and is shared by every test process: the first
 // starts it under a lock, the others connect, none stops it; a ctest cleanup fixture does
-// (tests/support/postgres_stop.sh). Databases are named by process, so none collide.
+// (tests/support/postgres_stop.sh).
+//
+// The server runs without fsync and synchronous commits (durability is not what the tests are
+// about) unless PBGI_POSTGRES_DURABLE=1 (farm_bench, which compares the stores' committed
+// throughput). Databases are named by process, so none collide.
 #include <filesystem>
 #include <string>
 
