@@ -103,11 +103,18 @@ int coordinatorDaemonMain(int argc, char** argv) {
   }
   const std::string addressPath =
       addressFile.empty() ? (fs::path(stateDir) / "coordinator.addr").string() : addressFile;
-  // The gRPC address, then the HTTP one when there is one (either may have been port 0).
-  std::string addresses = (*coordinator)->address() + "\n";
-  if (!(*coordinator)->httpAddress().empty()) addresses += (*coordinator)->httpAddress() + "\n";
-  if (absl::Status s = writeFileAtomic(addressPath, addresses, 0644); !s.ok()) {
+  if (absl::Status s = writeFileAtomic(addressPath, (*coordinator)->address() + "\n", 0644);
+      !s.ok()) {
     log::warn("{}", s.message());
+  }
+  // The HTTP address beside it (either may have been port 0); the gRPC file stays one line,
+  // as scripts read it.
+  if (!(*coordinator)->httpAddress().empty()) {
+    const std::string httpPath = (fs::path(addressPath).parent_path() / "coordinator.http").string();
+    if (absl::Status s = writeFileAtomic(httpPath, (*coordinator)->httpAddress() + "\n", 0644);
+        !s.ok()) {
+      log::warn("{}", s.message());
+    }
   }
   std::printf("pbgi-coordinator: listening on %s\n", (*coordinator)->address().c_str());
   std::fflush(stdout);

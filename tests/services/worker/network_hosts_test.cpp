@@ -19,8 +19,6 @@
 #include <map>
 #include <thread>
 
-#include <absl/strings/str_split.h>
-
 #include "tests/support/network_hosts.h"
 #include "tests/support/worker_farm.h"
 
@@ -46,9 +44,11 @@ TEST_F(NetworkHostsTest,
   // dies of it (as it should on a real farm).
   const fs::path state = dir_ / "daemon-state";
   const fs::path addressFile = state / "coordinator.addr";
+  const fs::path httpFile = state / "coordinator.http";
   const auto startDaemon = [&](const std::string& listen, const std::string& http,
                                const std::string& log) {
     fs::remove(addressFile);
+    fs::remove(httpFile);
     return Process({binary("pbgi-coordinator").string(), "--state", state.string(), "--listen",
                     listen, "--http", http, "--output-root", dir_.string(), "--tile-size", "64",
                     "--lease-seconds", "1", "--expiry-interval", "0.1", "--backoff-base", "0",
@@ -56,14 +56,15 @@ TEST_F(NetworkHostsTest,
                    dir_ / log);
   };
   Process daemon = startDaemon("0.0.0.0:0", "127.0.0.1:0", "coordinator.log");
-  ASSERT_TRUE(waitFor([&] { return slurpFile(addressFile).find(':') != std::string::npos; },
-                      20.0))
+  const auto firstLine = [](const fs::path& file) {
+    const std::string text = slurpFile(file);
+    return text.substr(0, text.find('\n'));
+  };
+  ASSERT_TRUE(waitFor([&] { return fs::exists(addressFile) && fs::exists(httpFile); }, 20.0))
       << daemon.log();
-  const std::vector<std::string> addresses = absl::StrSplit(
-      slurpFile(addressFile), '\n', absl::SkipEmpty());
-  ASSERT_EQ(addresses.size(), 2u) << slurpFile(addressFile);
-  const std::string port = addresses[0].substr(addresses[0].rfind(':') + 1);
-  const std::string httpAddress = addresses[1];
+  const std::string address = firstLine(addressFile);
+  const std::string port = address.substr(address.rfind(':') + 1);
+  const std::string httpAddress = firstLine(httpFile);
   options_.token = [&] {
     const std::string t = slurpFile(state / "token");
     return t.substr(0, t.find('\n'));
@@ -148,7 +149,8 @@ TEST_F(NetworkHostsTest,
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   Process restarted =
       startDaemon("0.0.0.0:" + port, httpAddress, "coordinator-restarted.log");
-  ASSERT_TRUE(waitFor([&] { return fs::exists(addressFile); }, 20.0)) << restarted.log();
+  ASSERT_TRUE(waitFor([&] { return fs::exists(addressFile) && fs::exists(httpFile); }, 20.0))
+      << restarted.log();
   // The cut-off worker's lease expires (of the tile it held when the link went: not
   // necessarily the one seen above, which it may have finished first), before the kill or
   // after the restart; then its link comes back.
