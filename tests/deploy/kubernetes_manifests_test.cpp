@@ -316,16 +316,30 @@ TEST(KubernetesManifests, FilesFromSecretsAreKeysTheReadmePutsThere) {
   }
 }
 
-TEST(KubernetesManifests, TheCoordinatorsCertificateHoldsTheNameTheWorkersDial) {
-  const std::vector<Container> all = allContainers();
+// The manifests' coordinator and worker, and the certificates README.md's make-certs command
+// makes, in `certs`.
+struct TlsFarm {
+  TlsFarm() = default;
+  TlsFarm(const TlsFarm&) = delete;  // the pointers point into `all`
+  std::vector<Container> all = allContainers();
   const Container* coordinator = find(all, "pbgi-coordinator");
   const Container* worker = find(all, "pbgi-worker");
-  ASSERT_NE(coordinator, nullptr);
-  ASSERT_NE(worker, nullptr);
+};
+::testing::AssertionResult makeTlsFarm(TlsFarm& farm, const fs::path& certs) {
+  if (farm.coordinator == nullptr || farm.worker == nullptr) {
+    return ::testing::AssertionFailure() << "no pbgi-coordinator or pbgi-worker container";
+  }
   const std::vector<std::string> command = readmeMakeCerts();
-  ASSERT_FALSE(command.empty());
+  if (command.empty()) return ::testing::AssertionFailure() << "README.md makes no certificates";
+  return makeCerts(certs, {command.begin() + 1, command.end()});
+}
+
+TEST(KubernetesManifests, TheCoordinatorsCertificateHoldsTheNameTheWorkersDial) {
+  TlsFarm farm;
   const fs::path certs = makeTempDir("k8s-certs") / "certs";
-  ASSERT_TRUE(makeCerts(certs, {command.begin() + 1, command.end()}));
+  ASSERT_TRUE(makeTlsFarm(farm, certs));
+  const Container* coordinator = farm.coordinator;
+  const Container* worker = farm.worker;
   const auto cf = flags(*coordinator);
   ASSERT_TRUE(cf.count("--tls-cert")) << "the coordinator serves no TLS";
   const std::string cert = localTlsFile(*coordinator, "--tls-cert", cf.at("--tls-cert"), certs);
@@ -340,16 +354,12 @@ TEST(KubernetesManifests, TheCoordinatorsCertificateHoldsTheNameTheWorkersDial) 
 }
 
 TEST(KubernetesManifests, ACoordinatorAndAWorkerWithTheManifestsTlsArgumentsConnect) {
-  const std::vector<Container> all = allContainers();
-  const Container* coordinator = find(all, "pbgi-coordinator");
-  const Container* worker = find(all, "pbgi-worker");
-  ASSERT_NE(coordinator, nullptr);
-  ASSERT_NE(worker, nullptr);
-  const std::vector<std::string> command = readmeMakeCerts();
-  ASSERT_FALSE(command.empty());
+  TlsFarm farm;
   const fs::path dir = makeTempDir("k8s-tls");
   const fs::path certs = dir / "certs";
-  ASSERT_TRUE(makeCerts(certs, {command.begin() + 1, command.end()}));
+  ASSERT_TRUE(makeTlsFarm(farm, certs));
+  const Container* coordinator = farm.coordinator;
+  const Container* worker = farm.worker;
 
   // Their own state, ports and token; the manifests' TLS arguments, on the files the secrets
   // hold.
