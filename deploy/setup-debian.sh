@@ -4,7 +4,8 @@
 # server the PostgreSQL job store's tests start a throwaway cluster of (initdb, pg_ctl);
 # slurm-wlm and munge the one-node Slurm cluster the worker-array test starts (deploy/slurm);
 # iproute2 the `ip netns` of the network-hosts test; chromium (and node, npm) the dashboard's
-# headless browser test.
+# headless browser test; systemd the `systemd-analyze verify` of deploy/systemd's units (a
+# container need not run it).
 set -eu
 
 PACKAGES="
@@ -14,7 +15,7 @@ libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
 libsqlite3-dev libpqxx-dev postgresql-15 libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
-libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2 chromium
+libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2 chromium systemd
 "
 # The dashboard's browser test drives chromium with playwright-core, which npm installs from
 # tests/browser/package-lock.json. Debian's node and npm, unless a Node.js is already there (a
