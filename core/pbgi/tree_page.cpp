@@ -100,6 +100,12 @@ float halfBits(uint16_t bits) {
 // radius below 6e-5 lost its precision and one above 65504 was clamped). Pages without it
 // read as before.
 constexpr uint8_t kRelativeRadiiFlag = 0x80;
+// Set beside it (quantized pages written since): surfel radiance is stored over its leaf's
+// surfelRadianceScale, so that a half float keeps it in any unit of light (absolute, radiance
+// above 65504 was clamped: a room lit by a light of 1e10 lost 6 % of its bounced light, and a
+// scene in photometric units is near that already). Pages without it read as before.
+constexpr uint8_t kRelativeRadianceFlag = 0x40;
+constexpr uint8_t kEncodingFlags = kRelativeRadiiFlag | kRelativeRadianceFlag;
 
 // What a quantized surfel's radius is stored relative to: its leaf's decoded bounds' largest
 // side (1 for a leaf of one point, whose bounds have no size).
@@ -107,6 +113,18 @@ float radiusScale(const Bounds3f& leaf) {
   const float side = maxAbsComponent(leaf.max - leaf.min);
   return side > 0.0f && std::isfinite(side) ? side : 1.0f;
 }
+
+}  // namespace
+
+float surfelRadianceScale(float area, const Rgb& powerDc, const Rgb& backPower) {
+  const float power = std::max(maxComponent(powerDc), maxComponent(backPower));
+  const float mean = power / area;
+  if (!(area > 0.0f) || !(power > 0.0f) || !std::isfinite(mean) || !(mean > 0.0f)) return 1.0f;
+  // A power of two, so that dividing by it and multiplying back are exact.
+  return std::ldexp(1.0f, std::clamp(std::ilogb(mean), -100, 100));
+}
+
+namespace {
 
 half toHalf(float v) {
   // Finite, within half's range: radiance beyond 65504 is clamped by the caller, who counts it.
@@ -626,7 +644,7 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
   w.u32(counts.refs);
   w.u32(counts.surfels);
   w.u32(counts.exact);
-  w.u8(static_cast<uint8_t>(encoding) | (quantized(encoding) ? kRelativeRadiiFlag : 0));
+  w.u8(static_cast<uint8_t>(encoding) | (quantized(encoding) ? kEncodingFlags : 0));
   writeVec3(w, pageBounds.min);
   writeVec3(w, pageBounds.max);
 
@@ -711,6 +729,8 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
   }
   for (size_t i = 0; i < nodes.size(); ++i) {
     const Bounds3f& lb = leafBounds[i];
+    const NodeAttributes& leaf = nodes[i].attributes;
+    const float over = 1.0f / surfelRadianceScale(leaf.area, leaf.powerSh.c[0], leaf.backPower);
     for (const Surfel& s : nodes[i].surfels) {
       if (!quantized(encoding)) {
         writeFloatSurfel(w, s);
@@ -724,8 +744,8 @@ std::vector<uint8_t> encodeTreePage(uint32_t id, TreeEncoding encoding,
       w.u16(u);
       w.u16(v);
       w.u16(toHalf(s.radius / radiusScale(lb)).bits());
-      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.radiance[ch]).bits());
-      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.backRadiance[ch]).bits());
+      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.radiance[ch] * over).bits());
+      for (int ch = 0; ch < 3; ++ch) w.u16(toHalf(s.backRadiance[ch] * over).bits());
       for (int ch = 0; ch < 3; ++ch) {
         w.u8(static_cast<uint8_t>(std::lround(std::clamp(s.albedo[ch], 0.0f, 1.0f) * 255.0f)));
       }
@@ -787,11 +807,13 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
   counts.exact = header.u32();
   const uint8_t flaggedEncoding = header.u8();
   const bool relativeRadii = (flaggedEncoding & kRelativeRadiiFlag) != 0;
-  const uint8_t encodingByte = flaggedEncoding & ~kRelativeRadiiFlag;
+  const bool relativeRadiance = (flaggedEncoding & kRelativeRadianceFlag) != 0;
+  const uint8_t encodingByte = flaggedEncoding & ~kEncodingFlags;
   if (encodingByte > static_cast<uint8_t>(TreeEncoding::kQuantized8) ||
-      (relativeRadii && encodingByte == static_cast<uint8_t>(TreeEncoding::kFloat))) {
-    return fail(fmt::format("encoding {}, expected 0 (float), 1 or 2 (quantized; 129 or 130 "
-                            "with surfel radii relative to their leaf)",
+      ((flaggedEncoding & kEncodingFlags) != 0 &&
+       encodingByte == static_cast<uint8_t>(TreeEncoding::kFloat))) {
+    return fail(fmt::format("encoding {}, expected 0 (float), 1 or 2 (quantized; plus 128 with "
+                            "surfel radii relative to their leaf, plus 64 with radiance so)",
                             flaggedEncoding));
   }
   const auto encoding = static_cast<TreeEncoding>(encodingByte);
@@ -892,6 +914,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
   // Attributes, parents before children: a quantized node's bounds are relative to its
   // in-page parent's, or to the page's.
   std::vector<Bounds3f> reference(counts.nodes, page->bounds);
+  std::vector<float> radianceScale(counts.nodes, 1.0f);  // what a leaf's surfels' is over
   const uint8_t* exact = bytes.data() + expected - size_t{counts.exact} * kExactShBytes;
   uint32_t exactSeen = 0;
   for (uint32_t i = 0; i < counts.nodes; ++i) {
@@ -916,6 +939,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
     a.area = r.f32();
     const Rgb dc = readVec3(r);
     a.backPower = readVec3(r);
+    if (relativeRadiance) radianceScale[i] = surfelRadianceScale(a.area, dc, a.backPower);
     uint32_t powerIndex, areaIndex;
     if (encoding == TreeEncoding::kQuantized8) {
       powerIndex = r.u8();
@@ -954,6 +978,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
   }
   // Surfels: their leaf's bounds are needed for quantized positions, so walk the leaves.
   std::vector<const Bounds3f*> surfelBounds(counts.surfels, nullptr);
+  std::vector<float> surfelScale(counts.surfels, 1.0f);
   for (const TreeNode& n : page->nodes) {
     if (!n.leaf()) continue;
     for (uint32_t k = 0; k < n.surfelCount; ++k) {
@@ -961,6 +986,7 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
         return fail(fmt::format("surfel {} belongs to two leaves", n.first + k));
       }
       surfelBounds[n.first + k] = &n.attributes.bounds;
+      surfelScale[n.first + k] = radianceScale[static_cast<size_t>(&n - page->nodes.data())];
     }
   }
   ByteReader r(refs.position());
@@ -980,8 +1006,8 @@ absl::StatusOr<std::shared_ptr<const TreePage>> decodeTreePage(uint32_t id,
     const uint16_t u = r.u16(), v = r.u16();
     s.normal = octDecode(u, v);
     s.radius = halfBits(r.u16()) * (relativeRadii ? radiusScale(lb) : 1.0f);
-    for (int ch = 0; ch < 3; ++ch) s.radiance[ch] = halfBits(r.u16());
-    for (int ch = 0; ch < 3; ++ch) s.backRadiance[ch] = halfBits(r.u16());
+    for (int ch = 0; ch < 3; ++ch) s.radiance[ch] = halfBits(r.u16()) * surfelScale[si];
+    for (int ch = 0; ch < 3; ++ch) s.backRadiance[ch] = halfBits(r.u16()) * surfelScale[si];
     for (int ch = 0; ch < 3; ++ch) s.albedo[ch] = r.u8() / 255.0f;
     const uint8_t material = r.u8();
     if (material > static_cast<uint8_t>(MaterialClass::kEmissive)) {

@@ -12,7 +12,8 @@
 // index into the shapes (coefficients 1..8 over coefficient 0, per channel), normals
 // octahedral in 2 x u16, bounds in u16 relative to the parent's (dequantized) bounds where
 // the parent comes earlier in the same page, else to the page's bounds, surfel positions in u16 relative to their
-// leaf's bounds and radiance in half floats. Quantized bounds and cones are conservative:
+// leaf's bounds and radiance in half floats over a power of two of their leaf's
+// (surfelRadianceScale). Quantized bounds and cones are conservative:
 // dequantized bounds contain the float ones and a dequantized cone contains its normals.
 //
 // Ghosts (version 3). A node whose children were placed in other pages keeps a copy of each
@@ -270,6 +271,12 @@ void readFloatAttributes(ByteReader& r, NodeAttributes* a);  // leaves pointCoun
 void writeFloatSurfel(ByteWriter& w, const Surfel& s);
 // Fails on a material class byte that names no MaterialClass.
 absl::Status readFloatSurfel(ByteReader& r, Surfel* s);
+
+// What a quantized leaf's surfels' radiance is stored over (a half float each): a power of two
+// near the leaf's mean radiance, from its record's area, power DC and back power (stored
+// exactly, so that writer and reader agree); 1 when those give none. Pages written before it
+// store radiance absolute.
+float surfelRadianceScale(float area, const Rgb& powerDc, const Rgb& backPower);
 
 // Encoded size of a page holding `nodes` nodes (`exact` of them exact), `refs` references and
 // `surfels` surfels.

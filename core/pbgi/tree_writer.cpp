@@ -331,8 +331,10 @@ class TreeWriter::Impl {
         if (batch[i].exact) ++result->exactNodeCount;
         powerSums.add(errors[i].powerD2, errors[i].powerN2, errors[i].powerFinite);
         areaSums.add(errors[i].areaD2, errors[i].areaN2, errors[i].areaFinite);
+        const NodeAttributes& leaf = batch[i].attributes;
+        const float scale = surfelRadianceScale(leaf.area, leaf.powerSh.c[0], leaf.backPower);
         for (const Surfel& s : batch[i].surfels) {
-          if (std::max(maxComponent(s.radiance), maxComponent(s.backRadiance)) >
+          if (std::max(maxComponent(s.radiance), maxComponent(s.backRadiance)) / scale >
               static_cast<float>(HALF_MAX)) {
             ++result->quantization.clampedSurfelRadiance;
           }

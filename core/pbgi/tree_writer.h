@@ -79,7 +79,8 @@ struct TreeWaveletReport {
 struct TreeQuantizationReport {
   QuantizationError power;  // of the 27-float power SH vectors
   QuantizationError area;   // of the 9-float projected-area SH vectors
-  uint64_t clampedSurfelRadiance = 0;  // surfel radiance beyond half's range, clamped
+  // Surfel radiance beyond half's range over its leaf's scale (tree_page.h), clamped.
+  uint64_t clampedSurfelRadiance = 0;
 };
 
 inline constexpr uint64_t kMinExactPoints = 64;
