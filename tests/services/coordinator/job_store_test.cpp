@@ -1198,6 +1198,47 @@ TEST_P(JobStoreTest, ConcurrentAuditLeasesNeverHandOutAnAuditTwice) {
   }
 }
 
+// Jobs whose last tasks, on different frames, complete at once on two coordinators end done,
+// every task done once: a completion that settled its job without the job's row (tried, to
+// let frames complete side by side) left it active, seeing the other's task still leased.
+// Twenty small jobs, so that the last completions race many times.
+TEST_F(PostgresJobStoreTest, JobsWhoseLastTasksCompleteAtOnceOnTwoCoordinatorsEndDone) {
+  std::unique_ptr<JobStore> second = openAnother();
+  ASSERT_NE(second, nullptr);
+  for (int round = 0; round < 20; ++round) {
+    SCOPED_TRACE(round);
+    const int64_t id = submit(makeSpec({1, 2, 3, 4}, 1, false));
+    const Race r = race({store_.get(), second.get()}, 4,
+                        [id](JobStore& store, const std::string& worker, int64_t* task,
+                             std::string* error) {
+                          auto l = store.lease(worker, 0, kLease);
+                          if (!l.ok()) *error = std::string(l.status().message());
+                          if (!l.ok()) return Take::kStop;
+                          if (!*l) {
+                            auto info = store.job(id);
+                            if (!info.ok()) *error = std::string(info.status().message());
+                            // Active with nothing ready: another thread holds the rest, or the
+                            // job was left active when it should have settled (checked below).
+                            if (!info.ok() || info->state != JobState::kActive) return Take::kStop;
+                            return info->tasksByState[static_cast<size_t>(TaskState::kLeased)] > 0
+                                       ? Take::kAgain
+                                       : Take::kStop;
+                          }
+                          const absl::Status s =
+                              store.complete((*l)->task, (*l)->attempt, 0).status();
+                          if (!s.ok()) *error = std::string(s.message());
+                          *task = (*l)->task;
+                          return Take::kTook;
+                        });
+    EXPECT_TRUE(r.errors.empty()) << r.errors.front();
+    EXPECT_EQ(r.taken.size(), 8u) << "4 tiles and 4 assembles";
+    EXPECT_EQ(std::set<int64_t>(r.taken.begin(), r.taken.end()).size(), 8u);
+    const JobInfo done = job(id);
+    EXPECT_EQ(done.state, JobState::kDone);
+    EXPECT_EQ(count(done, TaskState::kDone), 8);
+  }
+}
+
 // Two coordinators, one thread each, share one database: leases race on every task of a big
 // job, and each is leased exactly once.
 TEST_F(PostgresJobStoreTest, TwoCoordinatorsLeaseEveryTaskOfABigJobExactlyOnce) {
