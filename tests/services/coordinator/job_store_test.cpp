@@ -1156,6 +1156,29 @@ Race race(const std::vector<JobStore*>& stores, int threads,
   return r;
 }
 
+// A race's step on job `id`: lease a task and complete it (each at its first attempt). With
+// none ready, again while a task of the job is leased elsewhere (an assemble waits on it);
+// otherwise stop, the job done, or left active when it should have settled (the caller checks).
+auto leaseAndComplete(int64_t id) {
+  return [id](JobStore& store, const std::string& worker, int64_t* task, std::string* error) {
+    auto l = store.lease(worker, 0, kLease);
+    if (!l.ok()) *error = std::string(l.status().message());
+    if (!l.ok()) return Take::kStop;
+    if (!*l) {
+      auto info = store.job(id);
+      if (!info.ok()) *error = std::string(info.status().message());
+      if (!info.ok() || info->state != JobState::kActive) return Take::kStop;
+      return info->tasksByState[static_cast<size_t>(TaskState::kLeased)] > 0 ? Take::kAgain
+                                                                              : Take::kStop;
+    }
+    const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
+    if (!s.ok()) *error = std::string(s.message());
+    EXPECT_EQ((*l)->attempt, 1) << (*l)->ref.toString();
+    *task = (*l)->task;
+    return Take::kTook;
+  };
+}
+
 TEST_P(JobStoreTest, ConcurrentAuditLeasesNeverHandOutAnAuditTwice) {
   constexpr int kFrames = 60;
   std::vector<int> frames(kFrames);
@@ -1208,28 +1231,7 @@ TEST_F(PostgresJobStoreTest, JobsWhoseLastTasksCompleteAtOnceOnTwoCoordinatorsEn
   for (int round = 0; round < 20; ++round) {
     SCOPED_TRACE(round);
     const int64_t id = submit(makeSpec({1, 2, 3, 4}, 1, false));
-    const Race r = race({store_.get(), second.get()}, 4,
-                        [id](JobStore& store, const std::string& worker, int64_t* task,
-                             std::string* error) {
-                          auto l = store.lease(worker, 0, kLease);
-                          if (!l.ok()) *error = std::string(l.status().message());
-                          if (!l.ok()) return Take::kStop;
-                          if (!*l) {
-                            auto info = store.job(id);
-                            if (!info.ok()) *error = std::string(info.status().message());
-                            // Active with nothing ready: another thread holds the rest, or the
-                            // job was left active when it should have settled (checked below).
-                            if (!info.ok() || info->state != JobState::kActive) return Take::kStop;
-                            return info->tasksByState[static_cast<size_t>(TaskState::kLeased)] > 0
-                                       ? Take::kAgain
-                                       : Take::kStop;
-                          }
-                          const absl::Status s =
-                              store.complete((*l)->task, (*l)->attempt, 0).status();
-                          if (!s.ok()) *error = std::string(s.message());
-                          *task = (*l)->task;
-                          return Take::kTook;
-                        });
+    const Race r = race({store_.get(), second.get()}, 4, leaseAndComplete(id));
     EXPECT_TRUE(r.errors.empty()) << r.errors.front();
     EXPECT_EQ(r.taken.size(), 8u) << "4 tiles and 4 assembles";
     EXPECT_EQ(std::set<int64_t>(r.taken.begin(), r.taken.end()).size(), 8u);
@@ -1246,24 +1248,7 @@ TEST_F(PostgresJobStoreTest, TwoCoordinatorsLeaseEveryTaskOfABigJobExactlyOnce) 
   const int64_t id = submit(makeSpec({1}, kTiles, false));
   std::unique_ptr<JobStore> second = openAnother();
   ASSERT_NE(second, nullptr);
-  const Race r = race({store_.get(), second.get()}, 2,
-                      [id](JobStore& store, const std::string& worker, int64_t* task,
-                           std::string* error) {
-                        auto l = store.lease(worker, 0, kLease);
-                        if (!l.ok()) *error = std::string(l.status().message());
-                        if (!l.ok()) return Take::kStop;
-                        if (!*l) {
-                          // The assemble waits on a tile the other coordinator holds.
-                          auto info = store.job(id);
-                          return info.ok() && info->state == JobState::kActive ? Take::kAgain
-                                                                                : Take::kStop;
-                        }
-                        const absl::Status s = store.complete((*l)->task, (*l)->attempt, 0).status();
-                        if (!s.ok()) *error = std::string(s.message());
-                        EXPECT_EQ((*l)->attempt, 1) << (*l)->ref.toString();
-                        *task = (*l)->task;
-                        return Take::kTook;
-                      });
+  const Race r = race({store_.get(), second.get()}, 2, leaseAndComplete(id));
   const std::multiset<int64_t>& leased = r.taken;
   const std::vector<int>& perStore = r.perStore;
   EXPECT_TRUE(r.errors.empty()) << r.errors.front();
