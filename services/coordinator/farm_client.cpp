@@ -221,34 +221,22 @@ absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string
   impl_->prepareStream(context);
   v1::PutFileResponse response;
   uint64_t total = 0;
-  absl::Status sent;
+  absl::Status sent, stalled;
   grpc::Status finished;
-  bool stalled = false;
-  std::optional<absl::Status> why;
   {
     StallWatch watch(context, impl_->deadlineSeconds);
     auto writer = impl_->stub->PutFile(&context, &response);
-    bool first = true;
-    sent = sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
-      v1::PutFileChunk chunk;
-      if (first) {
-        chunk = head;
-        chunk.set_size(size);
-        total = size;
-        first = false;
-      }
-      if (xxh3) chunk.set_xxh3(*xxh3);
-      chunk.set_data(std::string(data));
+    sent = sendChunks(path, head, [&](const v1::PutFileChunk& chunk) {
+      if (chunk.size() > 0) total = chunk.size();  // the first chunk's
       const bool written = writer->Write(chunk);
-      if (written) watch.moved(data.size());
+      if (written) watch.moved(chunk.data().size());
       return written;
     });
     writer->WritesDone();
     finished = writer->Finish();
-    stalled = watch.stalled();
-    if (stalled) why = watch.why(address_, "PutFile", total);
+    if (watch.stalled()) stalled = watch.why(address_, "PutFile", total);
   }
-  if (stalled) return *why;
+  if (!stalled.ok()) return stalled;
   // The coordinator's reason beats "it stopped reading".
   if (!finished.ok()) return impl_->failed(finished, "PutFile");
   return sent;
@@ -257,37 +245,38 @@ absl::Status FarmClient::putFile(const v1::PutFileChunk& head, const std::string
 absl::Status FarmClient::getFile(const v1::GetFileRequest& request, const std::string& path) {
   grpc::ClientContext context;
   impl_->prepareStream(context);
-  std::optional<FileReceiver> file;
-  uint64_t xxh3 = 0;  // the last chunk's
+  absl::Status received, stalled;
+  bool arrived = false, ended = false;
   uint64_t total = 0;
-  absl::Status failed;
   grpc::Status finished;
   {
     StallWatch watch(context, impl_->deadlineSeconds);
     auto reader = impl_->stub->GetFile(&context, request);
+    const auto next = [&](v1::FileChunk* chunk) {
+      ended = !reader->Read(chunk);
+      if (!ended) watch.moved(chunk->data().size());
+      return !ended;
+    };
     v1::FileChunk chunk;
-    while (failed.ok() && reader->Read(&chunk)) {
-      watch.moved(chunk.data().size());
-      xxh3 = chunk.xxh3();
-      if (!file) {
-        total = chunk.size();
-        auto begun = FileReceiver::begin(path, chunk.size());
-        if (!begun.ok()) {
-          failed = begun.status();
-          break;
-        }
-        file.emplace(*std::move(begun));
-      }
-      failed = file->add(chunk.data());
+    arrived = next(&chunk);
+    if (arrived) {
+      total = chunk.size();
+      received = receiveChunks(path, chunk, next);
     }
-    if (!failed.ok()) context.TryCancel();
+    // This side failed while the stream was open (a full disk): its reason, and no more.
+    if (!ended) {
+      context.TryCancel();
+      (void)reader->Finish();
+      return received;
+    }
     finished = reader->Finish();
-    if (failed.ok() && watch.stalled()) failed = watch.why(address_, "GetFile", total);
+    if (watch.stalled()) stalled = watch.why(address_, "GetFile", total);
   }
-  if (failed.ok() && !finished.ok()) failed = impl_->failed(finished, "GetFile");
-  if (failed.ok() && !file) failed = absl::DataLossError(fmt::format("{}: nothing arrived", path));
-  if (!failed.ok()) return failed;
-  return file->finish(xxh3);
+  if (!stalled.ok()) return stalled;
+  // A stream cut short says why (a coordinator away, to try again), not that the file is short.
+  if (!finished.ok()) return impl_->failed(finished, "GetFile");
+  if (!arrived) return absl::DataLossError(fmt::format("{}: nothing arrived", path));
+  return received;
 }
 
 absl::StatusOr<std::vector<std::vector<uint8_t>>> FarmClient::fetchPages(

@@ -64,13 +64,7 @@ absl::StatusOr<std::string> FileService::put(
   }
   PBGI_ASSIGN_OR_RETURN(const std::string path,
                         pathOf(task.ref.job, kind, task.ref.frame, task.ref.tile));
-  PBGI_ASSIGN_OR_RETURN(FileReceiver file, FileReceiver::begin(path, chunk.size()));
-  uint64_t xxh3 = 0;
-  do {
-    PBGI_RETURN_IF_ERROR(file.add(chunk.data()));
-    xxh3 = chunk.xxh3();  // the last chunk's counts
-  } while (next(&chunk));
-  PBGI_RETURN_IF_ERROR(file.finish(xxh3));
+  PBGI_RETURN_IF_ERROR(receiveChunks(path, chunk, next));
   return path;
 }
 
@@ -83,17 +77,7 @@ absl::Status FileService::get(const v1::GetFileRequest& request,
   }
   PBGI_ASSIGN_OR_RETURN(const std::string path, pathOf(request.job(), request.kind(),
                                                        request.frame(), request.tile()));
-  bool first = true;
-  return sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
-    v1::FileChunk chunk;
-    if (first) {
-      chunk.set_size(size);
-      first = false;
-    }
-    if (xxh3) chunk.set_xxh3(*xxh3);
-    chunk.set_data(std::string(data));
-    return write(chunk);
-  });
+  return sendChunks(path, v1::FileChunk(), write);
 }
 
 }  // namespace pbgi::farm

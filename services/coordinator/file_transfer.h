@@ -55,4 +55,40 @@ class FileReceiver {
   XXH3_state_s* hash_ = nullptr;
 };
 
+// Both ends in farm.proto's chunks (PutFileChunk, FileChunk: size in the first, XXH3-64 in the
+// last, data in each), written once for the coordinator and the client.
+//
+// Sends the file at `path` through `write(chunk)` (false: the other end went away), `head`'s
+// fields in the first chunk.
+template <typename Chunk, typename Write>
+absl::Status sendChunks(const std::string& path, const Chunk& head, Write&& write) {
+  bool first = true;
+  return sendFile(path, [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
+    Chunk chunk;
+    if (first) {
+      chunk = head;
+      chunk.set_size(size);
+      first = false;
+    }
+    if (xxh3) chunk.set_xxh3(*xxh3);
+    chunk.set_data(std::string(data));
+    return write(chunk);
+  });
+}
+
+// Receives into `path` the chunks from `chunk` (the first, already read) on, `next(&chunk)`
+// reading each of the others (false: no more); renamed into place only when whole and
+// unchanged (FileReceiver).
+template <typename Chunk, typename Next>
+absl::Status receiveChunks(const std::string& path, Chunk& chunk, Next&& next) {
+  absl::StatusOr<FileReceiver> file = FileReceiver::begin(path, chunk.size());
+  if (!file.ok()) return file.status();
+  uint64_t xxh3 = 0;
+  do {
+    if (absl::Status s = file->add(chunk.data()); !s.ok()) return s;
+    xxh3 = chunk.xxh3();  // the last chunk's counts
+  } while (next(&chunk));
+  return file->finish(xxh3);
+}
+
 }  // namespace pbgi::farm

@@ -45,12 +45,8 @@ class SlowFiles final : public v1::Coordinator::Service {
 
   grpc::Status GetFile(grpc::ServerContext* context, const v1::GetFileRequest*,
                        grpc::ServerWriter<v1::FileChunk>* writer) override {
-    const absl::Status sent = sendFile(
-        served_.string(), [&](uint64_t size, std::string_view data, std::optional<uint64_t> xxh3) {
-          v1::FileChunk chunk;
-          chunk.set_size(size);
-          if (xxh3) chunk.set_xxh3(*xxh3);
-          chunk.set_data(std::string(data));
+    const absl::Status sent =
+        sendChunks(served_.string(), v1::FileChunk(), [&](const v1::FileChunk& chunk) {
           return writer->Write(chunk) && wait(context);
         });
     return sent.ok() ? grpc::Status::OK : grpc::Status(grpc::StatusCode::ABORTED, "stopped");
