@@ -92,11 +92,12 @@ std::string inputFilesKey(const ShotDesc& shot) {
   }
   std::string key;
   for (const std::string& f : files) {
-    std::error_code ec;
-    const auto size = std::filesystem::file_size(f, ec);
-    const auto time = std::filesystem::last_write_time(f, ec);
-    key += ec ? fmt::format("|{}:absent", f)
-              : fmt::format("|{}:{}:{}", f, size, time.time_since_epoch().count());
+    std::error_code sizeError, timeError;
+    const auto size = std::filesystem::file_size(f, sizeError);
+    const auto time = std::filesystem::last_write_time(f, timeError);
+    key += sizeError || timeError
+               ? fmt::format("|{}:absent", f)
+               : fmt::format("|{}:{}:{}", f, size, time.time_since_epoch().count());
   }
   return key;
 }

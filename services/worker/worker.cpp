@@ -705,14 +705,6 @@ int Worker::run(const std::atomic<bool>& stop) {
   v1::LeaseTaskRequest ask;
   ask.set_worker(id_);
   ask.set_runs_audits(true);
-  const auto refreshHeld = [&] {
-    ask.clear_held();
-    for (const HeldFrame& h : held_) {
-      v1::HeldFrame* out = ask.add_held();
-      out->set_job(h.job);
-      out->set_frame(h.frame);
-    }
-  };
   double backoff = options_.pollSeconds;
   // The next task, when the last completion brought one.
   std::optional<v1::LeaseTaskResponse> next;
@@ -722,7 +714,6 @@ int Worker::run(const std::atomic<bool>& stop) {
       task = *std::move(next);
       next.reset();
     } else {
-      refreshHeld();
       task = client_.leaseTask(ask);
     }
     if (!task.ok()) {
@@ -751,8 +742,14 @@ int Worker::run(const std::atomic<bool>& stop) {
     } else if (!result.ok() && kind == v1::TASK_KIND_TILE) {
       remoteTrees_.erase({task->job(), task->frame()});  // the frame baked again, say
     }
-    // A worker that goes on asks for its next task with this one's result.
-    refreshHeld();
+    // The frames held change only with a task; a worker that goes on asks for its next task
+    // with this one's result.
+    ask.clear_held();
+    for (const HeldFrame& h : held_) {
+      v1::HeldFrame* out = ask.add_held();
+      out->set_job(h.job);
+      out->set_frame(h.frame);
+    }
     next = report(*task, result, std::chrono::duration<double>(Clock::now() - started).count(),
                   stop.load() ? nullptr : &ask);
   }

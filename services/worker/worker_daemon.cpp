@@ -13,6 +13,19 @@
 
 namespace pbgi::farm {
 
+namespace {
+
+// An option taking one of `words` (any case) for `target`, "auto" by default.
+template <typename Choice>
+void addChoice(CLI::App& app, const std::string& name, Choice& target, const std::string& help,
+               std::map<std::string, Choice> words) {
+  app.add_option(name, target, help)
+      ->transform(CLI::CheckedTransformer(std::move(words), CLI::ignore_case))
+      ->default_str("auto");
+}
+
+}  // namespace
+
 int workerDaemonMain(int argc, char** argv) {
   CLI::App app{"pbgi-worker: a render farm worker daemon"};
   app.set_config("--config", "", "TOML file of these options (keys are the long flag names)");
@@ -45,23 +58,15 @@ int workerDaemonMain(int argc, char** argv) {
                  "Disk the streamed pages may take in --cache-dir, in MiB (0: keep none)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
-  app.add_option("--tree-source", o.treeSource,
-                 "auto: the shared job folder when visible, else stream; shared; stream")
-      ->transform(CLI::CheckedTransformer(
-          std::map<std::string, TreeSource>{{"auto", TreeSource::kAuto},
-                                            {"shared", TreeSource::kShared},
-                                            {"stream", TreeSource::kStream}},
-          CLI::ignore_case))
-      ->default_str("auto");
-  app.add_option("--files", o.fileSource,
-                 "auto: the coordinator's job folder when visible here, else a local copy whose "
-                 "results are sent to the coordinator; shared; copy")
-      ->transform(CLI::CheckedTransformer(
-          std::map<std::string, FileSource>{{"auto", FileSource::kAuto},
-                                            {"shared", FileSource::kShared},
-                                            {"copy", FileSource::kCopy}},
-          CLI::ignore_case))
-      ->default_str("auto");
+  addChoice(app, "--tree-source", o.treeSource,
+            "auto: the shared job folder when visible, else stream; shared; stream",
+            {{"auto", TreeSource::kAuto},
+             {"shared", TreeSource::kShared},
+             {"stream", TreeSource::kStream}});
+  addChoice(app, "--files", o.fileSource,
+            "auto: the coordinator's job folder when visible here, else a local copy whose "
+            "results are sent to the coordinator; shared; copy",
+            {{"auto", FileSource::kAuto}, {"shared", FileSource::kShared}, {"copy", FileSource::kCopy}});
   app.add_option("--poll-seconds", o.pollSeconds, "Between lease requests while idle")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
