@@ -119,6 +119,7 @@ std::optional<std::string> statement(std::string_view line, std::string_view key
 struct MaterialLibraries {
   std::set<std::string> defined;     // newmtl names
   std::vector<std::string> missing;  // mtllib entries that name no file
+  std::vector<std::string> files;    // the libraries found, and the map_Kd textures they name
 };
 
 MaterialLibraries scanMaterialLibraries(const fs::path& obj) {
@@ -143,9 +144,24 @@ MaterialLibraries scanMaterialLibraries(const fs::path& obj) {
         libs.missing.push_back(name);
         continue;
       }
+      libs.files.push_back(mtl->string());
       std::ifstream mtlIn(*mtl);
       for (std::string mtlLine; std::getline(mtlIn, mtlLine);) {
         if (auto newmtl = statement(mtlLine, "newmtl")) libs.defined.insert(*newmtl);
+        if (auto map = statement(mtlLine, "map_Kd")) {
+          // The file name, after any options ("-s 1 1 1 wood.png"): the whole value when it
+          // names a file, else its last word.
+          std::optional<fs::path> texture =
+              resolveReferencedFile(mtl->parent_path(), *map, /*foldCase=*/true);
+          if (!texture) {
+            const size_t space = map->find_last_of(" \t");
+            if (space != std::string::npos) {
+              texture = resolveReferencedFile(mtl->parent_path(), map->substr(space + 1),
+                                              /*foldCase=*/true);
+            }
+          }
+          if (texture) libs.files.push_back(texture->string());
+        }
       }
     }
   }
@@ -509,6 +525,11 @@ absl::StatusOr<LoadedGeometry> load(const std::string& path) {
 }
 
 }  // namespace
+
+std::vector<std::string> referencedFiles(const std::string& path) {
+  if (lowerExtension(path) != ".obj") return {};
+  return scanMaterialLibraries(path).files;
+}
 
 absl::StatusOr<LoadedGeometry> loadGeometry(const std::string& path) {
   // Assimp reports failures through ReadFile's result, but its parsers and post-processing

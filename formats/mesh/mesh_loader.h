@@ -35,4 +35,9 @@ struct LoadedGeometry {
 
 absl::StatusOr<LoadedGeometry> loadGeometry(const std::string& path);
 
+// The files loading `path` reads besides it, as the loader finds them: an OBJ's material
+// libraries and the diffuse textures (map_Kd) they name. None listed for glTF (its external
+// buffers and images). Reads the OBJ's text to find its mtllib statements.
+std::vector<std::string> referencedFiles(const std::string& path);
+
 }  // namespace pbgi

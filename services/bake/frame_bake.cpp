@@ -21,6 +21,7 @@
 #include "core/util/check.h"
 #include "core/util/spill_file.h"
 #include "core/util/status.h"
+#include "formats/mesh/mesh_loader.h"
 #include "formats/pbgi/tree_file.h"
 #include "formats/scene/frame_scene.h"
 #include "formats/vdb/surfel_vdb.h"
@@ -74,15 +75,15 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
 
 namespace {
 
-// What the bake reads besides the shot: each geometry file (and the MTL beside an OBJ),
-// textures and environment maps, as size and modification time. Editing a mesh must bake
-// again, as editing the shot does; reading every byte of every file to key the cache would
-// cost as much as a scene load.
+// What the bake reads besides the shot: each geometry file and what it names (an OBJ's
+// material libraries and their textures), the shot's textures and environment maps, as size
+// and modification time. Editing a mesh or a texture must bake again, as editing the shot
+// does; reading every byte of every file to key the cache would cost as much as a scene load.
 std::string inputFilesKey(const ShotDesc& shot) {
   std::vector<std::string> files;
   for (const GeometryDesc& g : shot.geometry) {
     files.push_back(g.file);
-    files.push_back(std::filesystem::path(g.file).replace_extension(".mtl").string());
+    for (std::string& f : referencedFiles(g.file)) files.push_back(std::move(f));
   }
   for (const MaterialDesc& m : shot.materials) {
     if (m.albedoTexture) files.push_back(*m.albedoTexture);

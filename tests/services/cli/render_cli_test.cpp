@@ -93,5 +93,42 @@ TEST(RenderCliTest, AnEditedMeshIsBakedAgainAndAnUntouchedOneReused) {
   std::filesystem::remove_all(dir);
 }
 
+// The same for what the mesh names: a material library of another name than the OBJ's and a
+// texture that library names. Either edited, the frame is baked again.
+TEST(RenderCliTest, AnEditedMaterialLibraryOrTextureIsBakedAgain) {
+  const auto dir = testing::makeTempDir("render-rebake-mtl");
+  const auto sample = testing::sourceDir() / "config/scenes/cornell";
+  std::string obj = testing::slurpFile(sample / "cornell_box.obj");
+  const size_t at = obj.find("mtllib cornell_box.mtl");
+  ASSERT_NE(at, std::string::npos);
+  obj.replace(at, std::string("mtllib cornell_box.mtl").size(), "mtllib looks.mtl");
+  std::ofstream(dir / "cornell_box.obj") << obj;
+  std::ofstream(dir / "looks.mtl") << testing::slurpFile(sample / "cornell_box.mtl")
+                                   << "\nnewmtl extra\nKd 0.5 0.5 0.5\nmap_Kd -s 1 1 1 wall.exr\n";
+  const auto writeTexture = [&](float value) {
+    Image texture(2, 2, {"R", "G", "B"});
+    for (float& v : texture.pixels()) v = value;
+    ASSERT_TRUE(writeExr(texture, (dir / "wall.exr").string()).ok());
+  };
+  writeTexture(0.5f);
+  std::ofstream(dir / "cornell.shot.toml") << testing::slurpFile(sample / "cornell.shot.toml");
+  const std::string args = "render " + (dir / "cornell.shot.toml").string() +
+                           " --frame 1 --spp 1 --threads 2 --set bake_points=2000 --out " +
+                           (dir / "f.exr").string();
+  const auto bakedNow = [&] {
+    const Result r = runPbgi(args);
+    EXPECT_EQ(r.exitCode, 0) << r.output();
+    return r.out.find("(baked now)") != std::string::npos;
+  };
+  EXPECT_TRUE(bakedNow());
+  EXPECT_FALSE(bakedNow()) << "nothing changed: the tree is reused";
+  writeTexture(0.25f);
+  EXPECT_TRUE(bakedNow()) << "the texture changed";
+  std::ofstream(dir / "looks.mtl", std::ios::app) << "# edited\n";
+  EXPECT_TRUE(bakedNow()) << "the material library changed";
+  EXPECT_FALSE(bakedNow());
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace pbgi
