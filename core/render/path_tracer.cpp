@@ -30,7 +30,7 @@ std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f
   if (light == nullptr || *selectPdf <= 0.0f) return std::nullopt;
   std::optional<LightSample> ls = light->sample(p, u);
   if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return std::nullopt;
-  if (scene.occluded(scene.spawnShadowRay(p, ng, ls->wi, ls->distance))) return std::nullopt;
+  if (scene.occluded(scene.spawnShadowRay(p, ng, *ls))) return std::nullopt;
   return ls;
 }
 
@@ -57,7 +57,7 @@ TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p,
   const float cosTheta = dot(ls->wi, ng);
   if (cosTheta == 0.0f) return e;
   // spawnShadowRay leaves on the side the sample arrives from.
-  if (scene.occluded(scene.spawnShadowRay(p, ng, ls->wi, ls->distance))) return e;
+  if (scene.occluded(scene.spawnShadowRay(p, ng, *ls))) return e;
   const Rgb value = ls->radiance * (std::abs(cosTheta) / (ls->pdf * selectPdf));
   (cosTheta > 0.0f ? e.front : e.back) = value;
   return e;

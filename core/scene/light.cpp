@@ -26,7 +26,7 @@ std::optional<LightSample> areaSample(const Vec3f& p, const Vec3f& q, const Vec3
   const float cosLight = twoSided ? absDot(wi, n) : dot(-wi, n);
   const float pdf = areaToSolidAngle(1.0f / area, dist2, cosLight);
   if (pdf <= 0.0f || !std::isfinite(pdf)) return std::nullopt;
-  return LightSample{radiance, wi, dist, pdf, false};
+  return LightSample{radiance, wi, dist, pdf, false, q, n};
 }
 
 class QuadLight final : public Light {
@@ -126,7 +126,7 @@ class SphereLight final : public Light {
     const float dist = length(d);
     if (dist <= 0.0f) return std::nullopt;
     const float pdf = 1.0f / (2.0f * kPi * oneMinusCosMax);
-    return LightSample{radiance_, d / dist, dist, pdf, false};
+    return LightSample{radiance_, d / dist, dist, pdf, false, q, n};
   }
   float pdf(const Vec3f& p, const Vec3f& wi, const Vec3f& hit, const Vec3f& n) const override {
     const Vec3f toCenter = center_ - p;
@@ -166,7 +166,7 @@ class PointLight final : public Light {
     const float dist = std::sqrt(dist2);
     const Vec3f wi = d / dist;
     if (dot(-wi, axis_) < cosCone_) return std::nullopt;
-    return LightSample{intensity_ / dist2, wi, dist, 1.0f, true};
+    return LightSample{intensity_ / dist2, wi, dist, 1.0f, true, position_};
   }
   float power() const override {
     return average(intensity_) * 2.0f * kPi * (1.0f - std::max(cosCone_, -1.0f));

@@ -20,6 +20,10 @@ struct LightSample {
   float distance = 0.0f;  // to the sampled point; infinity for infinite lights
   float pdf = 0.0f;       // solid angle density at the receiver; 1 for delta lights
   bool delta = false;
+  // The sampled point (finite distances), and the unit normal of the light's surface there;
+  // zero for a light without a surface (point and spot). What a shadow ray aims at.
+  Vec3f point{0.0f};
+  Vec3f normal{0.0f};
 };
 
 class Light {

@@ -60,12 +60,29 @@ Ray Scene::spawnRay(const Vec3f& p, const Vec3f& ng, const Vec3f& dir) const {
   return Ray{origin, dir, 0.0f, std::numeric_limits<float>::infinity()};
 }
 
-Ray Scene::spawnShadowRay(const Vec3f& p, const Vec3f& ng, const Vec3f& wi, float distance) const {
-  Ray ray = spawnRay(p, ng, wi);
-  if (std::isfinite(distance)) {
-    const Vec3f target = p + wi * distance;
-    ray.tMax = std::max(0.0f, distance * (1.0f - 1e-5f) - 2.0f * offsetScale(target));
+Ray Scene::spawnShadowRay(const Vec3f& p, const Vec3f& ng, const LightSample& sample) const {
+  Ray ray = spawnRay(p, ng, sample.wi);
+  if (!std::isfinite(sample.distance)) return ray;
+  // Both ends leave their surfaces along their normals. Aiming from the offset origin at the
+  // sample itself would not do: the origin's offset shortens the way to the light's plane by
+  // offset / cos(angle at the light), which at grazing angles outgrows any fixed margin and
+  // lands the segment's end on the light's own surface (a receiver 60 degrees off a quad
+  // light's axis saw nothing of it).
+  Vec3f target = sample.point;
+  if (sample.normal != Vec3f(0.0f)) {
+    const float eps = offsetScale(target);
+    target += sample.normal * (dot(ray.origin - target, sample.normal) >= 0.0f ? eps : -eps);
   }
+  const Vec3f d = target - ray.origin;
+  const float length = pbgi::length(d);
+  if (!(length > 0.0f)) {
+    ray.tMax = 0.0f;
+    return ray;
+  }
+  ray.dir = d / length;
+  // A margin for Embree's rounding of t near the end, which the offset alone may not cover
+  // where the light is small beside the scene.
+  ray.tMax = std::max(0.0f, length * (1.0f - 1e-5f) - offsetScale(target));
   return ray;
 }
 

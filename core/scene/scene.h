@@ -51,9 +51,11 @@ class Scene {
   // A ray leaving surface point p (with geometric normal ng) in direction dir, offset off
   // the surface on dir's side so that it cannot hit the surface it starts on.
   Ray spawnRay(const Vec3f& p, const Vec3f& ng, const Vec3f& dir) const;
-  // A shadow ray from p towards a light sample at `distance` (infinite for distant lights),
-  // shortened so that it cannot hit the light's own surface.
-  Ray spawnShadowRay(const Vec3f& p, const Vec3f& ng, const Vec3f& wi, float distance) const;
+  // A shadow ray from surface point p (geometric normal ng) towards a light sample: along
+  // its direction for a light at infinity; otherwise a segment from p, offset off its
+  // surface on the sample's side, to the sampled point, offset off the light's surface
+  // towards p, so that it cannot meet either surface at any angle.
+  Ray spawnShadowRay(const Vec3f& p, const Vec3f& ng, const LightSample& sample) const;
 
   const Material& material(uint32_t index) const { return materials_[index]; }
   const std::vector<Material>& materials() const { return materials_; }

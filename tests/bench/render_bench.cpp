@@ -81,7 +81,7 @@ void shadowRays(benchmark::State& state, const std::string& name) {
       const Light* light = scene.sampleLight(rng.uniform(), &prob);
       if (!light) continue;
       auto ls = light->sample(hit.p, Vec2f(rng.uniform(), rng.uniform()));
-      if (ls) rays.push_back(scene.spawnShadowRay(hit.p, hit.ng, ls->wi, ls->distance));
+      if (ls) rays.push_back(scene.spawnShadowRay(hit.p, hit.ng, *ls));
     }
   }
   int64_t count = 0;
