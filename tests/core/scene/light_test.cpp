@@ -60,6 +60,9 @@ TEST(LightTest, SamplePdfMatchesPdfFunction) {
       const Vec3f n = light == sphere.get() ? normalize(hit - Vec3f(0.5f, 3.0f, 0.2f))
                                             : Vec3f(0.0f, -1.0f, 0.0f);
       EXPECT_NEAR(light->pdf(p, s->wi, hit, n), s->pdf, 1e-3f * s->pdf);
+      // The point and normal a shadow ray aims at are the sample's own.
+      EXPECT_LT(length(s->point - hit), 1e-5f * s->distance);
+      EXPECT_GT(dot(s->normal, n), 0.99999f);
     }
   }
 }
