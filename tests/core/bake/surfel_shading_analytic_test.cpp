@@ -18,7 +18,6 @@ using analytic::AnalyticCase;
 using analytic::Estimate;
 using analytic::Receiver;
 
-constexpr float kScales[] = {1.0f, 1e-4f, 1e4f};
 constexpr int kLightSamples = 16;
 
 // Irradiance at each receiver from `samples` surfel light samples: surfels of albedo
@@ -66,67 +65,22 @@ void expectMatchesClosedForm(const AnalyticCase& c, double bound, uint64_t seed)
   analytic::expectWithinBounds(c, estimates, n, bound, c.sigmaSurfel, "surfels");
 }
 
-TEST(SurfelDirectLightAnalytic, QuadLightOverAParallelFloorAtEveryAngleTo85Degrees) {
-  uint64_t seed = 1;
-  for (const float scale : kScales) {
-    for (const float height : {2.0f, 4.0f}) {
-      for (const float turn : {0.0f, 45.0f}) {
-        expectMatchesClosedForm(
-            analytic::quadOverFloorCase(
-                {.scale = scale, .height = height, .turnDeg = turn, .flipFloor = height == 4.0f}),
-            0.02, seed++);
-      }
-    }
-  }
+class SurfelDirectLightAnalytic : public ::testing::TestWithParam<analytic::CaseGroup> {};
+
+TEST_P(SurfelDirectLightAnalytic, IrradianceMatchesTheClosedForm) {
+  const analytic::CaseGroup& group = GetParam();
+  uint64_t seed = analytic::groupKey(group);
+  for (const AnalyticCase& c : group.cases()) expectMatchesClosedForm(c, group.bound, seed++);
 }
 
-TEST(SurfelDirectLightAnalytic, TheReportedFloorIsLitPast60DegreesOffTheLightsAxis) {
-  uint64_t seed = 50;
-  for (const analytic::QuadOverFloor& q : analytic::reportedQuadOverFloorScenes()) {
-    expectMatchesClosedForm(analytic::quadOverFloorCase(q), 0.02, seed++);
-  }
-}
-
-TEST(SurfelDirectLightAnalytic, QuadLightOverAPerpendicularWall) {
-  uint64_t seed = 100;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::quadAndWallCase(scale), 0.03, seed++);
-}
-
-TEST(SurfelDirectLightAnalytic, SphereLightFromNearToFar) {
-  uint64_t seed = 200;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::sphereLightCase(scale), 0.02, seed++);
-}
-
-TEST(SurfelDirectLightAnalytic, TriangleLightLightsBothSidesAndAQuadLightOnlyItsFront) {
-  uint64_t seed = 300;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::triangleLightCase(scale), 0.03, seed++);
-}
-
-TEST(SurfelDirectLightAnalytic, DirectionalLightToGrazingIncidence) {
-  uint64_t seed = 400;
-  for (const float scale : kScales) {
-    for (const float deg : {0.0f, 45.0f, 80.0f, 85.0f, 89.0f}) {
-      expectMatchesClosedForm(analytic::directionalCase(scale, deg), 1e-4, seed++);
-    }
-  }
-}
-
-TEST(SurfelDirectLightAnalytic, ConstantEnvironmentOverAPlaneAndThroughABoxOpening) {
-  uint64_t seed = 500;
-  for (const float scale : kScales) {
-    expectMatchesClosedForm(analytic::environmentCase(scale, false), 0.01, seed++);
-    expectMatchesClosedForm(analytic::environmentCase(scale, true), 0.03, seed++);
-  }
-}
+INSTANTIATE_TEST_SUITE_P(Lights, SurfelDirectLightAnalytic,
+                         ::testing::ValuesIn(analytic::caseGroups()), analytic::caseGroupName);
 
 // Surfels at the centres of a closed emitting sphere's faces (flat, albedo a, inside emitting
 // Le on both sides as MTL Ke does): the inner side receives pi Le from the rest of the sphere,
 // the outer side nothing, so the inner radiance is Le (1 + a) and the outer Le.
-TEST(SurfelDirectLightAnalytic, InsideAClosedEmittingSphere) {
-  for (const float scale : kScales) {
+TEST(SurfelDirectLightFurnace, InsideAClosedEmittingSphereEveryFaceReceivesPiLe) {
+  for (const float scale : analytic::kScales) {
     SceneBuilder b;
     Material m;
     m.albedo = Rgb(0.5f);

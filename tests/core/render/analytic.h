@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <numbers>
 #include <string>
@@ -447,6 +448,75 @@ inline AnalyticCase environmentCase(float scale, bool box) {
   out.sigmaPathTracer = box ? 5.5 : 0.4;
   out.sigmaSurfel = box ? 11.0 : 1.6;
   return out;
+}
+
+// ---- The suite: every estimator runs the same groups of cases ----
+
+inline constexpr float kScales[] = {1.0f, 1e-4f, 1e4f};
+
+// A test's worth of cases (the test's name) and the relative bound each point must keep.
+struct CaseGroup {
+  std::string name;
+  double bound = 0.0;
+  std::function<std::vector<AnalyticCase>()> cases;
+};
+
+// Cases over the three units.
+inline std::vector<AnalyticCase> inEveryUnit(const std::function<AnalyticCase(float)>& make) {
+  std::vector<AnalyticCase> out;
+  for (const float scale : kScales) out.push_back(make(scale));
+  return out;
+}
+
+inline std::vector<CaseGroup> caseGroups() {
+  return {
+      {"QuadLightOverAParallelFloorAtEveryAngleTo85Degrees", 0.02,
+       [] {
+         std::vector<AnalyticCase> out;
+         for (const float scale : kScales)
+           for (const float height : {2.0f, 4.0f})
+             for (const float turn : {0.0f, 45.0f})
+               out.push_back(quadOverFloorCase({.scale = scale,
+                                                .height = height,
+                                                .turnDeg = turn,
+                                                .flipFloor = height == 4.0f}));
+         return out;
+       }},
+      {"TheReportedFloorIsLitPast60DegreesOffTheLightsAxis", 0.02,
+       [] {
+         std::vector<AnalyticCase> out;
+         for (const QuadOverFloor& q : reportedQuadOverFloorScenes())
+           out.push_back(quadOverFloorCase(q));
+         return out;
+       }},
+      {"QuadLightOverAPerpendicularWall", 0.03, [] { return inEveryUnit(quadAndWallCase); }},
+      {"SphereLightFromNearToFar", 0.02, [] { return inEveryUnit(sphereLightCase); }},
+      {"TriangleLightLightsBothSidesAndAQuadLightOnlyItsFront", 0.03,
+       [] { return inEveryUnit(triangleLightCase); }},
+      {"DirectionalLightToGrazingIncidence", 1e-4,
+       [] {
+         std::vector<AnalyticCase> out;
+         for (const float scale : kScales)
+           for (const float deg : {0.0f, 45.0f, 80.0f, 85.0f, 89.0f})
+             out.push_back(directionalCase(scale, deg));
+         return out;
+       }},
+      {"ConstantEnvironmentOverAPlane", 0.01,
+       [] { return inEveryUnit([](float scale) { return environmentCase(scale, false); }); }},
+      {"ConstantEnvironmentThroughABoxOpening", 0.03,
+       [] { return inEveryUnit([](float scale) { return environmentCase(scale, true); }); }},
+  };
+}
+
+// The random key of a group's first case (FNV-1a of its name), the same on every platform.
+inline uint64_t groupKey(const CaseGroup& group) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (const char c : group.name) h = (h ^ static_cast<uint8_t>(c)) * 0x100000001b3ull;
+  return h;
+}
+
+inline std::string caseGroupName(const ::testing::TestParamInfo<CaseGroup>& info) {
+  return info.param.name;
 }
 
 // ---- Checking an estimator against a case ----

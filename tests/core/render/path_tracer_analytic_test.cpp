@@ -22,8 +22,6 @@ using analytic::Estimate;
 using analytic::Receiver;
 using analytic::samplesFor;
 
-constexpr float kScales[] = {1.0f, 1e-4f, 1e4f};
-
 // Irradiance at a receiver as the path tracer sees it: the direct light (max depth 1) leaving
 // the diffuse receiver towards a camera ray that meets it there along its normal, times
 // pi / albedo. n samples, each path keyed by (case, receiver, sample).
@@ -57,69 +55,22 @@ void expectMatchesClosedForm(const AnalyticCase& c, double bound, uint64_t caseK
   analytic::expectWithinBounds(c, estimates, n, bound, c.sigmaPathTracer, "path tracer");
 }
 
-// The report's scene: the floor under a quad light past 60 degrees off its axis, dark before
-// the shadow rays aimed at an offset target. Within 2 % up to 85 degrees, both windings of
-// the floor, two heights, two turns of the light, three units.
-TEST(PathTracerAnalytic, QuadLightOverAParallelFloorAtEveryAngleTo85Degrees) {
-  uint64_t key = 1;
-  for (const float scale : kScales) {
-    for (const float height : {2.0f, 4.0f}) {
-      for (const float turn : {0.0f, 45.0f}) {
-        const AnalyticCase c = analytic::quadOverFloorCase(
-            {.scale = scale, .height = height, .turnDeg = turn, .flipFloor = height == 4.0f});
-        expectMatchesClosedForm(c, 0.02, key++);
-      }
-    }
-  }
+class PathTracerAnalytic : public ::testing::TestWithParam<analytic::CaseGroup> {};
+
+TEST_P(PathTracerAnalytic, DirectLightMatchesTheClosedForm) {
+  const analytic::CaseGroup& group = GetParam();
+  uint64_t key = analytic::groupKey(group);
+  for (const AnalyticCase& c : group.cases()) expectMatchesClosedForm(c, group.bound, key++);
 }
 
-TEST(PathTracerAnalytic, TheReportedFloorIsLitPast60DegreesOffTheLightsAxis) {
-  uint64_t key = 50;
-  for (const analytic::QuadOverFloor& q : analytic::reportedQuadOverFloorScenes()) {
-    expectMatchesClosedForm(analytic::quadOverFloorCase(q), 0.02, key++);
-  }
-}
-
-TEST(PathTracerAnalytic, QuadLightOverAPerpendicularWall) {
-  uint64_t key = 100;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::quadAndWallCase(scale), 0.03, key++);
-}
-
-TEST(PathTracerAnalytic, SphereLightFromNearToFar) {
-  uint64_t key = 200;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::sphereLightCase(scale), 0.02, key++);
-}
-
-TEST(PathTracerAnalytic, TriangleLightLightsBothSidesAndAQuadLightOnlyItsFront) {
-  uint64_t key = 300;
-  for (const float scale : kScales)
-    expectMatchesClosedForm(analytic::triangleLightCase(scale), 0.03, key++);
-}
-
-TEST(PathTracerAnalytic, DirectionalLightToGrazingIncidence) {
-  uint64_t key = 400;
-  for (const float scale : kScales) {
-    for (const float deg : {0.0f, 45.0f, 80.0f, 85.0f, 89.0f}) {
-      expectMatchesClosedForm(analytic::directionalCase(scale, deg), 1e-4, key++);
-    }
-  }
-}
-
-TEST(PathTracerAnalytic, ConstantEnvironmentOverAPlaneAndThroughABoxOpening) {
-  uint64_t key = 500;
-  for (const float scale : kScales) {
-    expectMatchesClosedForm(analytic::environmentCase(scale, false), 0.01, key++);
-    expectMatchesClosedForm(analytic::environmentCase(scale, true), 0.03, key++);
-  }
-}
+INSTANTIATE_TEST_SUITE_P(Lights, PathTracerAnalytic, ::testing::ValuesIn(analytic::caseGroups()),
+                         analytic::caseGroupName);
 
 // A closed diffuse sphere of albedo a whose inside emits Le: the radiance seen anywhere inside
 // is the geometric series Le (1 + a + ... + a^d) to the path tracer's depth d.
-TEST(PathTracerAnalytic, FurnaceMatchesTheGeometricSeries) {
+TEST(PathTracerFurnace, MatchesTheGeometricSeries) {
   uint64_t key = 600;
-  for (const float scale : kScales) {
+  for (const float scale : analytic::kScales) {
     for (const float a : {0.5f, 0.9f}) {
       SceneBuilder b;
       Material m;
