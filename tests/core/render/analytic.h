@@ -212,7 +212,7 @@ inline AnalyticCase quadOverFloorCase(const QuadOverFloor& q) {
     b.addLight(light);
   }
   AnalyticCase out;
-  out.name = fmt::format("{} over floor {}, height {}, turned {} deg{}{}, scale {}",
+  out.name = fmt::format("{} over floor {:.0f}, height {}, turned {} deg{}{}, scale {}",
                          q.emissiveMesh ? "emissive quad mesh" : "quad light", side, q.height,
                          q.turnDeg, q.flipFloor ? ", floor wound down" : "",
                          q.facePlusX ? ", facing +x" : "", q.scale);
