@@ -364,18 +364,25 @@ absl::Status PathIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng
   return absl::OkStatus();
 }
 
+absl::Status checkRegions(const std::vector<TileRect>& regions, int width, int height) {
+  for (const TileRect& r : regions) {
+    if (r.x0 >= r.x1 || r.y0 >= r.y1) {
+      return absl::OutOfRangeError(
+          fmt::format("region [{}, {}) x [{}, {}) is empty", r.x0, r.x1, r.y0, r.y1));
+    }
+    if (r.x0 < 0 || r.y0 < 0 || r.x1 > width || r.y1 > height) {
+      return absl::OutOfRangeError(fmt::format("region [{}, {}) x [{}, {}) leaves the {}x{} image",
+                                               r.x0, r.x1, r.y0, r.y1, width, height));
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& camera,
                                   const RenderSettings& settings, int frame,
                                   const FrameRenderOptions& options,
                                   RenderCounters* countersOut) {
-  for (const TileRect& r : options.regions) {
-    if (r.x0 < 0 || r.y0 < 0 || r.x1 > camera.imageWidth() || r.y1 > camera.imageHeight() ||
-        r.x0 >= r.x1 || r.y0 >= r.y1) {
-      return absl::OutOfRangeError(fmt::format("region [{}, {}) x [{}, {}) leaves the {}x{} image",
-                                               r.x0, r.x1, r.y0, r.y1, camera.imageWidth(),
-                                               camera.imageHeight()));
-    }
-  }
+  PBGI_RETURN_IF_ERROR(checkRegions(options.regions, camera.imageWidth(), camera.imageHeight()));
   Raster raster(camera.imageWidth(), camera.imageHeight(), options.regions);
   const int tileSize = options.tileSize > 0 ? options.tileSize : settings.tileSize;
   const std::vector<RenderUnit> units = makeUnits(integrator, camera, options.regions, tileSize);

@@ -67,6 +67,10 @@ std::vector<Vec2i> mortonOrder(int nx, int ny);
 // pixels draws from.
 uint64_t blockKey(uint64_t seed, int frame, int bx, int by);
 
+// OutOfRange unless every region is non-empty and inside a width x height image; the error
+// names the first that is not.
+absl::Status checkRegions(const std::vector<TileRect>& regions, int width, int height);
+
 // Every unit, in parallel. The first unit that fails (in unit order) fails the frame, its
 // error naming the unit; units not yet started are then skipped. OutOfRange for a region that
 // leaves the image. `counters` may be null.

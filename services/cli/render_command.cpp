@@ -1,9 +1,11 @@
 // pbgi render SHOT [--frame N] [--integrator NAME] [--spp N] [--threads N] [--out FILE.exr]
+//                  [--crop X0,Y0,X1,Y1]
 
+#include <charconv>
 #include <cstdio>
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <CLI/CLI.hpp>
 
 #include "formats/shot/shot_file.h"
 #include "services/cli/cli.h"
@@ -32,7 +34,27 @@ struct RenderOptions {
   std::string tree;
   std::string bakeDir;
   bool rebake = false;
+  std::string crop;  // X0,Y0,X1,Y1
 };
+
+// "X0,Y0,X1,Y1": pixels of the full frame, half-open, origin top left.
+absl::StatusOr<TileRect> parseCrop(const std::string& text) {
+  int v[4];
+  const char* p = text.data();
+  const char* end = text.data() + text.size();
+  for (int i = 0; i < 4; ++i) {
+    const auto [next, ec] = std::from_chars(p, end, v[i]);
+    const bool separatorOk = i < 3 ? (next != end && *next == ',') : next == end;
+    if (ec != std::errc() || !separatorOk) {
+      return absl::InvalidArgumentError(fmt::format(
+          "--crop '{}': expected X0,Y0,X1,Y1 (four whole numbers: pixels of the full frame, "
+          "half-open, origin top left)",
+          text));
+    }
+    p = next + 1;
+  }
+  return TileRect{v[0], v[1], v[2], v[3]};
+}
 
 std::string percent(uint64_t part, uint64_t whole) {
   return whole > 0 ? fmt::format("{:.1f} %", 100.0 * double(part) / double(whole)) : "-";
@@ -42,10 +64,11 @@ void printTreeReport(const TreeReadReport& t) {
   std::printf("tree %s (%s)\n", t.treePath.c_str(), t.baked ? "baked now" : "reused");
   if (t.baked) std::printf("%s", formatStages(t.bakeStages).c_str());
   std::printf("  gather: %s\n", t.gather.c_str());
-  std::printf("  cache: budget %.1f MiB, %s\n", t.cacheBudget / 1048576.0, t.cache.toString().c_str());
-  std::printf("  pages read %llu of %llu in the file (%s)\n",
-              static_cast<unsigned long long>(t.pagesRead),
-              static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
+  std::printf("  cache: budget %.1f MiB, %s\n", t.cacheBudget / 1048576.0,
+              t.cache.toString().c_str());
+  std::printf(
+      "  pages read %llu of %llu in the file (%s)\n", static_cast<unsigned long long>(t.pagesRead),
+      static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
 }
 
 int runRender(const RenderOptions& o) {
@@ -72,6 +95,17 @@ int runRender(const RenderOptions& o) {
   request.treePath = o.tree;
   request.bakeDir = o.bakeDir;
   request.rebake = o.rebake;
+  if (!o.crop.empty()) {
+    auto crop = parseCrop(o.crop);
+    if (!crop.ok()) return reportError(crop.status());
+    const int width = shot->width * shot->camera.views.x;
+    const int height = shot->height * shot->camera.views.y;
+    if (absl::Status s = checkRegions({*crop}, width, height); !s.ok()) {
+      return reportError(absl::OutOfRangeError(fmt::format(
+          "--crop {}: {} (the frame of {})", o.crop, std::string(s.message()), shot->path)));
+    }
+    request.regions = {*crop};
+  }
   Progress progress(fmt::format("render {} frame {}", shot->name, request.frame));
   Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, request.frame));
   request.bakeProgress = [&](const std::string& stage, uint64_t done, uint64_t total) {
@@ -85,7 +119,8 @@ int runRender(const RenderOptions& o) {
   auto report = renderShotFrame(*shot, request);
   progress.finish();
   if (!report.ok()) return reportError(report.status());
-  for (const std::string& w : report->warnings) std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
+  for (const std::string& w : report->warnings)
+    std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
   std::printf("wrote %s\n", report->exrPath.c_str());
   if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
   std::printf("%s", formatStages(report->stages).c_str());
@@ -117,6 +152,10 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(4, 1024));
   cmd->add_option("--out", options->out, "Output EXR (default: the shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
+  cmd->add_option("--crop", options->crop,
+                  "Render only pixels X0,Y0,X1,Y1 of the full frame (half-open, origin top "
+                  "left): the EXR's data window, in the frame's display window, bit for bit "
+                  "the full render's pixels there");
   addIntegratorParamFlags(*cmd, options->set, options->gather, options->quality);
   cmd->add_option("--max-solid-angle", options->maxSolidAngle,
                   "PBGI per-pixel: largest solid angle (sr) splatted as one cluster (default: the "
@@ -125,7 +164,8 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
                   "PBGI: microbuffer pixels per cube face side (default: the preset's)");
   cmd->add_option("--cache-mb", options->cacheMb,
                   "PBGI: tree page cache budget in MiB (default: the shot's cache_mb, 256)");
-  cmd->add_option("--tree", options->tree, "PBGI: render from this .pbgi tree instead of the frame's bake");
+  cmd->add_option("--tree", options->tree,
+                  "PBGI: render from this .pbgi tree instead of the frame's bake");
   cmd->add_option("--bake-dir", options->bakeDir,
                   "PBGI: where the frame's bake is found or written (default: beside the image)");
   cmd->add_flag("--rebake", options->rebake, "PBGI: bake again even when a matching bake exists");

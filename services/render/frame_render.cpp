@@ -106,6 +106,9 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   FrameRenderReport report;
   StageClock clock(&report.stages);
   PBGI_RETURN_IF_ERROR(checkShotFrame(shot, request.frame));
+  // Before a bake: a region the frame cannot hold fails now, not minutes later.
+  PBGI_RETURN_IF_ERROR(checkRegions(request.regions, shot.width * shot.camera.views.x,
+                                    shot.height * shot.camera.views.y));
   PBGI_ASSIGN_OR_RETURN(const RenderSettings settings, requestSettings(shot, request));
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* info, findIntegrator(settings.integrator));
   report.integrator = settings.integrator;

@@ -25,9 +25,9 @@ TEST(RenderCliTest, RendersTheSampleShotWithMetadataAndPreview) {
   EXPECT_EQ(r.exitCode, 2) << r.output();
   // The sample renders with PBGI: its bake, smaller (the sample's 250,000 surfels take half a
   // minute), lands beside the frame.
-  const Result ok = runPbgi("render " + shot.string() +
-                            " --frame 2 --spp 2 --threads 2 --set bake_points=20000 --out " +
-                            out.string());
+  const Result ok =
+      runPbgi("render " + shot.string() +
+              " --frame 2 --spp 2 --threads 2 --set bake_points=20000 --out " + out.string());
   ASSERT_EQ(ok.exitCode, 0) << ok.output();
   EXPECT_NE(ok.output().find("render"), std::string::npos);
   EXPECT_NE(ok.output().find("wall time"), std::string::npos);
@@ -55,10 +55,14 @@ TEST(RenderCliTest, BadInputExitsTwoWithFileAndLine) {
   EXPECT_NE(r.output().find("bad.toml:7"), std::string::npos) << r.output();
   const Result missing = runPbgi("render " + (dir / "nope.toml").string());
   EXPECT_EQ(missing.exitCode, 2) << missing.output();
-  const Result frame = runPbgi("render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() + " --frame 9");
+  const Result frame = runPbgi(
+      "render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() +
+      " --frame 9");
   EXPECT_EQ(frame.exitCode, 2) << frame.output();
   EXPECT_NE(frame.output().find("outside"), std::string::npos) << frame.output();
-  const Result integrator = runPbgi("render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() + " --integrator nonsense");
+  const Result integrator = runPbgi(
+      "render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() +
+      " --integrator nonsense");
   EXPECT_EQ(integrator.exitCode, 2) << integrator.output();
   std::filesystem::remove_all(dir);
 }
@@ -127,6 +131,64 @@ TEST(RenderCliTest, AnEditedMaterialLibraryOrTextureIsBakedAgain) {
   std::ofstream(dir / "looks.mtl", std::ios::app) << "# edited\n";
   EXPECT_TRUE(bakedNow()) << "the material library changed";
   EXPECT_FALSE(bakedNow());
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+// --crop: the EXR holds the region as its data window inside the full frame's display
+// window, and its pixels are the full render's there, bit for bit; a window the frame cannot
+// hold, or an empty or malformed one, is refused before anything renders.
+TEST(RenderCliTest, ACropIsTheFullRendersPixelsInADataWindow) {
+  const auto dir = testing::makeTempDir("render-crop");
+  const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
+  const std::string common = "render " + shot.string() +
+                             " --spp 2 --threads 2 --no-preview --set bake_points=5000 " +
+                             "--bake-dir " + (dir / "bake").string() + " --out ";
+  // Both integrators: the path tracer's tiles and the cut's fixed blocks (a crop renders the
+  // blocks it touches and keeps its own pixels).
+  for (const std::string integrator : {"path", "pbgi"}) {
+    const std::string args = common + (dir / "X.exr").string() + " --integrator " + integrator;
+    const auto run = [&](const std::string& name, const std::string& extra) {
+      std::string a = args;
+      a.replace(a.find("X.exr"), 5, name);
+      return runPbgi(a + extra);
+    };
+    const Result full = run("full.exr", "");
+    ASSERT_EQ(full.exitCode, 0) << full.output();
+    const Result crop = run("crop.exr", " --crop 37,101,131,180");
+    ASSERT_EQ(crop.exitCode, 0) << crop.output();
+    auto a = readImage((dir / "full.exr").string());
+    auto b = readImage((dir / "crop.exr").string());
+    ASSERT_TRUE(a.ok()) << a.status();
+    ASSERT_TRUE(b.ok()) << b.status();
+    ASSERT_EQ(b->width(), 94);
+    ASSERT_EQ(b->height(), 79);
+    const ImageWindow w = b->window();
+    EXPECT_EQ(w.x, 37);
+    EXPECT_EQ(w.y, 101);
+    EXPECT_EQ(w.fullWidth, 256);
+    EXPECT_EQ(w.fullHeight, 256);
+    ASSERT_EQ(a->channelCount(), b->channelCount());
+    for (int y = 0; y < b->height(); ++y)
+      for (int x = 0; x < b->width(); ++x)
+        for (int c = 0; c < b->channelCount(); ++c)
+          ASSERT_EQ(b->at(x, y, c), a->at(x + 37, y + 101, c))
+              << integrator << ": " << x << ", " << y << ", channel " << c;
+  }
+
+  for (const std::string bad :
+       {"0,0,257,10", "10,10,10,20", "-1,0,5,5", "1,2,3", "1,2,3,4x", "a"}) {
+    const Result r =
+        runPbgi(common + (dir / "bad.exr").string() + " --integrator path --crop " + bad);
+    EXPECT_EQ(r.exitCode, 2) << bad << ": " << r.output();
+    EXPECT_NE(r.output().find("--crop"), std::string::npos) << r.output();
+    EXPECT_FALSE(std::filesystem::exists(dir / "bad.exr")) << bad;
+  }
   std::filesystem::remove_all(dir);
 }
 
