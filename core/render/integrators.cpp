@@ -155,7 +155,7 @@ std::string describePbgi(const RenderSettings& r) {
 const std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"black_receivers", "samples whose first hit reflects nothing: no gather"},
     {"path_traced_receivers", "mirrors and glass: path traced"},
-    {"gathers", "microbuffer gathers (per-pixel and glossy)"},
+    {"gathers", "gathers: diffuse receivers (per-pixel microbuffers, or the cut's shading points) and glossy microbuffers"},
     {"gather_reuses", "samples that took an earlier gather of their pixel"},
     {"glossy_gathers", "of the gathers, into a glossy receiver's warped microbuffer"},
     {"nodes_visited", "microbuffer traversals: nodes visited"},

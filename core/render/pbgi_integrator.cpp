@@ -48,6 +48,28 @@ absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const Pbgi
   return absl::OkStatus();
 }
 
+// The diffuse gather a sample takes: an earlier one of its pixel that lies on the same surface
+// nearby (its footprint's light, shared by the pixel's samples: receivers are gathers, not
+// samples), or a new one added to `gathers`. Its index in `gathers`.
+uint32_t sharedSlot(GatherReuse& pixel, const Receiver& r, std::vector<CutReceiver>* gathers,
+                    RenderCounters* counters) {
+  if (const SharedGather* g = pixel.find(r.hit.p, r.n, r.wo, kNoMaterial)) {
+    ++(*counters)[kGatherReuses];
+    return g->slot;
+  }
+  const auto slot = static_cast<uint32_t>(gathers->size());
+  gathers->push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
+  ++(*counters)[kGathers];
+  pixel.add({.p = r.hit.p,
+             .n = r.n,
+             .reach = kReuseDistanceFraction * r.hit.t,
+             .planeReach = kReusePlaneFraction * r.hit.t,
+             .key = kNoMaterial,
+             .wo = Vec3f(0.0f),
+             .slot = slot});
+  return slot;
+}
+
 // How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
 // each page a small cache loads serves many of them, few enough that their microbuffers stay
 // bounded (512 of 12^2 x 6 pixels: about 21 MB a thread).
@@ -61,7 +83,8 @@ class PerPixelScratch final : public IntegratorScratch {
   }
   PixelGathers pixel;
   std::vector<Gatherer> gatherers;
-  std::vector<Vec3f> positions, normals;  // the tile's gathers
+  std::vector<CutReceiver> receivers;  // the tile's gathers
+  std::vector<Vec3f> positions, normals;
   std::vector<Rgb> values;
   std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, gather) of each diffuse sample
 };
@@ -83,38 +106,26 @@ class PerPixelPbgi final : public Integrator {
   absl::Status render(const TileSamples& samples, std::span<PathSample> out,
                       IntegratorScratch* scratch, RenderCounters* counters) const override {
     auto& state = static_cast<PerPixelScratch&>(*scratch);
-    state.positions.clear();
-    state.normals.clear();
+    state.receivers.clear();
     state.uses.clear();
     GatherStats stats;
     if (absl::Status s = traceFirstHits(
             scene_, tree_, settings_, samples, 0, samples.pixelCount(), out, state.pixel, &stats,
             counters,
             [&](size_t k, const Receiver& r) {
-              uint32_t slot;
-              if (const SharedGather* g =
-                      state.pixel.shared().find(r.hit.p, r.n, r.wo, kNoMaterial)) {
-                slot = g->slot;
-                ++(*counters)[kGatherReuses];
-              } else {
-                slot = static_cast<uint32_t>(state.positions.size());
-                state.positions.push_back(r.hit.p);
-                state.normals.push_back(r.n);
-                ++(*counters)[kGathers];
-                state.pixel.shared().add({.p = r.hit.p,
-                                          .n = r.n,
-                                          .reach = kReuseDistanceFraction * r.hit.t,
-                                          .planeReach = kReusePlaneFraction * r.hit.t,
-                                          .key = kNoMaterial,
-                                          .wo = Vec3f(0.0f),
-                                          .slot = slot});
-              }
-              state.uses.push_back({k, slot});
+              state.uses.push_back(
+                  {k, sharedSlot(state.pixel.shared(), r, &state.receivers, counters)});
             });
         !s.ok()) {
       return s;
     }
-    const size_t gathers = state.positions.size();
+    const size_t gathers = state.receivers.size();
+    state.positions.resize(gathers);
+    state.normals.resize(gathers);
+    for (size_t g = 0; g < gathers; ++g) {
+      state.positions[g] = state.receivers[g].p;
+      state.normals[g] = state.receivers[g].n;
+    }
     state.values.resize(gathers);
     for (size_t first = 0; first < gathers; first += kGathersTogether) {
       const size_t count = std::min(kGathersTogether, gathers - first);
@@ -152,7 +163,7 @@ struct BidirectionalBlock {
   PixelGathers pixel;
   BidirectionalCut cut;
   std::vector<CutReceiver> receivers;
-  std::vector<size_t> sampleOf;  // receiver -> sample
+  std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, receiver) of each diffuse sample
   std::vector<Rgb> irradiance;
   RenderCounters counters;
 };
@@ -209,8 +220,8 @@ class BidirectionalPbgi final : public Integrator {
     addCutStats(cutStats, counters);
     for (size_t b = 0; b < count; ++b) {
       const BidirectionalBlock& block = *state.blocks[b];
-      for (size_t j = 0; j < block.receivers.size(); ++j) {
-        PathSample& ps = out[block.sampleOf[j]];
+      for (const auto& [k, j] : block.uses) {
+        PathSample& ps = out[k];
         ps.indirect = ps.albedo * block.irradiance[j] * std::numbers::inv_pi_v<float>;
       }
     }
@@ -222,7 +233,7 @@ class BidirectionalPbgi final : public Integrator {
                           std::span<PathSample> out, BidirectionalBlock& block,
                           size_t counterCount) const {
     block.receivers.clear();
-    block.sampleOf.clear();
+    block.uses.clear();
     block.counters = RenderCounters{};
     block.counters.values.assign(counterCount, 0);
     GatherStats stats;
@@ -231,8 +242,8 @@ class BidirectionalPbgi final : public Integrator {
             unitBlock.firstPixel + unitBlock.pixelCount, out, block.pixel, &stats,
             &block.counters,
             [&](size_t k, const Receiver& r) {
-              block.receivers.push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
-              block.sampleOf.push_back(k);
+              block.uses.push_back({k, sharedSlot(block.pixel.shared(), r, &block.receivers,
+                                                  &block.counters)});
             });
         !s.ok()) {
       return s;

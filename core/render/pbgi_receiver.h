@@ -34,7 +34,7 @@ namespace pbgi {
 enum PbgiCounter : size_t {
   kBlackReceivers,       // first hit reflects nothing: no gather
   kPathTracedReceivers,  // mirrors and glass: path traced
-  kGathers,              // microbuffer gathers (per-pixel diffuse and glossy)
+  kGathers,              // diffuse receivers (microbuffers or the cut's) and glossy gathers
   kGatherReuses,         // samples that took an earlier gather of their pixel
   kGlossyGathers,
   kNodesVisited,

@@ -134,7 +134,10 @@ absl::StatusOr<Run> renderRun(const Scene& scene, const Args& args, const std::s
   run.seconds = stageSeconds(report->stages, "render");
   const RenderCounters& c = report->counters;
   run.shadingPoints = c.cameraSamples - c[kBlackReceivers] - c[kPathTracedReceivers];
-  run.evaluations = c[kCutClusterPairs] + c[kCutLeafPairs] + c[kGathers];
+  // Gathers are the per-pixel gather's evaluations; the cut's diffuse receivers are counted
+  // there too, and only its glossy gathers are evaluations of their own.
+  run.evaluations = c[kCutClusterPairs] + c[kCutLeafPairs] +
+                    (c[kCuts] > 0 ? c[kGlossyGathers] : c[kGathers]);
   run.shadowRays = c[kCutShadowRays];
   run.hitRate = report->tree->cache.hitRate();
   const int factor = size / args.referenceSize;
