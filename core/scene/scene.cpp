@@ -66,8 +66,7 @@ Ray Scene::spawnShadowRay(const Vec3f& p, const Vec3f& ng, const LightSample& sa
   // Both ends leave their surfaces along their normals. Aiming from the offset origin at the
   // sample itself would not do: the origin's offset shortens the way to the light's plane by
   // offset / cos(angle at the light), which at grazing angles outgrows any fixed margin and
-  // lands the segment's end on the light's own surface (a receiver 60 degrees off a quad
-  // light's axis saw nothing of it).
+  // lands the segment's end on the light's own surface, which then blocks it.
   Vec3f target = sample.point;
   if (sample.normal != Vec3f(0.0f)) {
     const float eps = offsetScale(target);
