@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <span>
 #include <vector>
 
 #include "core/math/vec.h"
@@ -16,12 +17,12 @@ namespace pbgi {
 struct SharedGather {
   Vec3f p{0.0f};
   Vec3f n{0.0f, 0.0f, 1.0f};
-  float reach = 0.0f;  // how far from p a receiver may lie
+  float reach = 0.0f;                                         // how far from p a receiver may lie
   float planeReach = std::numeric_limits<float>::infinity();  // and off the tangent plane
-  uint32_t key = 0;    // receivers share only within one key
-  Vec3f wo{0.0f};      // zero: any view direction
+  uint32_t key = 0;                                           // receivers share only within one key
+  Vec3f wo{0.0f};                                             // zero: any view direction
   Rgb value{0.0f};
-  uint32_t slot = 0;   // the caller's: where the value will be when it is gathered later
+  uint32_t slot = 0;  // the caller's: where the value will be when it is gathered later
 };
 
 class GatherReuse {
@@ -37,7 +38,12 @@ class GatherReuse {
 
   // The first kept gather a receiver at p facing n (unit), seen along wo, may take; null for none.
   const SharedGather* find(const Vec3f& p, const Vec3f& n, const Vec3f& wo, uint32_t key) const {
-    for (const SharedGather& g : kept_) {
+    return find(kept_, p, n, wo, key);
+  }
+  // The same among `gathers` (kept by another GatherReuse of the same thresholds).
+  const SharedGather* find(std::span<const SharedGather> gathers, const Vec3f& p, const Vec3f& n,
+                           const Vec3f& wo, uint32_t key) const {
+    for (const SharedGather& g : gathers) {
       if (g.key != key || dot(g.n, n) < normalCos_) continue;
       const Vec3f d = p - g.p;
       if (std::abs(dot(d, g.n)) > g.planeReach || length(d) > g.reach) continue;
@@ -46,6 +52,7 @@ class GatherReuse {
     }
     return nullptr;
   }
+  std::span<const SharedGather> kept() const { return kept_; }
 
   // Keeps `g` for later receivers while there is room.
   void add(const SharedGather& g) {

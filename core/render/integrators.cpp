@@ -56,6 +56,10 @@ const std::vector<ParamSpec>& pbgiParams() {
                "sample costs a gather; a light sample is one shadow ray)"},
       {.key = "cut_block", .type = ParamType::kInt, .lo = 8, .hi = 1024, .defaultText = "64",
        .help = "bidirectional: pixels a side of the blocks whose samples share one cut"},
+      {.key = "record_spacing", .type = ParamType::kInt, .lo = 1, .hi = 8, .defaultText = "2",
+       .help = "bidirectional: pixels between the records that gather (1: a record per pixel "
+               "footprint; n: on every nth pixel of each axis, the pixels between interpolating "
+               "the records on their surface, and gathering their own where none is)"},
       {.key = "cut_blocks_together", .type = ParamType::kInt, .lo = 1, .hi = 64,
        .defaultText = "16",
        .help = "bidirectional: blocks whose cuts sweep the tree's pages together (more: each "
@@ -107,6 +111,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.cut.normalAngle = radians(
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
+  s.recordSpacing = static_cast<int>(p.intOr("record_spacing", 2));
   s.blocksPerUnit = static_cast<int>(p.intOr("cut_blocks_together", 16));
   s.pathTracer = {.maxDepth = r.maxDepth,
                   .rouletteDepth = r.rouletteDepth,

@@ -1,7 +1,9 @@
 #include "core/render/pbgi_integrator.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <numbers>
+#include <unordered_map>
 #include <vector>
 
 #include <fmt/format.h>
@@ -29,8 +31,8 @@ absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const Pbgi
   for (size_t i = firstPixel; i < endPixel; ++i) {
     pixel.newPixel();
     for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
-      const Receiver r = traceReceiver(scene, samples.rays[k], samples.rngs[k],
-                                       settings.pathTracer, &out[k], counters);
+      const Receiver r = traceReceiver(scene, samples.rays[k], samples.rngs[k], settings.pathTracer,
+                                       &out[k], counters);
       if (r.kind == ReceiverKind::kGlossy) {
         absl::StatusOr<Rgb> lo =
             pixel.reflect(tree, scene, r, out[k].albedo, samples.rngs[k], stats, counters);
@@ -51,24 +53,38 @@ absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const Pbgi
 // The diffuse gather a sample takes: an earlier one of its pixel that lies on the same surface
 // nearby (its footprint's light, shared by the pixel's samples: receivers are gathers, not
 // samples), or a new one added to `gathers`. Its index in `gathers`.
-uint32_t sharedSlot(GatherReuse& pixel, const Receiver& r, std::vector<CutReceiver>* gathers,
+// What a diffuse sample's first hit is to the records: where it lies, how it faces, how it is
+// seen and how far from the camera.
+struct DiffuseHit {
+  Vec3f p, n, ng, wo;
+  float t = 0.0f;
+  static DiffuseHit of(const Receiver& r) { return {r.hit.p, r.n, r.ng, r.wo, r.hit.t}; }
+};
+
+uint32_t sharedSlot(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutReceiver>* gathers,
                     RenderCounters* counters) {
-  if (const SharedGather* g = pixel.find(r.hit.p, r.n, r.wo, kNoMaterial)) {
+  if (const SharedGather* g = pixel.find(r.p, r.n, r.wo, kNoMaterial)) {
     ++(*counters)[kGatherReuses];
     return g->slot;
   }
   const auto slot = static_cast<uint32_t>(gathers->size());
-  gathers->push_back({.p = r.hit.p, .n = r.n, .ng = r.ng});
+  gathers->push_back({.p = r.p, .n = r.n, .ng = r.ng});
   ++(*counters)[kGathers];
-  pixel.add({.p = r.hit.p,
+  pixel.add({.p = r.p,
              .n = r.n,
-             .reach = kReuseDistanceFraction * r.hit.t,
-             .planeReach = kReusePlaneFraction * r.hit.t,
+             .reach = kReuseDistanceFraction * r.t,
+             .planeReach = kReusePlaneFraction * r.t,
              .key = kNoMaterial,
              .wo = Vec3f(0.0f),
              .slot = slot});
   return slot;
 }
+
+// How far a record may lie from a sample of another pixel that interpolates it, as a fraction
+// of the sample's distance from the camera: a few pixels at film resolutions (a pixel spans
+// about 1/500 of its distance at 1080p), so that a coarse image, whose pixels are wide in the
+// scene, gathers per pixel rather than stretch records over light that changes between them.
+constexpr float kInterpolationReachFraction = 0.02f;
 
 // How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
 // each page a small cache loads serves many of them, few enough that their microbuffers stay
@@ -113,8 +129,8 @@ class PerPixelPbgi final : public Integrator {
             scene_, tree_, settings_, samples, 0, samples.pixelCount(), out, state.pixel, &stats,
             counters,
             [&](size_t k, const Receiver& r) {
-              state.uses.push_back(
-                  {k, sharedSlot(state.pixel.shared(), r, &state.receivers, counters)});
+              state.uses.push_back({k, sharedSlot(state.pixel.shared(), DiffuseHit::of(r),
+                                                  &state.receivers, counters)});
             });
         !s.ok()) {
       return s;
@@ -130,11 +146,11 @@ class PerPixelPbgi final : public Integrator {
     for (size_t first = 0; first < gathers; first += kGathersTogether) {
       const size_t count = std::min(kGathersTogether, gathers - first);
       while (state.gatherers.size() < count) state.gatherers.emplace_back(settings_.perPixel);
-      if (absl::Status s = gatherTogether(
-              tree_, std::span(state.gatherers).first(count),
-              std::span<const Vec3f>(state.positions).subspan(first, count),
-              std::span<const Vec3f>(state.normals).subspan(first, count),
-              std::span(state.values).subspan(first, count), &stats);
+      if (absl::Status s =
+              gatherTogether(tree_, std::span(state.gatherers).first(count),
+                             std::span<const Vec3f>(state.positions).subspan(first, count),
+                             std::span<const Vec3f>(state.normals).subspan(first, count),
+                             std::span(state.values).subspan(first, count), &stats);
           !s.ok()) {
         return s;
       }
@@ -158,14 +174,26 @@ class PerPixelPbgi final : public Integrator {
 // One block's state: its receivers, its cut's buffers, what it counted.
 struct BidirectionalBlock {
   explicit BidirectionalBlock(const PbgiSettings& settings)
-      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)),
-        cut(settings.cut) {}
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)), cut(settings.cut) {}
   PixelGathers pixel;
   BidirectionalCut cut;
   std::vector<CutReceiver> receivers;
-  std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, receiver) of each diffuse sample
+  // What each diffuse sample takes: records and their weights, a sample's entries one after
+  // another, weights summing to 1.
+  struct Use {
+    size_t sample;
+    uint32_t record;
+    float weight;
+  };
+  std::vector<Use> uses;
   std::vector<Rgb> irradiance;
   RenderCounters counters;
+  // With records spaced out: the records of each pixel of the block that holds them (a range
+  // of `anchorRecords`), the samples that interpolate them, and pixels by position.
+  std::vector<SharedGather> anchorRecords;
+  std::vector<std::pair<uint32_t, uint32_t>> anchorRange;  // by pixel - the block's first
+  std::vector<std::pair<size_t, DiffuseHit>> between;
+  std::unordered_map<uint64_t, uint32_t> pixelAt;  // (y << 32 | x) -> pixel - the block's first
 };
 
 class BidirectionalScratch final : public IntegratorScratch {
@@ -200,8 +228,8 @@ class BidirectionalPbgi final : public Integrator {
     std::vector<absl::Status> errors(count);
     tbb::this_task_arena::isolate([&] {
       tbb::parallel_for(size_t{0}, count, [&](size_t b) {
-        errors[b] = traceBlock(samples, samples.blocks[b], out, *state.blocks[b],
-                               counters->values.size());
+        errors[b] =
+            traceBlock(samples, samples.blocks[b], out, *state.blocks[b], counters->values.size());
       });
     });
     for (size_t b = 0; b < count; ++b) {
@@ -213,16 +241,21 @@ class BidirectionalPbgi final : public Integrator {
     for (size_t b = 0; b < count; ++b) {
       BidirectionalBlock& block = *state.blocks[b];
       cuts[b] = &block.cut;
-      jobs[b] = {.receivers = block.receivers, .key = samples.blocks[b].key, .out = block.irradiance};
+      jobs[b] = {
+          .receivers = block.receivers, .key = samples.blocks[b].key, .out = block.irradiance};
     }
     CutStats cutStats;
     if (absl::Status s = cutTogether(tree_, scene_, cuts, jobs, &cutStats); !s.ok()) return s;
     addCutStats(cutStats, counters);
     for (size_t b = 0; b < count; ++b) {
       const BidirectionalBlock& block = *state.blocks[b];
-      for (const auto& [k, j] : block.uses) {
-        PathSample& ps = out[k];
-        ps.indirect = ps.albedo * block.irradiance[j] * std::numbers::inv_pi_v<float>;
+      size_t last = SIZE_MAX;
+      for (const BidirectionalBlock::Use& u : block.uses) {
+        PathSample& ps = out[u.sample];
+        if (u.sample != last) ps.indirect = Rgb(0.0f);
+        last = u.sample;
+        ps.indirect +=
+            ps.albedo * block.irradiance[u.record] * std::numbers::inv_pi_v<float> * u.weight;
       }
     }
     return absl::OkStatus();
@@ -237,20 +270,97 @@ class BidirectionalPbgi final : public Integrator {
     block.counters = RenderCounters{};
     block.counters.values.assign(counterCount, 0);
     GatherStats stats;
+    const int spacing = settings_.recordSpacing;
+    const size_t spp = static_cast<size_t>(samples.spp);
+    const size_t first = unitBlock.firstPixel;
+    block.anchorRecords.clear();
+    block.anchorRange.assign(unitBlock.pixelCount, {0, 0});
+    block.between.clear();
+    const auto isAnchor = [&](const Vec2i& p) { return p.x % spacing == 0 && p.y % spacing == 0; };
     if (absl::Status s = traceFirstHits(
-            scene_, tree_, settings_, samples, unitBlock.firstPixel,
-            unitBlock.firstPixel + unitBlock.pixelCount, out, block.pixel, &stats,
-            &block.counters,
+            scene_, tree_, settings_, samples, first, first + unitBlock.pixelCount, out,
+            block.pixel, &stats, &block.counters,
             [&](size_t k, const Receiver& r) {
-              block.uses.push_back({k, sharedSlot(block.pixel.shared(), r, &block.receivers,
-                                                  &block.counters)});
+              if (spacing > 1 && !isAnchor(samples.pixels[k / spp])) {
+                block.between.push_back({k, DiffuseHit::of(r)});
+                return;
+              }
+              block.uses.push_back({k,
+                                    sharedSlot(block.pixel.shared(), DiffuseHit::of(r),
+                                               &block.receivers, &block.counters),
+                                    1.0f});
+              if (spacing > 1) {
+                // The pixel's records so far, kept for the pixels between.
+                auto& range = block.anchorRange[k / spp - first];
+                const std::span<const SharedGather> kept = block.pixel.shared().kept();
+                range.first = static_cast<uint32_t>(block.anchorRecords.size());
+                block.anchorRecords.insert(block.anchorRecords.end(), kept.begin(), kept.end());
+                range.second = static_cast<uint32_t>(block.anchorRecords.size());
+              }
             });
         !s.ok()) {
       return s;
     }
+    if (spacing > 1) interpolateBetween(samples, unitBlock, block);
     addGatherStats(stats, &block.counters);
     block.irradiance.resize(block.receivers.size());
     return absl::OkStatus();
+  }
+
+  // The samples of pixels between the records' (recordSpacing > 1): each takes the records of
+  // the four record pixels around it that lie on its surface (the test a pixel's samples share
+  // by), weighted bilinearly by its place among them; a sample that finds none, at an edge or
+  // a crease, gathers its own record, shared within its pixel. Only the block's own pixels
+  // count, so a block's records and pixels depend on the block alone.
+  void interpolateBetween(const TileSamples& samples, const UnitBlock& unitBlock,
+                          BidirectionalBlock& block) const {
+    const int spacing = settings_.recordSpacing;
+    const size_t spp = static_cast<size_t>(samples.spp);
+    const size_t first = unitBlock.firstPixel;
+    const auto key = [](int x, int y) {
+      return (uint64_t{static_cast<uint32_t>(y)} << 32) | static_cast<uint32_t>(x);
+    };
+    block.pixelAt.clear();
+    for (size_t i = 0; i < unitBlock.pixelCount; ++i) {
+      block.pixelAt.emplace(key(samples.pixels[first + i].x, samples.pixels[first + i].y),
+                            static_cast<uint32_t>(i));
+    }
+    GatherReuse& own = block.pixel.shared();
+    size_t ownPixel = SIZE_MAX;
+    for (const auto& [k, r] : block.between) {
+      const Vec2i p = samples.pixels[k / spp];
+      const int ax = p.x - ((p.x % spacing) + spacing) % spacing;
+      const int ay = p.y - ((p.y % spacing) + spacing) % spacing;
+      const float fx = static_cast<float>(p.x - ax) / static_cast<float>(spacing);
+      const float fy = static_cast<float>(p.y - ay) / static_cast<float>(spacing);
+      const size_t firstUse = block.uses.size();
+      float total = 0.0f;
+      for (int corner = 0; corner < 4; ++corner) {
+        const int cx = corner & 1, cy = corner >> 1;
+        const float w = (cx ? fx : 1.0f - fx) * (cy ? fy : 1.0f - fy);
+        if (!(w > 0.0f)) continue;
+        const auto at = block.pixelAt.find(key(ax + cx * spacing, ay + cy * spacing));
+        if (at == block.pixelAt.end()) continue;
+        const auto [begin, end] = block.anchorRange[at->second];
+        const std::span<const SharedGather> records(block.anchorRecords.data() + begin,
+                                                    end - begin);
+        const SharedGather* g = own.find(records, r.p, r.n, r.wo, kNoMaterial);
+        if (g != nullptr && length(r.p - g->p) <= kInterpolationReachFraction * r.t) {
+          block.uses.push_back({k, g->slot, w});
+          total += w;
+        }
+      }
+      if (total > 0.0f) {
+        for (size_t u = firstUse; u < block.uses.size(); ++u) block.uses[u].weight /= total;
+        ++block.counters[kGatherReuses];
+        continue;
+      }
+      if (k / spp != ownPixel) {
+        own.clear();
+        ownPixel = k / spp;
+      }
+      block.uses.push_back({k, sharedSlot(own, r, &block.receivers, &block.counters), 1.0f});
+    }
   }
 
   const Scene& scene_;

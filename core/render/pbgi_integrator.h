@@ -39,6 +39,9 @@ struct PbgiSettings {
   int maxGathersPerPixel = 4;  // per-pixel gathers a pixel's samples make
   CutOptions cut;              // the bidirectional cut
   int blockSize = 64;          // the bidirectional cut's blocks, in view pixels
+  // The bidirectional cut's records lie on pixels whose coordinates are multiples of this;
+  // the pixels between interpolate them (1: every pixel gathers).
+  int recordSpacing = 2;
   // Blocks rendered together, their cuts sweeping the tree's pages in step (a 4 x 4 square of
   // 64^2 blocks: a 256^2 farm tile).
   int blocksPerUnit = 16;
