@@ -290,9 +290,13 @@ class BidirectionalPbgi final : public Integrator {
                                                &block.receivers, &block.counters),
                                     1.0f});
               if (spacing > 1) {
-                // The pixel's records so far, kept for the pixels between.
+                // The pixel's records so far, kept for the pixels between (in place of the
+                // copy its earlier sample left at the end).
                 auto& range = block.anchorRange[k / spp - first];
                 const std::span<const SharedGather> kept = block.pixel.shared().kept();
+                if (range.second > range.first && range.second == block.anchorRecords.size()) {
+                  block.anchorRecords.resize(range.first);
+                }
                 range.first = static_cast<uint32_t>(block.anchorRecords.size());
                 block.anchorRecords.insert(block.anchorRecords.end(), kept.begin(), kept.end());
                 range.second = static_cast<uint32_t>(block.anchorRecords.size());
