@@ -50,9 +50,6 @@ absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const Pbgi
   return absl::OkStatus();
 }
 
-// The diffuse gather a sample takes: an earlier one of its pixel that lies on the same surface
-// nearby (its footprint's light, shared by the pixel's samples: receivers are gathers, not
-// samples), or a new one added to `gathers`. Its index in `gathers`.
 // What a diffuse sample's first hit is to the records: where it lies, how it faces, how it is
 // seen and how far from the camera.
 struct DiffuseHit {
@@ -61,14 +58,15 @@ struct DiffuseHit {
   static DiffuseHit of(const Receiver& r) { return {r.hit.p, r.n, r.ng, r.wo, r.hit.t}; }
 };
 
-uint32_t sharedSlot(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutReceiver>* gathers,
+// The diffuse gather a sample takes: an earlier one of its pixel that lies on the same surface
+// nearby (its footprint's light, shared by the pixel's samples: receivers are gathers, not
+// samples), or, when there is none, `next`, which the caller then gathers at the sample.
+uint32_t sharedSlot(GatherReuse& pixel, const DiffuseHit& r, uint32_t next,
                     RenderCounters* counters) {
   if (const SharedGather* g = pixel.find(r.p, r.n, r.wo, kNoMaterial)) {
     ++(*counters)[kGatherReuses];
     return g->slot;
   }
-  const auto slot = static_cast<uint32_t>(gathers->size());
-  gathers->push_back({.p = r.p, .n = r.n, .ng = r.ng});
   ++(*counters)[kGathers];
   pixel.add({.p = r.p,
              .n = r.n,
@@ -76,7 +74,17 @@ uint32_t sharedSlot(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutRece
              .planeReach = kReusePlaneFraction * r.t,
              .key = kNoMaterial,
              .wo = Vec3f(0.0f),
-             .slot = slot});
+             .slot = next});
+  return next;
+}
+
+// sharedSlot for the bidirectional cut: a new record becomes one of `records`, the cut's
+// receivers.
+uint32_t sharedRecord(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutReceiver>* records,
+                      RenderCounters* counters) {
+  const auto next = static_cast<uint32_t>(records->size());
+  const uint32_t slot = sharedSlot(pixel, r, next, counters);
+  if (slot == next) records->push_back({.p = r.p, .n = r.n, .ng = r.ng});
   return slot;
 }
 
@@ -99,8 +107,7 @@ class PerPixelScratch final : public IntegratorScratch {
   }
   PixelGathers pixel;
   std::vector<Gatherer> gatherers;
-  std::vector<CutReceiver> receivers;  // the tile's gathers
-  std::vector<Vec3f> positions, normals;
+  std::vector<Vec3f> positions, normals;  // the tile's gathers
   std::vector<Rgb> values;
   std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, gather) of each diffuse sample
 };
@@ -122,26 +129,27 @@ class PerPixelPbgi final : public Integrator {
   absl::Status render(const TileSamples& samples, std::span<PathSample> out,
                       IntegratorScratch* scratch, RenderCounters* counters) const override {
     auto& state = static_cast<PerPixelScratch&>(*scratch);
-    state.receivers.clear();
+    state.positions.clear();
+    state.normals.clear();
     state.uses.clear();
     GatherStats stats;
-    if (absl::Status s = traceFirstHits(
-            scene_, tree_, settings_, samples, 0, samples.pixelCount(), out, state.pixel, &stats,
-            counters,
-            [&](size_t k, const Receiver& r) {
-              state.uses.push_back({k, sharedSlot(state.pixel.shared(), DiffuseHit::of(r),
-                                                  &state.receivers, counters)});
-            });
+    if (absl::Status s =
+            traceFirstHits(scene_, tree_, settings_, samples, 0, samples.pixelCount(), out,
+                           state.pixel, &stats, counters,
+                           [&](size_t k, const Receiver& r) {
+                             const auto next = static_cast<uint32_t>(state.positions.size());
+                             const uint32_t slot = sharedSlot(state.pixel.shared(),
+                                                              DiffuseHit::of(r), next, counters);
+                             if (slot == next) {
+                               state.positions.push_back(r.hit.p);
+                               state.normals.push_back(r.n);
+                             }
+                             state.uses.push_back({k, slot});
+                           });
         !s.ok()) {
       return s;
     }
-    const size_t gathers = state.receivers.size();
-    state.positions.resize(gathers);
-    state.normals.resize(gathers);
-    for (size_t g = 0; g < gathers; ++g) {
-      state.positions[g] = state.receivers[g].p;
-      state.normals[g] = state.receivers[g].n;
-    }
+    const size_t gathers = state.positions.size();
     state.values.resize(gathers);
     for (size_t first = 0; first < gathers; first += kGathersTogether) {
       const size_t count = std::min(kGathersTogether, gathers - first);
@@ -286,8 +294,8 @@ class BidirectionalPbgi final : public Integrator {
                 return;
               }
               block.uses.push_back({k,
-                                    sharedSlot(block.pixel.shared(), DiffuseHit::of(r),
-                                               &block.receivers, &block.counters),
+                                    sharedRecord(block.pixel.shared(), DiffuseHit::of(r),
+                                                 &block.receivers, &block.counters),
                                     1.0f});
               if (spacing > 1) {
                 // The pixel's records so far, kept for the pixels between (in place of the
@@ -363,7 +371,7 @@ class BidirectionalPbgi final : public Integrator {
         own.clear();
         ownPixel = k / spp;
       }
-      block.uses.push_back({k, sharedSlot(own, r, &block.receivers, &block.counters), 1.0f});
+      block.uses.push_back({k, sharedRecord(own, r, &block.receivers, &block.counters), 1.0f});
     }
   }
 

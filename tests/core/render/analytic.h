@@ -153,7 +153,7 @@ inline void addPatch(SceneBuilder& b, const Receiver& r, float size, uint32_t ma
   b.addMesh(squareMesh(r.p, frame.s, frame.t, size, false, material));
 }
 
-inline std::unique_ptr<Scene> buildOrDie(SceneBuilder& b) {
+inline std::unique_ptr<Scene> buildOrNull(SceneBuilder& b) {
   auto scene = b.build();
   if (!scene.ok()) return nullptr;
   return std::move(*scene);
@@ -216,7 +216,7 @@ inline AnalyticCase quadOverFloorCase(const QuadOverFloor& q) {
                          q.emissiveMesh ? "emissive quad mesh" : "quad light", side, q.height,
                          q.turnDeg, q.flipFloor ? ", floor wound down" : "",
                          q.facePlusX ? ", facing +x" : "", q.scale);
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   const auto poly = quadCorners(corner, u, v);
   const Vec3f n = turn(Vec3f(0.0f, 1.0f, 0.0f));
   for (int deg = 0; deg <= 85; deg += 5) {
@@ -250,7 +250,7 @@ inline AnalyticCase quadAndWallCase(float scale) {
   b.addLight(light);
   AnalyticCase out;
   out.name = fmt::format("quad and perpendicular wall, scale {}", scale);
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   const auto poly = quadCorners(light.corner, light.edgeU, light.edgeV);
   const Vec3f n(1.0f, 0.0f, 0.0f);
   for (const float depth : {0.05f, 0.2f, 0.5f, 1.0f, 1.5f, 2.0f, 3.0f}) {
@@ -298,7 +298,7 @@ inline AnalyticCase sphereLightCase(float scale) {
       addPatch(b, out.receivers.back(), 1e-3f * scale * d, receiver);
     }
   }
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   out.sigmaPathTracer = 0.6;
   out.sigmaSurfel = 0.6;
   return out;
@@ -359,7 +359,7 @@ inline AnalyticCase triangleLightCase(float scale) {
   // Receivers' patches first: a surfel's triangle 0 is a receiver's.
   for (const Receiver& r : out.receivers) addPatch(b, r, 1e-3f * scale, receiver);
   b.addMesh(std::move(emitter));
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   out.sigmaPathTracer = 2.2;
   out.sigmaSurfel = 6.0;
   return out;
@@ -380,7 +380,7 @@ inline AnalyticCase directionalCase(float scale, float deg) {
   b.addLight(light);
   AnalyticCase out;
   out.name = fmt::format("directional light {} deg off the normal, scale {}", deg, scale);
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   const Vec3f n(0.0f, 1.0f, 0.0f);
   const double cosTheta = std::abs(dot(Vec3d(normalize(light.direction)), Vec3d(n)));
   for (const float x : {-4.0f, 0.0f, 3.0f}) {
@@ -431,7 +431,7 @@ inline AnalyticCase environmentCase(float scale, bool box) {
     strip(Vec3f(q, y, -q), Vec3f(h, y, q));
   }
   b.addLight(LightDesc{.type = LightType::kEnvironment}, constantLatLong(Rgb(L)));
-  out.scene = buildOrDie(b);
+  out.scene = buildOrNull(b);
   const Vec3f n(0.0f, 1.0f, 0.0f);
   const float y = 2.0f * scale, q = 0.5f * scale;
   const std::vector<Vec3d> opening = {Vec3d(-q, y, -q), Vec3d(q, y, -q), Vec3d(q, y, q),
