@@ -508,6 +508,9 @@ inline std::vector<CaseGroup> caseGroups() {
   };
 }
 
+// How gtest names a group in its output (instead of the struct's bytes).
+inline void PrintTo(const CaseGroup& group, std::ostream* os) { *os << group.name; }
+
 // The random key of a group's first case (FNV-1a of its name), the same on every platform.
 inline uint64_t groupKey(const CaseGroup& group) {
   uint64_t h = 0xcbf29ce484222325ull;
