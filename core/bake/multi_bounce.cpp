@@ -66,7 +66,7 @@ absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats)
   if (request.previous != nullptr) {
     if (auto s = request.previous->rewind(); !s.ok()) return s;
   }
-  SurfelBouncer bouncer(request.cut);
+  SurfelBouncer bouncer(request.cut, request.receiverSpacing);
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
   std::vector<SurfelIrradiance> previous, added, total;

@@ -1,6 +1,8 @@
 #include "core/bake/surfel_bounce.h"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 
 #include "core/sampling/rng.h"
 #include "core/util/check.h"
@@ -21,7 +23,122 @@ CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
   return o;
 }
 
-SurfelBouncer::SurfelBouncer(const CutOptions& options) : options_(options) {}
+SurfelBouncer::SurfelBouncer(const CutOptions& options, int receiverSpacing)
+    : options_(options), receiverSpacing_(receiverSpacing) {
+  PBGI_CHECK_GE(receiverSpacing, 1);
+}
+
+namespace {
+
+uint64_t cellKey(const std::array<int32_t, 3>& c) {
+  return hashKeys(static_cast<uint32_t>(c[0]), static_cast<uint32_t>(c[1]),
+                  static_cast<uint32_t>(c[2]));
+}
+
+}  // namespace
+
+void SurfelBouncer::makePatches(std::span<const Surfel> surfels, size_t first, size_t end,
+                                Patches& out) const {
+  out.recordOf.clear();
+  out.cellOf.clear();
+  out.inCell.clear();
+  out.patchOf.assign(end - first, Patches::kNoPatch);
+  // A cell holds about receiverSpacing surfels of a surface crossing it: each surfel's share
+  // of its surface is pi r^2, r the group's mean radius.
+  double radii = 0.0;
+  size_t lit = 0;
+  for (size_t i = first; i < end; ++i) {
+    if (!reflectsLight(surfels[i])) continue;
+    radii += surfels[i].radius;
+    ++lit;
+  }
+  if (lit == 0) return;
+  const auto r = static_cast<float>(radii / static_cast<double>(lit));
+  out.cell = std::sqrt(static_cast<float>(receiverSpacing_) * kPi) * r;
+  std::vector<Vec3f> sums, heads;  // each patch's sum of positions, and its first normal
+  for (size_t i = first; i < end; ++i) {
+    const Surfel& s = surfels[i];
+    if (!reflectsLight(s)) continue;
+    std::array<int32_t, 3> c;
+    for (int a = 0; a < 3; ++a) c[a] = static_cast<int32_t>(std::floor(s.position[a] / out.cell));
+    std::vector<uint32_t>& inCell = out.inCell[cellKey(c)];
+    uint32_t patch = Patches::kNoPatch;
+    // A spacing of 1: every surfel is its own patch and record.
+    for (const uint32_t k : receiverSpacing_ == 1 ? std::span<const uint32_t>{} : inCell) {
+      if (out.cellOf[k] == c && dot(heads[k], s.normal) >= kPatchNormalCos) {
+        patch = k;
+        break;
+      }
+    }
+    if (patch == Patches::kNoPatch) {
+      patch = static_cast<uint32_t>(heads.size());
+      heads.push_back(s.normal);
+      sums.push_back(Vec3f(0.0f));
+      out.cellOf.push_back(c);
+      out.recordOf.push_back(static_cast<uint32_t>(i));
+      inCell.push_back(patch);
+    }
+    sums[patch] += s.position;
+    out.patchOf[i - first] = patch;
+  }
+  // Each patch's record: the member nearest its centre (the first such in the tree's order).
+  std::vector<uint32_t> counts(heads.size(), 0);
+  for (const uint32_t k : out.patchOf) {
+    if (k != Patches::kNoPatch) ++counts[k];
+  }
+  std::vector<float> best(heads.size(), std::numeric_limits<float>::infinity());
+  for (size_t i = first; i < end; ++i) {
+    const uint32_t k = out.patchOf[i - first];
+    if (k == Patches::kNoPatch) continue;
+    const float d = length(surfels[i].position - sums[k] / static_cast<float>(counts[k]));
+    if (d < best[k]) {
+      best[k] = d;
+      out.recordOf[k] = static_cast<uint32_t>(i);
+    }
+  }
+}
+
+void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const Patches& patches,
+                           const Side& front, const Side& back,
+                           std::span<SurfelIrradiance> irradiance) const {
+  const float reach = kRecordReachCells * patches.cell;
+  for (size_t at = 0; at < patches.patchOf.size(); ++at) {
+    const uint32_t own = patches.patchOf[at];
+    if (own == Patches::kNoPatch) continue;
+    const size_t i = first + at;
+    if (patches.recordOf[own] == i) {
+      irradiance[i] = {front.gathered[own], back.gathered[own]};
+      continue;
+    }
+    const Surfel& s = surfels[i];
+    const std::array<int32_t, 3>& c = patches.cellOf[own];
+    SurfelIrradiance sum;
+    float total = 0.0f;
+    for (int dz = -1; dz <= 1; ++dz) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const std::array<int32_t, 3> n{c[0] + dx, c[1] + dy, c[2] + dz};
+          const auto cell = patches.inCell.find(cellKey(n));
+          if (cell == patches.inCell.end()) continue;
+          for (const uint32_t k : cell->second) {
+            if (patches.cellOf[k] != n) continue;
+            const Surfel& r = surfels[patches.recordOf[k]];
+            if (k != own && dot(s.normal, r.normal) < kPatchNormalCos) continue;
+            float w = std::max(0.0f, 1.0f - length(s.position - r.position) / reach);
+            w *= w;
+            // The surfel's own patch always counts: it joined it by the same tests.
+            if (k == own) w = std::max(w, 1e-3f);
+            if (!(w > 0.0f)) continue;
+            sum.front += front.gathered[k] * w;
+            sum.back += back.gathered[k] * w;
+            total += w;
+          }
+        }
+      }
+    }
+    irradiance[i] = {sum.front / total, sum.back / total};
+  }
+}
 
 absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
                                    std::span<const Surfel> surfels, size_t groupSize,
@@ -37,6 +154,9 @@ absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
   // opposite in each node, whose normals no cone narrower than a hemisphere holds, and share
   // nothing.
   PBGI_CHECK_GT(groupsTogether, size_t{0});
+  if (patches_.size() < std::min(groups, groupsTogether)) {
+    patches_.resize(std::min(groups, groupsTogether));
+  }
   std::vector<BidirectionalCut*> cuts;
   std::vector<CutJob> jobs;
   for (size_t batch = 0; batch < groups; batch += groupsTogether) {
@@ -45,18 +165,17 @@ absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
     jobs.clear();
     for (size_t g = batch; g < batchEnd; ++g) {
       const size_t first = g * groupSize, end = std::min(surfels.size(), first + groupSize);
+      Patches& patches = patches_[g - batch];
+      makePatches(surfels, first, end, patches);
       for (const int side : {0, 1}) {
         Side& c = sides_[2 * g + side];
         c.receivers.clear();
-        c.of.clear();
-        for (size_t i = first; i < end; ++i) {
+        for (const uint32_t i : patches.recordOf) {
           const Surfel& s = surfels[i];
-          if (!reflectsLight(s)) continue;
           // A surfel lies on its triangle: its shadow rays leave from its centre along the
           // side's normal.
           const Vec3f n = side == 0 ? s.normal : -s.normal;
           c.receivers.push_back({.p = s.position, .n = n, .ng = n});
-          c.of.push_back(static_cast<uint32_t>(i));
         }
         c.gathered.resize(c.receivers.size());
         cuts.push_back(&c.cut);
@@ -65,11 +184,9 @@ absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
       }
     }
     if (absl::Status s = cutTogether(tree, scene, cuts, jobs, stats); !s.ok()) return s;
-    for (size_t k = 2 * batch; k < 2 * batchEnd; ++k) {
-      const Side& c = sides_[k];
-      for (size_t r = 0; r < c.receivers.size(); ++r) {
-        (k % 2 == 0 ? irradiance[c.of[r]].front : irradiance[c.of[r]].back) = c.gathered[r];
-      }
+    for (size_t g = batch; g < batchEnd; ++g) {
+      spread(surfels, g * groupSize, patches_[g - batch], sides_[2 * g], sides_[2 * g + 1],
+             irradiance);
     }
   }
   return absl::OkStatus();

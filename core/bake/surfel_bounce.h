@@ -1,11 +1,19 @@
 #pragma once
 // One bounce of indirect light for the surfels of a bake (Christensen's multi-pass): every
-// surfel that reflects light (diffuse, non-black albedo) gathers the irradiance a tree (the
+// surfel that reflects light (diffuse, non-black albedo) takes the irradiance a tree (the
 // light the previous bounce added) sends each of its two sides (surfaces are two-sided), and
 // reflects albedo / pi of each (multi_bounce.h runs the passes). The surfels of a chunk
 // (neighbours along the Morton curve) gather together, through one bidirectional cut whose
-// receivers are the surfels themselves: the same machinery as a frame's shading points, so
-// that bounce light and the image agree on how light is gathered.
+// receivers are records among them: the same machinery as a frame's shading points, so that
+// bounce light and the image agree on how light is gathered.
+//
+// Records, not every surfel. The surfels of a group that share a cell of a grid (about
+// sqrt(receiverSpacing) surfel spacings wide) and face within kPatchNormalCos of each other make
+// a patch; the member nearest its centre is the record, gathered on both sides. Each surfel
+// reads the records of the patches in its cell and the cells around it that face its way,
+// weighted by distance: what a frame's pixels between records do (pbgi_integrator.cpp).
+// Bounce light is smooth at the scale of a few surfels, and a bounce costs what its cuts'
+// receivers do.
 //
 // The light past the last bounce. K bounces leave out bounces K+1, K+2, ...: with power P_k in
 // bounce k, their sum is close to a geometric tail, P_K r / (1 - r) with r = P_K / P_{K-1},
@@ -13,6 +21,7 @@
 // last bounce's light is scaled by 1 + r / (1 - r) instead of being baked further.
 #include <array>
 #include <cstdint>
+#include <unordered_map>
 #include <span>
 #include <vector>
 
@@ -41,10 +50,19 @@ struct SurfelIrradiance {
   Rgb back{0.0f};
 };
 
+// Surfels a bounce record stands for, about (1: every surfel gathers its own light).
+inline constexpr int kBounceReceiverSpacing = 16;
+inline constexpr int kMaxBounceSpacing = 1024;
+// The least cosine between the normals of surfels of one patch, and of a surfel and a record
+// it reads (about 18 degrees).
+inline constexpr float kPatchNormalCos = 0.95f;
+// How far a record reaches from the surfels that read it, in cell widths.
+inline constexpr float kRecordReachCells = 1.5f;
+
 // Gathers for the surfels of a bake, reusing its buffers.
 class SurfelBouncer {
  public:
-  explicit SurfelBouncer(const CutOptions& options);
+  explicit SurfelBouncer(const CutOptions& options, int receiverSpacing = kBounceReceiverSpacing);
 
   // irradiance[i] = what surfels[i]'s two sides gather from `tree` (black for surfels that
   // reflect nothing). The surfels fall in groups of `groupSize` consecutive ones (the last
@@ -62,12 +80,26 @@ class SurfelBouncer {
   struct Side {
     explicit Side(const CutOptions& options) : cut(options) {}
     BidirectionalCut cut;
-    std::vector<CutReceiver> receivers;
-    std::vector<uint32_t> of;  // receiver -> surfel
+    std::vector<CutReceiver> receivers;  // the group's records, on this side
     std::vector<Rgb> gathered;
   };
+  // A group's patches: patch k's record is surfel recordOf[k], in grid cell cellOf[k];
+  // surfel i of the group (first + i) is in patch patchOf[i] (kNoPatch: it reflects nothing).
+  struct Patches {
+    static constexpr uint32_t kNoPatch = UINT32_MAX;
+    float cell = 0.0f;  // the grid's cell width
+    std::vector<uint32_t> recordOf, patchOf;
+    std::vector<std::array<int32_t, 3>> cellOf;
+    std::unordered_map<uint64_t, std::vector<uint32_t>> inCell;  // cell key -> its patches
+  };
+  void makePatches(std::span<const Surfel> surfels, size_t first, size_t end, Patches& out) const;
+  void spread(std::span<const Surfel> surfels, size_t first, const Patches& patches, const Side& front,
+              const Side& back, std::span<SurfelIrradiance> irradiance) const;
+
   CutOptions options_;
+  int receiverSpacing_;
   std::vector<Side> sides_;  // group g's front side at 2 g, its back at 2 g + 1
+  std::vector<Patches> patches_;  // group g's
 };
 
 // The power (per channel, area times radiance, both sides) that a surfel reflects from `e`.

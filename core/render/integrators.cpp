@@ -60,6 +60,11 @@ const std::vector<ParamSpec>& pbgiParams() {
        .help = "bidirectional: pixels between the records that gather (1: a record per pixel "
                "footprint; n: on every nth pixel of each axis, the pixels between interpolating "
                "the records on their surface, and gathering their own where none is)"},
+      {.key = "sky", .type = ParamType::kChoice, .choices = {"records", "samples"},
+       .defaultText = "records",
+       .help = "environment light on diffuse surfaces: once per record (or per-pixel gather), "
+               "one ray per cell of a cube map, shared by every sample that reads it; or light "
+               "samples at each camera sample, as the path tracer takes it"},
       {.key = "cut_blocks_together", .type = ParamType::kInt, .lo = 1, .hi = 64,
        .defaultText = "16",
        .help = "bidirectional: blocks whose cuts sweep the tree's pages together (more: each "
@@ -112,6 +117,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
   s.recordSpacing = static_cast<int>(p.intOr("record_spacing", 2));
+  s.skyAtRecords = p.choiceOr("sky", "records") == "records";
   s.blocksPerUnit = static_cast<int>(p.intOr("cut_blocks_together", 16));
   s.pathTracer = {.maxDepth = r.maxDepth,
                   .rouletteDepth = r.rouletteDepth,
@@ -188,6 +194,7 @@ const std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"cut_shadow_rays", "visibility rays between clusters and surfels"},
     {"cut_occluded", "of the visibility rays, blocked"},
     {"cut_page_requests", "tree pages the cuts asked for"},
+    {"sky_rays", "rays towards the environment from records (one per cube-map cell above each)"},
 }};
 
 const std::vector<IntegratorInfo>& registry() {

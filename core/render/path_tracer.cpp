@@ -21,12 +21,13 @@ Frame shadingFrame(const SurfaceHit& hit) { return Frame(hit.ns); }
 }  // namespace
 
 std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f& p,
-                                                 const Vec3f& ng, Rng& rng, float* selectPdf) {
+                                                 const Vec3f& ng, Rng& rng, float* selectPdf,
+                                                 bool skipSky) {
   // A fixed count of random numbers whatever happens, so that later decisions of the same
   // path use the same numbers whichever branch this one took.
   const float uLight = rng.uniform();
   const Vec2f u = next2(rng);
-  const Light* light = scene.sampleLight(uLight, selectPdf);
+  const Light* light = scene.sampleLight(uLight, selectPdf, skipSky);
   if (light == nullptr || *selectPdf <= 0.0f) return std::nullopt;
   std::optional<LightSample> ls = light->sample(p, u);
   if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) return std::nullopt;
@@ -64,9 +65,10 @@ TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p,
 }
 
 Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
-                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng) {
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng, bool skipSky) {
   float selectPdf = 0.0f;
-  const std::optional<LightSample> ls = sampleUnoccludedLight(scene, hit.p, hit.ng, rng, &selectPdf);
+  const std::optional<LightSample> ls =
+      sampleUnoccludedLight(scene, hit.p, hit.ng, rng, &selectPdf, skipSky);
   if (!ls) return Rgb(0.0f);
   const Vec3f wiLocal = frame.toLocal(ls->wi);
   // Reflection or transmission must agree between the shading and geometric normals, or
@@ -92,6 +94,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
   bool prevDelta = true;  // the camera ray: emission seen directly counts in full
   Vec3f prevP = ray.origin;
   Rgb* sink = &out.direct;  // emission found at bounce <= 1 is direct light
+  bool skipSky = false;     // the last vertex left the environment's light to the records
 
   for (int bounce = 0;; ++bounce) {
     if (bounce >= 2) sink = &out.indirect;
@@ -99,6 +102,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
     if (!scene.intersect(ray, &hit)) {
       for (const int index : scene.infiniteLights()) {
         const Light* light = scene.lights()[index].get();
+        if (skipSky && isSkyLight(*light)) continue;
         const Rgb Le = light->escaped(ray.dir);
         if (isBlack(Le)) continue;
         float weight = 1.0f;
@@ -124,8 +128,8 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       if (!isBlack(Le)) {
         float weight = 1.0f;
         if (!prevDelta) {
-          const float lightPdf =
-              scene.lightProbability(hit.light) * light.pdf(prevP, ray.dir, hit.p, hit.ng);
+          const float lightPdf = scene.lightProbability(hit.light, skipSky) *
+                                 light.pdf(prevP, ray.dir, hit.p, hit.ng);
           weight = powerHeuristic(prevBsdfPdf, lightPdf);
         }
         *sink += beta * Le * weight;
@@ -142,16 +146,18 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
 
     const Frame frame = shadingFrame(hit);
     const Vec3f woLocal = frame.toLocal(wo);
+    skipSky = bounce == 0 && !settings.skyAtDiffuseFirstHit &&
+              material.type == MaterialType::kDiffuse;
     // Light arriving at this vertex belongs to the next bounce's sink.
     Rgb* nextSink = bounce + 1 >= 2 ? &out.indirect : &out.direct;
     if (!bsdf.isDelta()) {
-      Rgb light = sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng);
+      Rgb light = sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng, skipSky);
       if (bounce == 0 && settings.firstHitLightSamples > 1) {
         // Keyed by the number the path draws next: its own stream, the path's untouched.
         Rng peek = rng;
         Rng more = Rng::forKeys(uint64_t{peek.nextU32()}, kFirstHitLightDomain);
         for (int k = 1; k < settings.firstHitLightSamples; ++k) {
-          light += sampleDirectLight(scene, hit, frame, bsdf, woLocal, more);
+          light += sampleDirectLight(scene, hit, frame, bsdf, woLocal, more, skipSky);
         }
         light /= static_cast<float>(settings.firstHitLightSamples);
       }

@@ -16,6 +16,10 @@ struct PathTracerSettings {
   // PBGI's direct light, where one camera sample costs a gather and a light sample is cheap.
   // Samples past the first draw from a stream of their own, so 1 leaves the path unchanged.
   int firstHitLightSamples = 1;
+  // Whether a first hit on a diffuse material takes the environment's light (isSkyLight) from
+  // its own light and BSDF samples. PBGI's records take it instead (sky_irradiance.h): they
+  // clear this, and the path tracer keeps it.
+  bool skyAtDiffuseFirstHit = true;
 };
 
 // What one camera sample brings back: radiance split into direct (emitters seen directly
@@ -33,8 +37,10 @@ struct PathSample {
 // One light sample towards surface point p (geometric normal ng) that nothing occludes, with
 // the probability of having picked its light; nullopt when it is blocked or carries nothing.
 // Draws exactly three random numbers whatever happens.
+// With skipSky, it picks among the lights that are not environments (Scene::sampleLight).
 std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f& p,
-                                                 const Vec3f& ng, Rng& rng, float* selectPdf);
+                                                 const Vec3f& ng, Rng& rng, float* selectPdf,
+                                                 bool skipSky = false);
 
 // Irradiance at p on the side of unit normal n from one light sample (light sampling alone:
 // every light of the scene can be sampled). The surfel baker's estimator.
@@ -56,7 +62,7 @@ TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p,
 // BSDF sampling. Shared with the PBGI integrators and the surfel baker, so that they differ
 // from the path tracer only in indirect light.
 Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
-                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng);
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng, bool skipSky = false);
 
 // One camera path. `firstHit`, when given, receives the primary ray's hit (untouched when
 // the ray escapes): what an integrator that replaces the indirect light shades from.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <numbers>
+#include <optional>
 #include <unordered_map>
 #include <vector>
 
@@ -12,11 +13,39 @@
 
 #include "core/render/integrators.h"
 #include "core/render/pbgi_receiver.h"
+#include "core/render/sky_irradiance.h"
 #include "core/util/check.h"
 
 namespace pbgi {
 
 namespace {
+
+// The settings an integrator runs with: where records take the environment's light, the
+// samples' own direct light leaves it out.
+PbgiSettings withSky(const Scene& scene, PbgiSettings settings) {
+  if (settings.skyAtRecords && hasSkyLight(scene)) {
+    settings.pathTracer.skyAtDiffuseFirstHit = false;
+  } else {
+    settings.skyAtRecords = false;
+  }
+  return settings;
+}
+
+// The environment's irradiance at each of `count` gathers, gather(i) giving where gather i
+// lies and how it faces (black when the samples take the environment themselves). Counts its
+// rays.
+template <typename Gather>
+void gatherSky(const std::optional<SkyIrradiance>& sky, size_t count, Gather&& gather,
+               std::vector<Rgb>* out, RenderCounters* counters) {
+  out->assign(count, Rgb(0.0f));
+  if (!sky) return;
+  uint64_t rays = 0;
+  for (size_t i = 0; i < count; ++i) {
+    const CutReceiver r = gather(i);
+    (*out)[i] = sky->at(r.p, r.n, r.ng, skyKey(r.p), &rays);
+  }
+  (*counters)[kSkyRays] += rays;
+}
 
 // The first hits of pixels [firstPixel, endPixel) of a unit, as both gathers take them: each
 // pixel's glossy samples gather here through its warped microbuffer (shared within the pixel),
@@ -107,8 +136,8 @@ class PerPixelScratch final : public IntegratorScratch {
   }
   PixelGathers pixel;
   std::vector<Gatherer> gatherers;
-  std::vector<Vec3f> positions, normals;  // the tile's gathers
-  std::vector<Rgb> values;
+  std::vector<Vec3f> positions, normals, geometric;  // the tile's gathers
+  std::vector<Rgb> values, sky;
   std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, gather) of each diffuse sample
 };
 
@@ -118,7 +147,9 @@ class PerPixelScratch final : public IntegratorScratch {
 class PerPixelPbgi final : public Integrator {
  public:
   PerPixelPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), tree_(tree), settings_(settings) {}
+      : scene_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+    if (settings_.skyAtRecords) sky_.emplace(scene);
+  }
 
   std::string name() const override { return "pbgi"; }
   std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
@@ -131,6 +162,7 @@ class PerPixelPbgi final : public Integrator {
     auto& state = static_cast<PerPixelScratch&>(*scratch);
     state.positions.clear();
     state.normals.clear();
+    state.geometric.clear();
     state.uses.clear();
     GatherStats stats;
     if (absl::Status s =
@@ -143,6 +175,7 @@ class PerPixelPbgi final : public Integrator {
                              if (slot == next) {
                                state.positions.push_back(r.hit.p);
                                state.normals.push_back(r.n);
+                               state.geometric.push_back(r.ng);
                              }
                              state.uses.push_back({k, slot});
                            });
@@ -166,8 +199,15 @@ class PerPixelPbgi final : public Integrator {
     for (const Rgb& e : state.values) {
       if (absl::Status s = checkGathered(e); !s.ok()) return s;
     }
+    gatherSky(
+        sky_, gathers,
+        [&](size_t i) {
+          return CutReceiver{state.positions[i], state.normals[i], state.geometric[i]};
+        },
+        &state.sky, counters);
     for (const auto& [k, slot] : state.uses) {
       out[k].indirect = out[k].albedo * state.values[slot] * std::numbers::inv_pi_v<float>;
+      out[k].direct += out[k].albedo * state.sky[slot] * std::numbers::inv_pi_v<float>;
     }
     addGatherStats(stats, counters);
     return absl::OkStatus();
@@ -177,6 +217,7 @@ class PerPixelPbgi final : public Integrator {
   const Scene& scene_;
   TreePageSource& tree_;
   PbgiSettings settings_;
+  std::optional<SkyIrradiance> sky_;
 };
 
 // One block's state: its receivers, its cut's buffers, what it counted.
@@ -195,6 +236,7 @@ struct BidirectionalBlock {
   };
   std::vector<Use> uses;
   std::vector<Rgb> irradiance;
+  std::vector<Rgb> sky;  // the environment's irradiance at each receiver
   RenderCounters counters;
   // With records spaced out: the records of each pixel of the block that holds them (a range
   // of `anchorRecords`), the samples that interpolate them, and pixels by position.
@@ -212,7 +254,9 @@ class BidirectionalScratch final : public IntegratorScratch {
 class BidirectionalPbgi final : public Integrator {
  public:
   BidirectionalPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), tree_(tree), settings_(settings) {}
+      : scene_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+    if (settings_.skyAtRecords) sky_.emplace(scene);
+  }
 
   std::string name() const override { return "pbgi"; }
   std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
@@ -264,6 +308,7 @@ class BidirectionalPbgi final : public Integrator {
         last = u.sample;
         ps.indirect +=
             ps.albedo * block.irradiance[u.record] * std::numbers::inv_pi_v<float> * u.weight;
+        ps.direct += ps.albedo * block.sky[u.record] * std::numbers::inv_pi_v<float> * u.weight;
       }
     }
     return absl::OkStatus();
@@ -316,6 +361,9 @@ class BidirectionalPbgi final : public Integrator {
     if (spacing > 1) interpolateBetween(samples, unitBlock, block);
     addGatherStats(stats, &block.counters);
     block.irradiance.resize(block.receivers.size());
+    gatherSky(
+        sky_, block.receivers.size(), [&](size_t i) { return block.receivers[i]; }, &block.sky,
+        &block.counters);
     return absl::OkStatus();
   }
 
@@ -378,6 +426,7 @@ class BidirectionalPbgi final : public Integrator {
   const Scene& scene_;
   TreePageSource& tree_;
   PbgiSettings settings_;
+  std::optional<SkyIrradiance> sky_;
 };
 
 }  // namespace

@@ -42,6 +42,9 @@ struct PbgiSettings {
   // The bidirectional cut's records lie on pixels whose coordinates are multiples of this;
   // the pixels between interpolate them (1: every pixel gathers).
   int recordSpacing = 2;
+  // Environment light on diffuse receivers: once per record (or per-pixel gather) and shared
+  // by the samples that read it (sky_irradiance.h), or from each camera sample's light samples.
+  bool skyAtRecords = true;
   // Blocks rendered together, their cuts sweeping the tree's pages in step (a 4 x 4 square of
   // 64^2 blocks: a 256^2 farm tile).
   int blocksPerUnit = 16;

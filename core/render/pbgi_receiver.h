@@ -62,6 +62,7 @@ enum PbgiCounter : size_t {
   kCutShadowRays,
   kCutOccluded,
   kCutPageRequests,
+  kSkyRays,
   kPbgiCounterCount
 };
 

@@ -50,6 +50,10 @@ class Light {
   virtual bool isInfinite() const { return false; }
 };
 
+// An environment: light from every direction at infinity that is not a delta (directional
+// lights are). PBGI's records take its light once each (core/render/sky_irradiance.h).
+inline bool isSkyLight(const Light& light) { return light.isInfinite() && !light.isDelta(); }
+
 // Emitters, each also a surface where it has one.
 std::unique_ptr<Light> makeQuadLight(const Vec3f& corner, const Vec3f& edgeU, const Vec3f& edgeV,
                                      const Rgb& radiance);

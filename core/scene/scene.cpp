@@ -190,14 +190,17 @@ bool Scene::occluded(const Ray& ray) const {
   return r.tfar < 0.0f;  // Embree sets tfar to -inf on a hit
 }
 
-const Light* Scene::sampleLight(float u, float* probability) const {
-  if (lights_.empty()) return nullptr;
-  const int i = lightDistribution_.sampleDiscrete(u, probability);
+const Light* Scene::sampleLight(float u, float* probability, bool withoutSky) const {
+  if (lights_.empty() || (withoutSky && !anyLightButSky_)) return nullptr;
+  const int i = (withoutSky ? lightDistributionWithoutSky_ : lightDistribution_)
+                    .sampleDiscrete(u, probability);
   return lights_[i].get();
 }
 
-float Scene::lightProbability(int lightIndex) const {
-  return lights_.empty() ? 0.0f : lightDistribution_.discreteProbability(lightIndex);
+float Scene::lightProbability(int lightIndex, bool withoutSky) const {
+  if (lights_.empty() || (withoutSky && !anyLightButSky_)) return 0.0f;
+  return (withoutSky ? lightDistributionWithoutSky_ : lightDistribution_)
+      .discreteProbability(lightIndex);
 }
 
 Rgb Scene::albedoAt(const SurfaceHit& hit) const {
@@ -391,6 +394,12 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
     powers.push_back(std::isfinite(p) ? std::max(p, 0.0f) : 0.0f);
   }
   if (!powers.empty()) scene->lightDistribution_ = Distribution1D(powers);
+  std::vector<float> withoutSky = powers;
+  for (size_t i = 0; i < withoutSky.size(); ++i) {
+    if (isSkyLight(*scene->lights_[i])) withoutSky[i] = 0.0f;
+    scene->anyLightButSky_ = scene->anyLightButSky_ || withoutSky[i] > 0.0f;
+  }
+  if (scene->anyLightButSky_) scene->lightDistributionWithoutSky_ = Distribution1D(withoutSky);
   scene->stats_.lights = scene->lights_.size();
   return scene;
 }

@@ -62,9 +62,11 @@ class Scene {
   const std::vector<std::unique_ptr<Light>>& lights() const { return lights_; }
   // Indices (into lights()) of the lights that surround the scene.
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
-  // Picks a light in proportion to its power; nullptr when the scene has none.
-  const Light* sampleLight(float u, float* probability) const;
-  float lightProbability(int lightIndex) const;
+  // Picks a light in proportion to its power; nullptr when the scene has none. Without the
+  // sky: among the lights that are not environments (isSkyLight), for a point whose
+  // environment light is taken otherwise (PBGI's records).
+  const Light* sampleLight(float u, float* probability, bool withoutSky = false) const;
+  float lightProbability(int lightIndex, bool withoutSky = false) const;
 
   // Albedo of a material at a hit (texture looked up).
   Rgb albedoAt(const SurfaceHit& hit) const;
@@ -88,6 +90,8 @@ class Scene {
   std::vector<std::unique_ptr<Light>> lights_;
   std::vector<int> infiniteLights_;
   Distribution1D lightDistribution_;
+  Distribution1D lightDistributionWithoutSky_;
+  bool anyLightButSky_ = false;  // with power
   Bounds3f bounds_;
   SceneStats stats_;
 };

@@ -38,7 +38,7 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
 // spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
 // glossy surfels reflect).
-constexpr int kBounceRevision = 8;
+constexpr int kBounceRevision = 9;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -116,8 +116,9 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
       "|page={}|power={}|area={}|exact={}|wavelets={} {} {}|payload={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
       request.bounces > 0
-          ? fmt::format("{} chunk {} tail {} revision {}", request.bounceCut.toString(),
-                        kBounceChunkSurfels, request.bounceTail, kBounceRevision)
+          ? fmt::format("{} chunk {} tail {} spacing {} revision {}",
+                        request.bounceCut.toString(), kBounceChunkSurfels, request.bounceTail,
+                        request.bounceSpacing, kBounceRevision)
           : "",
       treeEncodingName(request.tree.encoding), request.tree.build.leafSize, request.tree.pageSize,
       request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
@@ -159,6 +160,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
     bounce.added = [w = writer.get()](const SortedSurfel& s) { return w->add(s); };
   }
   bounce.from = &cache;
+  bounce.receiverSpacing = request.bounceSpacing;
   // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
   // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
   // but hold their cuts' waiting pairs, probes and receiver trees at once: about 30 MB a
@@ -208,6 +210,11 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     return absl::InvalidArgumentError(
         fmt::format("wavelet resolution {}: expected a power of two from 2 to {}",
                     request.waveletResolution, kMaxMicrobufferResolution));
+  }
+  if (request.bounceSpacing < 1 || request.bounceSpacing > kMaxBounceSpacing) {
+    return absl::InvalidArgumentError(fmt::format(
+        "bounce spacing {}: expected 1 to {} surfels a record", request.bounceSpacing,
+        kMaxBounceSpacing));
   }
   if (request.lightSamples < 1) {
     return absl::InvalidArgumentError(
@@ -352,6 +359,7 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
         {"surfel_radius", fmt::format("{:g}", report.sampling.radius)},
         {"light_samples", std::to_string(request.lightSamples)},
         {"bounces", std::to_string(request.bounces)},
+        {"bounce_spacing", std::to_string(request.bounceSpacing)},
         {"pbgi_version", request.pbgiVersion},
     };
     // Without bounces the sorted stream goes straight into the output tree. With K bounces it

@@ -27,6 +27,7 @@
 
 #include <absl/status/statusor.h>
 
+#include "core/bake/surfel_bounce.h"
 #include "core/bake/surfel_sampler.h"
 #include "core/bake/surfel_shading.h"
 #include "core/pbgi/external_sort.h"
@@ -47,6 +48,7 @@ struct FrameBakeRequest {
   int bounces = 0;           // indirect bounces gathered over the tree itself
   CutOptions bounceCut;      // how those bounces gather
   bool bounceTail = true;    // estimate the bounces past the last (see above)
+  int bounceSpacing = kBounceReceiverSpacing;  // surfels a bounce record stands for (1: each its own)
   int lightSamples = 16;     // per surfel, for direct light
   int threads = 0;           // 0: all cores
   TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes, wavelet error

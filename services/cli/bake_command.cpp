@@ -22,6 +22,7 @@ struct BakeOptions {
   std::optional<uint64_t> points;
   std::string memBudget = "1G";
   std::optional<int> bounces;
+  int bounceSpacing = kBounceReceiverSpacing;
   int lightSamples = 16;
   int threads = 0;
   int leafSize = kDefaultLeafSize;
@@ -76,6 +77,7 @@ int runBake(const BakeOptions& o) {
     request.bounceCut = *cut;
   }
   request.bounceTail = !o.noTail;
+  request.bounceSpacing = o.bounceSpacing;
   request.lightSamples = o.lightSamples;
   request.threads = o.threads;
   request.tempDir = o.tempDir;
@@ -168,6 +170,12 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
                   "Gather preset for the bounces: draft, default, high (default: the shot's "
                   "bake_quality)")
       ->check(CLI::IsMember({"draft", "default", "high"}));
+  cmd->add_option("--bounce-spacing", options->bounceSpacing,
+                  fmt::format("Surfels a bounce gather stands for: the bounces gather at one "
+                              "surfel of each patch of about this many and the rest interpolate "
+                              "(1: every surfel gathers; default: {})",
+                              kBounceReceiverSpacing))
+      ->check(CLI::Range(1, kMaxBounceSpacing));
   cmd->add_flag("--no-tail", options->noTail,
                "Leave out the light of the bounces past the last instead of estimating it");
   cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")

@@ -208,7 +208,7 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
     }
   }
   for (const char* preset : {"draft", "default", "high"}) {
-    SurfelBouncer bouncer(*cutPreset(preset));
+    SurfelBouncer bouncer(*cutPreset(preset), /*receiverSpacing=*/1);
     std::vector<SurfelIrradiance> e(picked.size());
     const size_t groupSize = run;
     std::vector<uint64_t> keys((picked.size() + groupSize - 1) / groupSize);

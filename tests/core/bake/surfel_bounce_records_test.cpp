@@ -1,0 +1,116 @@
+// The bake's bounce records (SurfelBouncer with receiverSpacing > 1): a record stands for a
+// patch of surfels on one surface, and no surfel reads light from a surface facing another way.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "core/bake/surfel_bounce.h"
+#include "core/bake/surfel_sampler.h"
+#include "core/bake/surfel_shading.h"
+#include "tests/core/render/test_scenes.h"
+#include "tests/support/memory_tree.h"
+
+namespace pbgi {
+namespace {
+
+// A closed unit box from (x0, 0, 0) to (x0 + 1, 1, 1).
+void addClosedBox(SceneBuilder& b, float x0, uint32_t material) {
+  const float x1 = x0 + 1.0f;
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 0, 1}, {1, 0, 0}, material));  // floor
+  b.addMesh(testing::makeQuadMesh({x0, 1, 0}, {1, 0, 0}, {0, 0, 1}, material));  // ceiling
+  b.addMesh(testing::makeQuadMesh({x0, 0, 1}, {0, 1, 0}, {1, 0, 0}, material));  // back
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {1, 0, 0}, {0, 1, 0}, material));  // front
+  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 1, 0}, {0, 0, 1}, material));  // x0 wall
+  b.addMesh(testing::makeQuadMesh({x1, 0, 0}, {0, 0, 1}, {0, 1, 0}, material));  // x1 wall
+}
+
+float luminance(const Rgb& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
+// Two closed rooms either side of a wall 1 cm thick, a light in one. The wall's two faces
+// share the records' grid cells and face opposite ways; so do each face and the side of the
+// surfels beside it that looks into the wall.
+TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
+  SceneBuilder b;
+  Material white;
+  white.albedo = Rgb(0.8f);
+  const uint32_t w = b.addMaterial(white);
+  addClosedBox(b, 0.0f, w);   // dark
+  addClosedBox(b, 1.01f, w);  // lit
+  LightDesc light;
+  light.type = LightType::kQuad;
+  light.corner = {1.61f, 0.999f, 0.4f};
+  light.edgeU = {0.0f, 0.0f, 0.2f};
+  light.edgeV = {-0.2f, 0.0f, 0.0f};
+  light.radiance = Rgb(20.0f);
+  b.addLight(light);
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = 20000;
+  auto surfels = collectSurfels(**scene, sampling);
+  ASSERT_TRUE(surfels.ok()) << surfels.status();
+  shadeSurfelsDirect(**scene, *surfels, 0, {});
+  auto tree = testing::memoryTree(*surfels);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+
+  const size_t n = surfels->size();
+  const size_t groupSize = 4096, groups = (n + groupSize - 1) / groupSize;
+  std::vector<uint64_t> keys(groups);
+  for (size_t g = 0; g < groups; ++g) keys[g] = g;
+  const auto bounce = [&](int spacing, CutStats* stats) {
+    std::vector<SurfelIrradiance> e(n);
+    SurfelBouncer bouncer(CutOptions{}, spacing);
+    EXPECT_TRUE(bouncer.gather(**tree, **scene, *surfels, groupSize, keys, 2, e, stats).ok());
+    return e;
+  };
+  CutStats everyStats, recordStats;
+  const std::vector<SurfelIrradiance> every = bounce(1, &everyStats);
+  const std::vector<SurfelIrradiance> records = bounce(kBounceReceiverSpacing, &recordStats);
+  EXPECT_EQ(everyStats.receivers, 2 * n);
+  const double perRecord =
+      2.0 * static_cast<double>(n) / static_cast<double>(recordStats.receivers);
+  std::printf("[ measured ] %zu surfels, %.1f a record\n", n, perRecord);
+  EXPECT_GT(perRecord, kBounceReceiverSpacing / 2.0);
+
+  // The dark room, and every side that looks into the wall or out of the rooms, stays black
+  // as each surfel's own gather leaves it; the lit room's sides read what theirs gather.
+  double litEvery = 0.0, litRecords = 0.0;
+  std::vector<float> differences;
+  for (size_t i = 0; i < n; ++i) {
+    const Surfel& s = (*surfels)[i];
+    const bool litRoom = s.position.x > 1.005f;
+    // The side facing into the lit room: towards its centre.
+    const bool frontInside = dot(Vec3f(1.51f, 0.5f, 0.5f) - s.position, s.normal) > 0.0f;
+    const Rgb& e1 = frontInside ? every[i].front : every[i].back;
+    const Rgb& eR = frontInside ? records[i].front : records[i].back;
+    const Rgb& o1 = frontInside ? every[i].back : every[i].front;
+    const Rgb& oR = frontInside ? records[i].back : records[i].front;
+    ASSERT_TRUE(isBlack(o1)) << "surfel " << i;
+    ASSERT_TRUE(isBlack(oR)) << "surfel " << i << " at " << s.position.x << ", " << s.position.y
+                             << ", " << s.position.z << " reads light from outside its room";
+    if (!litRoom) {
+      ASSERT_TRUE(isBlack(e1) && isBlack(eR)) << "surfel " << i << " in the dark room";
+      continue;
+    }
+    litEvery += luminance(e1);
+    litRecords += luminance(eR);
+    differences.push_back(std::abs(luminance(eR) - luminance(e1)) /
+                          std::max(luminance(e1), 1e-6f));
+  }
+  std::sort(differences.begin(), differences.end());
+  const float median = differences[differences.size() / 2];
+  const float p90 = differences[differences.size() * 9 / 10];
+  std::printf("[ measured ] lit room: mean irradiance %.5g (records) / %.5g (every surfel), "
+              "per surfel |difference| median %.3g, 90th percentile %.3g\n",
+              litRecords, litEvery, median, p90);
+  EXPECT_NEAR(litRecords / litEvery, 1.0, 0.02);
+  EXPECT_LT(median, 0.05f);
+  EXPECT_LT(p90, 0.15f);
+}
+
+}  // namespace
+}  // namespace pbgi
