@@ -46,7 +46,7 @@ struct BounceRequest {
   SurfelSink added;                // receives the light this bounce adds; empty: not needed
   const Scene* scene = nullptr;
   CutOptions cut;                  // bounceCutOptions(first, bounce)
-  int receiverSpacing = kBounceReceiverSpacing;  // surfels a record stands for (SurfelBouncer)
+  int receiverSpacing = kBounceReceiverSpacing;  // bounceReceiverSpacing(first, bounce)
   uint64_t seed = 0;
   int frame = 0;
   int bounce = 1;

@@ -23,6 +23,12 @@ CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
   return o;
 }
 
+int bounceReceiverSpacing(int first, int bounce) {
+  if (bounce <= 1 || first <= 1) return first;
+  return std::min(kMaxBounceSpacing,
+                  static_cast<int>(static_cast<float>(first) * kLaterBounceCoarsening));
+}
+
 SurfelBouncer::SurfelBouncer(const CutOptions& options, int receiverSpacing)
     : options_(options), receiverSpacing_(receiverSpacing) {
   PBGI_CHECK_GE(receiverSpacing, 1);

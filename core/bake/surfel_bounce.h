@@ -53,6 +53,10 @@ struct SurfelIrradiance {
 // Surfels a bounce record stands for, about (1: every surfel gathers its own light).
 inline constexpr int kBounceReceiverSpacing = 16;
 inline constexpr int kMaxBounceSpacing = 1024;
+// Bounce `bounce`'s spacing, given the first's: light reflected twice or more is smoother, so
+// later bounces' records stand for kLaterBounceCoarsening times as many surfels (up to
+// kMaxBounceSpacing; a spacing of 1 stays 1, every surfel its own).
+int bounceReceiverSpacing(int first, int bounce);
 // The least cosine between the normals of surfels of one patch, and of a surfel and a record
 // it reads (about 18 degrees).
 inline constexpr float kPatchNormalCos = 0.95f;

@@ -9,7 +9,9 @@
 //                             (blue), averaged over 8x8 blocks (the mean ratio is printed)
 // and prints, for the path tracer at 256 and 1024 spp (when swept), the render time each PBGI
 // gather and preset needs to reach the same relMSE (log-log interpolated along its spp sweep)
-// and the equal-error speed-up, without and with the bake's time. The PBGI sweep covers both
+// and the equal-error speed-up, without and with the bake's time; and, for each PBGI run, the
+// render time the path tracer needs to reach its relMSE (log-log interpolated along the path
+// tracer's sweep) and that speed-up. The PBGI sweep covers both
 // gathers (--gathers bidirectional,per-pixel) at every preset.
 //
 // Then the page cache: each gather's default preset rendered from the same tree (on a frame
@@ -24,6 +26,11 @@
 //        [--out DIR] [--cache DIR] [--frame N] [--reference-spp 4096] [--pt-spp 4,16,...]
 //        [--pbgi-spp 1,4,...] [--gathers bidirectional,per-pixel] [--qualities draft,default,high]
 //        [--threads N] [--no-cache-runs] [--bake-points N] [--bake-bounces K] [--set KEY=VALUE]
+//        [--resolution W,H] [--crop X0,Y0,X1,Y1]
+//
+// --crop renders every run, the reference's too, on those pixels alone (a production
+// frame's central crop: its error measured where a full frame's would be, at a fraction of
+// the reference's cost); the bake still covers the whole frame, and is timed on its own.
 
 #include <algorithm>
 #include <cmath>
@@ -68,6 +75,8 @@ struct Args {
   int bakeBounces = -1;     // -1: the shot's bake_bounces
   bool cacheRuns = true;
   std::vector<std::string> set;  // integrator parameters for every PBGI run, KEY=VALUE
+  std::vector<int> resolution;   // W,H in place of the shot's
+  std::vector<int> crop;         // X0,Y0,X1,Y1: every run renders (and is measured on) this
 };
 
 struct Run {
@@ -152,7 +161,9 @@ double writeBiasMap(const Image& indirect, const Image& refIndirect, const Image
 
 absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& args) {
   const fs::path dir = args.cache.empty() ? fs::path(args.out) / "reference" : fs::path(args.cache);
-  return testing::cachedPathReference(shot, frame, args.referenceSpp, dir, args.threads);
+  std::vector<TileRect> regions;
+  if (args.crop.size() == 4) regions.push_back({args.crop[0], args.crop[1], args.crop[2], args.crop[3]});
+  return testing::cachedPathReference(shot, frame, args.referenceSpp, dir, args.threads, regions);
 }
 
 absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, const Image& ref,
@@ -225,6 +236,23 @@ std::optional<double> timeToReach(const std::vector<Run>& series, double error) 
 
 void printSpeedups(const std::vector<Run>& path, const std::vector<std::vector<Run>>& pbgi,
                    double bakeSeconds) {
+  // Each PBGI run at its own error: the time the path tracer's sweep needs to reach it.
+  std::printf("equal error with each PBGI run (the path tracer's time interpolated along its "
+              "sweep):\n");
+  for (const auto& series : pbgi) {
+    for (const Run& r : series) {
+      const auto t = timeToReach(path, r.rgb.relMse);
+      if (!t) {
+        std::printf("  %-36s relMSE %.3e: the path tracer's sweep does not reach it\n",
+                    r.name().c_str(), r.rgb.relMse);
+        continue;
+      }
+      std::printf("  %-36s relMSE %.3e in %.2f s; the path tracer %.2f s: speed-up %.2fx "
+                  "(%.2fx counting the %.1f s bake)\n",
+                  r.name().c_str(), r.rgb.relMse, r.renderSeconds, *t, *t / r.renderSeconds,
+                  *t / (r.renderSeconds + bakeSeconds), bakeSeconds);
+    }
+  }
   for (const int spp : {256, 1024}) {
     auto it = std::find_if(path.begin(), path.end(), [&](const Run& r) { return r.spp == spp; });
     if (it == path.end()) continue;
@@ -267,6 +295,7 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gath
               gather.c_str(), shot.width, shot.height, kCacheRunSpp, treePath.c_str(),
               *total / 1048576.0);
   request.treePath = treePath;
+  request.regions.clear();  // the whole (scaled) frame
   request.integrator = "pbgi";
   testing::setParam(request.params, "gather", gather);
   testing::setParam(request.params, "quality", "default");
@@ -318,6 +347,21 @@ int runBench(const Args& args) {
     if (eq == std::string::npos) return std::fprintf(stderr, "--set %s: expected KEY=VALUE\n", line.c_str()), 2;
     testing::setParam(shot->render.params, line.substr(0, eq), line.substr(eq + 1));
   }
+  if (!args.resolution.empty()) {
+    if (args.resolution.size() != 2 || args.resolution[0] < 1 || args.resolution[1] < 1) {
+      return std::fprintf(stderr, "--resolution: expected W,H\n"), 2;
+    }
+    shot->width = args.resolution[0];
+    shot->height = args.resolution[1];
+  }
+  if (!args.crop.empty() && args.crop.size() != 4) {
+    return std::fprintf(stderr, "--crop: expected X0,Y0,X1,Y1\n"), 2;
+  }
+  std::printf("%dx%d%s\n", shot->width, shot->height,
+              args.crop.empty() ? ""
+                                : fmt::format(", measured on the crop [{}, {}) x [{}, {})",
+                                              args.crop[0], args.crop[2], args.crop[1],
+                                              args.crop[3]).c_str());
   std::printf("bake: %s", shot->render.params.toString().c_str());
   const int frame = args.frame.value_or(shot->firstFrame);
   std::error_code ec;
@@ -329,6 +373,7 @@ int runBench(const Args& args) {
   base.frame = frame;
   base.threads = args.threads;
   base.bakeDir = (fs::path(args.out) / "bake").string();
+  if (args.crop.size() == 4) base.regions = {{args.crop[0], args.crop[1], args.crop[2], args.crop[3]}};
 
   std::vector<Run> path;
   for (const int spp : args.ptSpp) {
@@ -455,6 +500,12 @@ int main(int argc, char** argv) {
   bool noCache = false;
   app.add_flag("--no-cache-runs", noCache, "Skip the page cache runs");
   app.add_option("--set", args.set, "An integrator parameter for every PBGI run, KEY=VALUE");
+  app.add_option("--resolution", args.resolution, "W,H in place of the shot's resolution")
+      ->delimiter(',');
+  app.add_option("--crop", args.crop,
+                 "X0,Y0,X1,Y1: render and measure only these pixels of the frame (half-open, "
+                 "origin top left; the bake still covers the whole frame)")
+      ->delimiter(',');
   CLI11_PARSE(app, argc, argv);
   args.cacheRuns = !noCache;
   return pbgi::runBench(args);

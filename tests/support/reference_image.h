@@ -36,9 +36,13 @@ inline double stageSeconds(const std::vector<StageTime>& stages, const std::stri
 // before, else rendered (on `threads`, 0: all) and kept there.
 inline absl::StatusOr<Image> cachedPathReference(const ShotDesc& shot, int frame, int spp,
                                                  const std::filesystem::path& cacheDir,
-                                                 int threads) {
-  const std::string key = fmt::format("{}|frame={}|spp={}|size={}x{}|version={}", shot.source,
-                                      frame, spp, shot.width, shot.height, PBGI_VERSION);
+                                                 int threads,
+                                                 const std::vector<TileRect>& regions = {}) {
+  std::string regionKey;
+  for (const TileRect& r : regions) regionKey += fmt::format(" {},{},{},{}", r.x0, r.y0, r.x1, r.y1);
+  const std::string key = fmt::format("{}|frame={}|spp={}|size={}x{}|regions={}|version={}",
+                                      shot.source, frame, spp, shot.width, shot.height, regionKey,
+                                      PBGI_VERSION);
   const std::string path =
       (cacheDir / fmt::format("{}.{:04d}.{}x{}.path{}.{:016x}.exr", shot.name, frame, shot.width,
                               shot.height, spp, XXH3_64bits(key.data(), key.size())))
@@ -57,6 +61,7 @@ inline absl::StatusOr<Image> cachedPathReference(const ShotDesc& shot, int frame
   request.integrator = "path";
   request.spp = spp;
   request.threads = threads;
+  request.regions = regions;
   request.outPath = path;
   request.preview = false;
   auto report = renderShotFrame(shot, request);

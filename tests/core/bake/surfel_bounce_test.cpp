@@ -30,6 +30,14 @@ TEST(SurfelBounce, LaterBouncesGatherAtCoarserSolidAnglesThanTheFirst) {
   EXPECT_EQ(bounceCutOptions(exact, 3), exact);
 }
 
+TEST(SurfelBounce, LaterBouncesStandForMoreSurfelsARecord) {
+  EXPECT_EQ(bounceReceiverSpacing(16, 1), 16);
+  EXPECT_EQ(bounceReceiverSpacing(16, 2), 64);
+  EXPECT_EQ(bounceReceiverSpacing(16, 5), 64);
+  EXPECT_EQ(bounceReceiverSpacing(1, 3), 1);  // every surfel its own, in every bounce
+  EXPECT_EQ(bounceReceiverSpacing(kMaxBounceSpacing, 2), kMaxBounceSpacing);
+}
+
 TEST(SurfelBounce, OnlyDiffuseSurfelsReflectAndEachSideReflectsItsOwnLight) {
   Surfel s;
   s.radius = 0.5f;
