@@ -403,5 +403,46 @@ TEST_F(PbgiRender, RecordsBetweenPixelsStayOnTheirSurfaceAndOnTheirBlock) {
       static_cast<unsigned long long>(spaced.counters[kGathers]), creases, count[1], flat);
 }
 
+// A glass sphere in front of a lit wall (the glass caustic sample): PBGI path traces what it
+// sees through the glass (a refractive first hit is no receiver), so over the sphere's pixels
+// it shows what the path tracer shows.
+TEST_F(PbgiRender, GlassShowsTheWallBehindItAsThePathTracerDoes) {
+  auto shot = loadShotFile(
+      (testing::sourceDir() / "config/scenes/glass-caustic/caustic.shot.toml").string());
+  ASSERT_TRUE(shot.ok()) << shot.status();
+  shot_ = *shot;
+  shot_.width = 64;
+  shot_.height = 48;
+  const std::string tree = bake(50000, 1);
+  ASSERT_FALSE(tree.empty());
+  FrameRenderRequest p = request("glass", tree, "bidirectional");
+  p.spp = 64;
+  const Image pbgiImage = render(p);
+  FrameRenderRequest path = request("glass-path", "");
+  path.integrator = "path";
+  path.spp = 64;
+  const Image pathImage = render(path);
+  ASSERT_EQ(pbgiImage.width(), pathImage.width());
+  // The sphere's pixels: the glass's albedo AOV is white; the walls' and floor's are grey.
+  const int albedo = pathImage.channelIndex("albedo.R");
+  ASSERT_GE(albedo, 0);
+  double pbgiSum = 0.0, pathSum = 0.0;
+  int pixels = 0;
+  for (int y = 0; y < pathImage.height(); ++y) {
+    for (int x = 0; x < pathImage.width(); ++x) {
+      if (pathImage.at(x, y, albedo) < 0.99f) continue;
+      ++pixels;
+      for (int c = 0; c < 3; ++c) {
+        pbgiSum += pbgiImage.at(x, y, c);
+        pathSum += pathImage.at(x, y, c);
+      }
+    }
+  }
+  std::printf("[ measured ] glass sphere: %d pixels, mean %.5f (PBGI) / %.5f (path)\n", pixels,
+              pbgiSum / (3.0 * pixels), pathSum / (3.0 * pixels));
+  ASSERT_GT(pixels, 100);
+  EXPECT_NEAR(pbgiSum / pathSum, 1.0, 0.05);
+}
+
 }  // namespace
 }  // namespace pbgi
