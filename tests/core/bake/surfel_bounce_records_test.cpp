@@ -17,43 +17,17 @@
 namespace pbgi {
 namespace {
 
-// A closed unit box from (x0, 0, 0) to (x0 + 1, 1, 1).
-void addClosedBox(SceneBuilder& b, float x0, uint32_t material) {
-  const float x1 = x0 + 1.0f;
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 0, 1}, {1, 0, 0}, material));  // floor
-  b.addMesh(testing::makeQuadMesh({x0, 1, 0}, {1, 0, 0}, {0, 0, 1}, material));  // ceiling
-  b.addMesh(testing::makeQuadMesh({x0, 0, 1}, {0, 1, 0}, {1, 0, 0}, material));  // back
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {1, 0, 0}, {0, 1, 0}, material));  // front
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 1, 0}, {0, 0, 1}, material));  // x0 wall
-  b.addMesh(testing::makeQuadMesh({x1, 0, 0}, {0, 0, 1}, {0, 1, 0}, material));  // x1 wall
-}
-
-float luminance(const Rgb& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
-
 // Two closed rooms either side of a wall 1 cm thick, a light in one. The wall's two faces
 // share the records' grid cells and face opposite ways; so do each face and the side of the
 // surfels beside it that looks into the wall.
 TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
-  SceneBuilder b;
-  Material white;
-  white.albedo = Rgb(0.8f);
-  const uint32_t w = b.addMaterial(white);
-  addClosedBox(b, 0.0f, w);   // dark
-  addClosedBox(b, 1.01f, w);  // lit
-  LightDesc light;
-  light.type = LightType::kQuad;
-  light.corner = {1.61f, 0.999f, 0.4f};
-  light.edgeU = {0.0f, 0.0f, 0.2f};
-  light.edgeV = {-0.2f, 0.0f, 0.0f};
-  light.radiance = Rgb(20.0f);
-  b.addLight(light);
-  auto scene = b.build();
-  ASSERT_TRUE(scene.ok()) << scene.status();
+  auto scene = testing::makeTwoRoomsScene();
+  ASSERT_NE(scene, nullptr);
   SurfelSamplingOptions sampling;
   sampling.targetCount = 20000;
-  auto surfels = collectSurfels(**scene, sampling);
+  auto surfels = collectSurfels(*scene, sampling);
   ASSERT_TRUE(surfels.ok()) << surfels.status();
-  shadeSurfelsDirect(**scene, *surfels, 0, {});
+  shadeSurfelsDirect(*scene, *surfels, 0, {});
   auto tree = testing::memoryTree(*surfels);
   ASSERT_TRUE(tree.ok()) << tree.status();
 
@@ -64,7 +38,7 @@ TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
   const auto bounce = [&](int spacing, CutStats* stats) {
     std::vector<SurfelIrradiance> e(n);
     SurfelBouncer bouncer(CutOptions{}, spacing);
-    EXPECT_TRUE(bouncer.gather(**tree, **scene, *surfels, groupSize, keys, 2, e, stats).ok());
+    EXPECT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, e, stats).ok());
     return e;
   };
   CutStats everyStats, recordStats;

@@ -58,17 +58,6 @@ BoxCase boxCase(uint64_t surfelCount, int receiverCount) {
   return c;
 }
 
-// A closed unit box from (x0, 0, 0) to (x0 + 1, 1, 1).
-void addClosedBox(SceneBuilder& b, float x0, uint32_t material) {
-  const float x1 = x0 + 1.0f;
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 0, 1}, {1, 0, 0}, material));  // floor
-  b.addMesh(testing::makeQuadMesh({x0, 1, 0}, {1, 0, 0}, {0, 0, 1}, material));  // ceiling
-  b.addMesh(testing::makeQuadMesh({x0, 0, 1}, {0, 1, 0}, {1, 0, 0}, material));  // back
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {1, 0, 0}, {0, 1, 0}, material));  // front
-  b.addMesh(testing::makeQuadMesh({x0, 0, 0}, {0, 1, 0}, {0, 0, 1}, material));  // x0 wall
-  b.addMesh(testing::makeQuadMesh({x1, 0, 0}, {0, 0, 1}, {0, 1, 0}, material));  // x1 wall
-}
-
 CutOptions zeroThresholds() {
   CutOptions o;
   o.lightSolidAngle = 0.0f;
@@ -159,7 +148,7 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
   SceneBuilder b;
   Material white;
   white.albedo = Rgb(0.5f);
-  addClosedBox(b, 0.0f, b.addMaterial(white));
+  testing::addClosedBox(b, 0.0f, b.addMaterial(white));
   auto scene = b.build();
   ASSERT_TRUE(scene.ok()) << scene.status();
   auto surfels = surfelsOf(**scene, 24000);
@@ -210,24 +199,11 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
 // deposited unseen, with no shadow ray ("nothing to hide"), into the dark room and into the
 // sides of surfels that face into the wall (surfels gather on both sides).
 TEST(BidirectionalCut, NoLightThroughAThinWall) {
-  SceneBuilder b;
-  Material white;
-  white.albedo = Rgb(0.8f);
-  const uint32_t w = b.addMaterial(white);
-  addClosedBox(b, 0.0f, w);    // dark
-  addClosedBox(b, 1.01f, w);   // lit
-  LightDesc light;
-  light.type = LightType::kQuad;
-  light.corner = {1.61f, 0.999f, 0.4f};
-  light.edgeU = {0.0f, 0.0f, 0.2f};
-  light.edgeV = {-0.2f, 0.0f, 0.0f};
-  light.radiance = Rgb(20.0f);
-  b.addLight(light);
-  auto scene = b.build();
-  ASSERT_TRUE(scene.ok()) << scene.status();
-  auto surfels = surfelsOf(**scene, 20000);
+  auto scene = testing::makeTwoRoomsScene();
+  ASSERT_NE(scene, nullptr);
+  auto surfels = surfelsOf(*scene, 20000);
   ASSERT_TRUE(surfels.ok()) << surfels.status();
-  shadeSurfelsDirect(**scene, *surfels, 0, {});
+  shadeSurfelsDirect(*scene, *surfels, 0, {});
   for (Surfel& s : *surfels) facingBrighterSide(s);
   auto tree = memoryTree(*surfels);
   ASSERT_TRUE(tree.ok()) << tree.status();
@@ -244,7 +220,7 @@ TEST(BidirectionalCut, NoLightThroughAThinWall) {
     std::vector<Rgb> out(receivers.size());
     BidirectionalCut cut(CutOptions{});
     CutStats stats;
-    EXPECT_TRUE(cut.irradiance(**tree, **scene, receivers, 9, out, &stats).ok());
+    EXPECT_TRUE(cut.irradiance(**tree, *scene, receivers, 9, out, &stats).ok());
     return meanLuminance(out);
   };
   const double litFloor = gathered(lit), darkFloor = gathered(dark), inWall = gathered(inside);

@@ -83,4 +83,35 @@ inline std::unique_ptr<Scene> makeBoxScene() {
   return scene.ok() ? std::move(*scene) : nullptr;
 }
 
+// A closed unit box from (x0, 0, 0) to (x0 + 1, 1, 1).
+inline void addClosedBox(SceneBuilder& b, float x0, uint32_t material) {
+  const float x1 = x0 + 1.0f;
+  b.addMesh(makeQuadMesh({x0, 0, 0}, {0, 0, 1}, {1, 0, 0}, material));  // floor
+  b.addMesh(makeQuadMesh({x0, 1, 0}, {1, 0, 0}, {0, 0, 1}, material));  // ceiling
+  b.addMesh(makeQuadMesh({x0, 0, 1}, {0, 1, 0}, {1, 0, 0}, material));  // back
+  b.addMesh(makeQuadMesh({x0, 0, 0}, {1, 0, 0}, {0, 1, 0}, material));  // front
+  b.addMesh(makeQuadMesh({x0, 0, 0}, {0, 1, 0}, {0, 0, 1}, material));  // x0 wall
+  b.addMesh(makeQuadMesh({x1, 0, 0}, {0, 0, 1}, {0, 1, 0}, material));  // x1 wall
+}
+
+// Two closed white rooms either side of a wall 1 cm thick (x from 1 to 1.01), a quad light
+// under the ceiling of the one at x > 1.01; the other is dark.
+inline std::unique_ptr<Scene> makeTwoRoomsScene() {
+  SceneBuilder b;
+  Material white;
+  white.albedo = Rgb(0.8f);
+  const uint32_t w = b.addMaterial(white);
+  addClosedBox(b, 0.0f, w);   // dark
+  addClosedBox(b, 1.01f, w);  // lit
+  LightDesc light;
+  light.type = LightType::kQuad;
+  light.corner = {1.61f, 0.999f, 0.4f};
+  light.edgeU = {0.0f, 0.0f, 0.2f};
+  light.edgeV = {-0.2f, 0.0f, 0.0f};
+  light.radiance = Rgb(20.0f);
+  b.addLight(light);
+  auto scene = b.build();
+  return scene.ok() ? std::move(*scene) : nullptr;
+}
+
 }  // namespace pbgi::testing
