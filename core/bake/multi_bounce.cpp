@@ -87,8 +87,13 @@ absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats)
     for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
       keys.push_back(hashKeys(request.seed, request.frame, request.bounce, done + first));
     }
+    // After the first bounce, sides that gathered nothing so far are shut.
     if (auto s = bouncer.gather(*request.from, *request.scene, chunk, kBounceChunkSurfels, keys,
-                                request.groupsTogether, added, stats);
+                                request.groupsTogether, added, stats,
+                                request.previous != nullptr
+                                    ? std::span<const SurfelIrradiance>(previous)
+                                    : std::span<const SurfelIrradiance>(),
+                                request.shutSides);
         !s.ok()) {
       return s;
     }

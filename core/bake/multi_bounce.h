@@ -53,6 +53,7 @@ struct BounceRequest {
   uint64_t surfels = 0;            // in the spill
   size_t groupsTogether = 1;       // groups whose cuts sweep the tree together
   std::function<void(uint64_t done, uint64_t total)> progress;
+  uint64_t* shutSides = nullptr;   // adds the records' sides not gathered: shut (SurfelBouncer)
 };
 
 // One bounce for every surfel. Returns the power it reflects (what its light adds). Errors:

@@ -113,7 +113,7 @@ void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const 
     if (own == Patches::kNoPatch) continue;
     const size_t i = first + at;
     if (patches.recordOf[own] == i) {
-      irradiance[i] = {front.gathered[own], back.gathered[own]};
+      irradiance[i] = {front.byRecord[own], back.byRecord[own]};
       continue;
     }
     const Surfel& s = surfels[i];
@@ -135,8 +135,8 @@ void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const 
             // The surfel's own patch always counts: it joined it by the same tests.
             if (k == own) w = std::max(w, 1e-3f);
             if (!(w > 0.0f)) continue;
-            sum.front += front.gathered[k] * w;
-            sum.back += back.gathered[k] * w;
+            sum.front += front.byRecord[k] * w;
+            sum.back += back.byRecord[k] * w;
             total += w;
           }
         }
@@ -149,9 +149,12 @@ void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const 
 absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
                                    std::span<const Surfel> surfels, size_t groupSize,
                                    std::span<const uint64_t> keys, size_t groupsTogether,
-                                   std::span<SurfelIrradiance> irradiance, CutStats* stats) {
+                                   std::span<SurfelIrradiance> irradiance, CutStats* stats,
+                                   std::span<const SurfelIrradiance> previous,
+                                   uint64_t* shutSides) {
   PBGI_CHECK_GT(groupSize, size_t{0});
   PBGI_CHECK_EQ(irradiance.size(), surfels.size());
+  PBGI_CHECK(previous.empty() || previous.size() == surfels.size());
   const size_t groups = (surfels.size() + groupSize - 1) / groupSize;
   PBGI_CHECK_EQ(keys.size(), groups);
   std::fill(irradiance.begin(), irradiance.end(), SurfelIrradiance{});
@@ -176,12 +179,19 @@ absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
       for (const int side : {0, 1}) {
         Side& c = sides_[2 * g + side];
         c.receivers.clear();
-        for (const uint32_t i : patches.recordOf) {
+        c.recordOf.clear();
+        for (uint32_t k = 0; k < patches.recordOf.size(); ++k) {
+          const uint32_t i = patches.recordOf[k];
+          if (!previous.empty() && isBlack(side == 0 ? previous[i].front : previous[i].back)) {
+            if (shutSides != nullptr) ++*shutSides;
+            continue;
+          }
           const Surfel& s = surfels[i];
           // A surfel lies on its triangle: its shadow rays leave from its centre along the
           // side's normal.
           const Vec3f n = side == 0 ? s.normal : -s.normal;
           c.receivers.push_back({.p = s.position, .n = n, .ng = n});
+          c.recordOf.push_back(k);
         }
         c.gathered.resize(c.receivers.size());
         cuts.push_back(&c.cut);
@@ -190,6 +200,13 @@ absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
       }
     }
     if (absl::Status s = cutTogether(tree, scene, cuts, jobs, stats); !s.ok()) return s;
+    for (size_t k = 2 * batch; k < 2 * batchEnd; ++k) {
+      // By record, black where shut.
+      Side& c = sides_[k];
+      std::vector<Rgb>& byRecord = c.byRecord;
+      byRecord.assign(patches_[k / 2 - batch].recordOf.size(), Rgb(0.0f));
+      for (size_t r = 0; r < c.recordOf.size(); ++r) byRecord[c.recordOf[r]] = c.gathered[r];
+    }
     for (size_t g = batch; g < batchEnd; ++g) {
       spread(surfels, g * groupSize, patches_[g - batch], sides_[2 * g], sides_[2 * g + 1],
              irradiance);

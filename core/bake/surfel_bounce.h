@@ -76,16 +76,24 @@ class SurfelBouncer {
   // together (cutTogether, in parallel), so that a small page cache loads each page once per
   // such batch; each cut in flight holds its waiting pairs (up to about a million for 4,096
   // receivers), so the batch is what bounds the bounce's memory.
+  //
+  // Shut sides. `previous`, when given (bounces after the first), is each surfel's irradiance
+  // so far: a record whose side gathered exactly nothing in every bounce before sees no surface
+  // that light reached (the inside of a closed object, a wall's far face), and gathers nothing
+  // now either; its cut is not run (counted in shutSides).
   absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
                       size_t groupSize, std::span<const uint64_t> keys, size_t groupsTogether,
-                      std::span<SurfelIrradiance> irradiance, CutStats* stats);
+                      std::span<SurfelIrradiance> irradiance, CutStats* stats,
+                      std::span<const SurfelIrradiance> previous = {}, uint64_t* shutSides = nullptr);
 
  private:
   struct Side {
     explicit Side(const CutOptions& options) : cut(options) {}
     BidirectionalCut cut;
-    std::vector<CutReceiver> receivers;  // the group's records, on this side
-    std::vector<Rgb> gathered;
+    std::vector<CutReceiver> receivers;  // the group's records that are not shut, on this side
+    std::vector<uint32_t> recordOf;      // receiver -> its record (patch)
+    std::vector<Rgb> gathered;           // by receiver
+    std::vector<Rgb> byRecord;           // by record (black for shut ones)
   };
   // A group's patches: patch k's record is surfel recordOf[k], in grid cell cellOf[k];
   // surfel i of the group (first + i) is in patch patchOf[i] (kNoPatch: it reflects nothing).

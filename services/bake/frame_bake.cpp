@@ -38,7 +38,7 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
 // spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
 // glossy surfels reflect).
-constexpr int kBounceRevision = 10;
+constexpr int kBounceRevision = 11;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -161,6 +161,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   }
   bounce.from = &cache;
   bounce.receiverSpacing = bounceReceiverSpacing(request.bounceSpacing, bounce.bounce);
+  bounce.shutSides = &report->bounceShutSides;
   // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
   // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
   // but hold their cuts' waiting pairs, probes and receiver trees at once: about 30 MB a

@@ -74,6 +74,7 @@ struct FrameBakeReport {
   // The bounces' page caches (a quarter of the budget each): loads against the pages of the
   // trees they read.
   uint64_t bounceCacheHits = 0, bounceCacheLoads = 0, bounceTreePages = 0;
+  uint64_t bounceShutSides = 0;  // records' sides the later bounces did not gather: shut
   std::vector<Rgb> bouncePower;  // reflected power of the direct light (0), then each bounce
   Rgb tail{0.0f};      // r / (1 - r) per channel: the last bounce's light scaled by 1 + this
   uint64_t treeFileBytes = 0;

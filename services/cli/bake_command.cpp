@@ -135,6 +135,9 @@ int runBake(const BakeOptions& o) {
                 static_cast<unsigned long long>(report->bounceCacheLoads),
                 static_cast<unsigned long long>(report->bounceTreePages),
                 static_cast<unsigned long long>(report->bounceCacheHits));
+    std::printf("    records' sides shut (nothing gathered in the bounces before): %llu, not "
+                "gathered again\n",
+                static_cast<unsigned long long>(report->bounceShutSides));
     std::printf("    reflected power per bounce (relative to the direct light's):");
     const Rgb& direct = report->bouncePower.front();
     for (size_t k = 1; k < report->bouncePower.size(); ++k) {

@@ -86,5 +86,56 @@ TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
   EXPECT_LT(p90, 0.15f);
 }
 
+// The same rooms, a second bounce: the sides that gathered nothing in the first (the dark
+// room, the sides facing into the walls or out of the rooms) are shut and not gathered again,
+// and the lit room gathers what it gathers with every side gathering.
+TEST(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
+  auto scene = testing::makeTwoRoomsScene();
+  ASSERT_NE(scene, nullptr);
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = 20000;
+  auto surfels = collectSurfels(*scene, sampling);
+  ASSERT_TRUE(surfels.ok()) << surfels.status();
+  shadeSurfelsDirect(*scene, *surfels, 0, {});
+  auto tree = testing::memoryTree(*surfels);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  const size_t n = surfels->size();
+  const size_t groupSize = 4096, groups = (n + groupSize - 1) / groupSize;
+  std::vector<uint64_t> keys(groups);
+  for (size_t g = 0; g < groups; ++g) keys[g] = g;
+  SurfelBouncer bouncer(CutOptions{});
+  std::vector<SurfelIrradiance> first(n), open(n), shut(n);
+  CutStats stats;
+  ASSERT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, first, &stats).ok());
+  // The second bounce from the same tree (what it gathers does not matter here, only whom).
+  CutStats openStats, shutStats;
+  uint64_t shutSides = 0;
+  ASSERT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, open, &openStats).ok());
+  ASSERT_TRUE(bouncer
+                  .gather(**tree, *scene, *surfels, groupSize, keys, 2, shut, &shutStats, first,
+                          &shutSides)
+                  .ok());
+  std::printf("[ measured ] %llu of %llu records' sides shut; cut pairs %llu against %llu\n",
+              static_cast<unsigned long long>(shutSides),
+              static_cast<unsigned long long>(openStats.receivers),
+              static_cast<unsigned long long>(shutStats.pairs),
+              static_cast<unsigned long long>(openStats.pairs));
+  // The dark room's records (both sides) and the lit room's outward sides: over half.
+  EXPECT_GT(2 * shutSides, openStats.receivers);
+  EXPECT_EQ(shutStats.receivers + shutSides, openStats.receivers);
+  double openSum = 0.0, shutSum = 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    for (const bool front : {true, false}) {
+      const Rgb& o = front ? open[i].front : open[i].back;
+      const Rgb& s = front ? shut[i].front : shut[i].back;
+      const Rgb& f = front ? first[i].front : first[i].back;
+      if (isBlack(f)) ASSERT_TRUE(isBlack(o) && isBlack(s)) << "surfel " << i;
+      openSum += luminance(o);
+      shutSum += luminance(s);
+    }
+  }
+  EXPECT_NEAR(shutSum / openSum, 1.0, 0.01);
+}
+
 }  // namespace
 }  // namespace pbgi
