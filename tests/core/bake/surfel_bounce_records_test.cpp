@@ -17,28 +17,42 @@
 namespace pbgi {
 namespace {
 
+// The two rooms' surfels (20,000) lit directly, their tree, and the bounce's groups of 4,096
+// keyed by their index.
+class SurfelBounceRecords : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    scene = testing::makeTwoRoomsScene();
+    ASSERT_NE(scene, nullptr);
+    SurfelSamplingOptions sampling;
+    sampling.targetCount = 20000;
+    auto collected = collectSurfels(*scene, sampling);
+    ASSERT_TRUE(collected.ok()) << collected.status();
+    surfels = *std::move(collected);
+    shadeSurfelsDirect(*scene, surfels, 0, {});
+    auto built = testing::memoryTree(surfels);
+    ASSERT_TRUE(built.ok()) << built.status();
+    tree = *std::move(built);
+    n = surfels.size();
+    keys.resize((n + kGroupSize - 1) / kGroupSize);
+    for (size_t g = 0; g < keys.size(); ++g) keys[g] = g;
+  }
+  static constexpr size_t kGroupSize = 4096;
+  std::unique_ptr<Scene> scene;
+  std::vector<Surfel> surfels;
+  std::unique_ptr<testing::MemoryTreeSource> tree;
+  size_t n = 0;
+  std::vector<uint64_t> keys;
+};
+
 // Two closed rooms either side of a wall 1 cm thick, a light in one. The wall's two faces
 // share the records' grid cells and face opposite ways; so do each face and the side of the
 // surfels beside it that looks into the wall.
-TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
-  auto scene = testing::makeTwoRoomsScene();
-  ASSERT_NE(scene, nullptr);
-  SurfelSamplingOptions sampling;
-  sampling.targetCount = 20000;
-  auto surfels = collectSurfels(*scene, sampling);
-  ASSERT_TRUE(surfels.ok()) << surfels.status();
-  shadeSurfelsDirect(*scene, *surfels, 0, {});
-  auto tree = testing::memoryTree(*surfels);
-  ASSERT_TRUE(tree.ok()) << tree.status();
-
-  const size_t n = surfels->size();
-  const size_t groupSize = 4096, groups = (n + groupSize - 1) / groupSize;
-  std::vector<uint64_t> keys(groups);
-  for (size_t g = 0; g < groups; ++g) keys[g] = g;
+TEST_F(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
   const auto bounce = [&](int spacing, CutStats* stats) {
     std::vector<SurfelIrradiance> e(n);
     SurfelBouncer bouncer(CutOptions{}, spacing);
-    EXPECT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, e, stats).ok());
+    EXPECT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, e, stats).ok());
     return e;
   };
   CutStats everyStats, recordStats;
@@ -55,7 +69,7 @@ TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
   double litEvery = 0.0, litRecords = 0.0;
   std::vector<float> differences;
   for (size_t i = 0; i < n; ++i) {
-    const Surfel& s = (*surfels)[i];
+    const Surfel& s = surfels[i];
     const bool litRoom = s.position.x > 1.005f;
     // The side facing into the lit room: towards its centre.
     const bool frontInside = dot(Vec3f(1.51f, 0.5f, 0.5f) - s.position, s.normal) > 0.0f;
@@ -89,30 +103,17 @@ TEST(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
 // The same rooms, a second bounce: the sides that gathered nothing in the first (the dark
 // room, the sides facing into the walls or out of the rooms) are shut and not gathered again,
 // and the lit room gathers what it gathers with every side gathering.
-TEST(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
-  auto scene = testing::makeTwoRoomsScene();
-  ASSERT_NE(scene, nullptr);
-  SurfelSamplingOptions sampling;
-  sampling.targetCount = 20000;
-  auto surfels = collectSurfels(*scene, sampling);
-  ASSERT_TRUE(surfels.ok()) << surfels.status();
-  shadeSurfelsDirect(*scene, *surfels, 0, {});
-  auto tree = testing::memoryTree(*surfels);
-  ASSERT_TRUE(tree.ok()) << tree.status();
-  const size_t n = surfels->size();
-  const size_t groupSize = 4096, groups = (n + groupSize - 1) / groupSize;
-  std::vector<uint64_t> keys(groups);
-  for (size_t g = 0; g < groups; ++g) keys[g] = g;
+TEST_F(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
   SurfelBouncer bouncer(CutOptions{});
   std::vector<SurfelIrradiance> first(n), open(n), shut(n);
   CutStats stats;
-  ASSERT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, first, &stats).ok());
+  ASSERT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, first, &stats).ok());
   // The second bounce from the same tree (what it gathers does not matter here, only whom).
   CutStats openStats, shutStats;
   uint64_t shutSides = 0;
-  ASSERT_TRUE(bouncer.gather(**tree, *scene, *surfels, groupSize, keys, 2, open, &openStats).ok());
+  ASSERT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, open, &openStats).ok());
   ASSERT_TRUE(bouncer
-                  .gather(**tree, *scene, *surfels, groupSize, keys, 2, shut, &shutStats, first,
+                  .gather(*tree, *scene, surfels, kGroupSize, keys, 2, shut, &shutStats, first,
                           &shutSides)
                   .ok());
   std::printf("[ measured ] %llu of %llu records' sides shut; cut pairs %llu against %llu\n",
