@@ -1,5 +1,6 @@
 #include "core/render/sky_irradiance.h"
 
+#include <array>
 #include <bit>
 #include <cmath>
 
@@ -31,18 +32,22 @@ float faceJacobian(float s, float t) {
 
 }  // namespace
 
-bool hasSkyLight(const Scene& scene) {
-  for (const int index : scene.infiniteLights()) {
-    if (isSkyLight(*scene.lights()[index])) return true;
-  }
-  return false;
-}
+namespace {
 
-SkyIrradiance::SkyIrradiance(const Scene& scene) : scene_(scene) {
+std::vector<const Light*> skyLights(const Scene& scene) {
   std::vector<const Light*> sky;
   for (const int index : scene.infiniteLights()) {
     if (isSkyLight(*scene.lights()[index])) sky.push_back(scene.lights()[index].get());
   }
+  return sky;
+}
+
+}  // namespace
+
+bool hasSkyLight(const Scene& scene) { return !skyLights(scene).empty(); }
+
+SkyIrradiance::SkyIrradiance(const Scene& scene) : scene_(scene) {
+  const std::vector<const Light*> sky = skyLights(scene);
   if (sky.empty()) return;
   constexpr float kStep = kCellWidth / static_cast<float>(kSkyCellSubsamples);
   for (int face = 0; face < 6; ++face) {
@@ -85,15 +90,16 @@ SkyIrradiance::SkyIrradiance(const Scene& scene) : scene_(scene) {
   }
 }
 
-Rgb SkyIrradiance::through(const Cell& c, float s, float t, const Vec3f& p, const Vec3f& n,
-                           const Vec3f& ng, uint64_t* rays) const {
+SkyIrradiance::Through SkyIrradiance::through(const Cell& c, float s, float t, const Vec3f& p,
+                                              const Vec3f& n, const Vec3f& ng,
+                                              uint64_t* rays) const {
   const Vec3f d = normalize(faceDirection(c.face, s, t));
   const float cosTheta = dot(d, n);
-  if (cosTheta <= 0.0f || dot(d, ng) <= 0.0f) return Rgb(0.0f);
+  if (cosTheta <= 0.0f || dot(d, ng) <= 0.0f) return {};
   ++*rays;
-  if (scene_.occluded(scene_.spawnRay(p, ng, d))) return Rgb(0.0f);
+  if (scene_.occluded(scene_.spawnRay(p, ng, d))) return {.seen = Seen::kScene};
   // The cell's solid angle over its face area, times the density of (s, t) at d.
-  return c.radiance * (cosTheta * faceJacobian(s, t));
+  return {.seen = Seen::kSky, .irradiance = c.radiance * (cosTheta * faceJacobian(s, t))};
 }
 
 Rgb SkyIrradiance::at(const Vec3f& p, const Vec3f& n, const Vec3f& ng, uint64_t key,
@@ -101,15 +107,12 @@ Rgb SkyIrradiance::at(const Vec3f& p, const Vec3f& n, const Vec3f& ng, uint64_t 
   // First a ray a cell (two numbers a cell whatever happens, so that each cell's direction
   // depends on the key alone), each cell's result kept with whether its ray escaped.
   Rng rng = Rng::forKeys(key);
-  std::vector<Rgb> value(cells_.size());
-  std::vector<uint8_t> state(cells_.size());  // 0: below the horizon, 1: blocked, 2: escaped
+  std::array<Through, kSkyCells> first;  // on the stack: a record's sky is on the render's path
   for (size_t k = 0; k < cells_.size(); ++k) {
     const Cell& c = cells_[k];
     const float s = c.s0 + rng.uniform() * kCellWidth;
     const float t = c.t0 + rng.uniform() * kCellWidth;
-    const uint64_t before = *rays;
-    value[k] = through(c, s, t, p, n, ng, rays);
-    state[k] = *rays == before ? 0 : isBlack(value[k]) ? 1 : 2;
+    first[k] = through(c, s, t, p, n, ng, rays);
   }
   // Then the edges again, stratified.
   constexpr float kSub = kCellWidth / static_cast<float>(kSkyEdgeRays);
@@ -121,19 +124,18 @@ Rgb SkyIrradiance::at(const Vec3f& p, const Vec3f& n, const Vec3f& ng, uint64_t 
     // that went below the horizon decide nothing (the horizon is no edge).
     bool escaped = false, blocked = false;
     for (uint32_t j = c.firstNeighbour; j < c.endNeighbour; ++j) {
-      escaped = escaped || state[neighbours_[j]] == 2;
-      blocked = blocked || state[neighbours_[j]] == 1;
+      escaped = escaped || first[neighbours_[j]].seen == Seen::kSky;
+      blocked = blocked || first[neighbours_[j]].seen == Seen::kScene;
     }
-    const bool edge = escaped && blocked;
-    if (!edge) {
-      e += value[k] * (kCellWidth * kCellWidth);
+    if (!(escaped && blocked)) {
+      e += first[k].irradiance * (kCellWidth * kCellWidth);
       continue;
     }
     for (int b = 0; b < kSkyEdgeRays; ++b) {
       for (int a = 0; a < kSkyEdgeRays; ++a) {
         const float s = c.s0 + (static_cast<float>(a) + rng.uniform()) * kSub;
         const float t = c.t0 + (static_cast<float>(b) + rng.uniform()) * kSub;
-        e += through(c, s, t, p, n, ng, rays) * (kSub * kSub);
+        e += through(c, s, t, p, n, ng, rays).irradiance * (kSub * kSub);
       }
     }
   }

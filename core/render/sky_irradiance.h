@@ -27,6 +27,7 @@ namespace pbgi {
 inline constexpr int kSkyFaceCells = 8;       // cells a side of each cube face
 inline constexpr int kSkyCellSubsamples = 8;  // lookups a side of a cell for its mean radiance
 inline constexpr int kSkyEdgeRays = 3;        // rays a side of an edge cell
+inline constexpr int kSkyCells = 6 * kSkyFaceCells * kSkyFaceCells;
 
 // Whether the scene has an environment light (isSkyLight).
 bool hasSkyLight(const Scene& scene);
@@ -47,9 +48,15 @@ class SkyIrradiance {
     Rgb radiance{0.0f};          // the environment's mean over the cell
     uint32_t firstNeighbour = 0, endNeighbour = 0;  // a range of neighbours_
   };
-  // The irradiance from cell c through direction (s, t) in it, where a ray there escapes.
-  Rgb through(const Cell& c, float s, float t, const Vec3f& p, const Vec3f& n, const Vec3f& ng,
-              uint64_t* rays) const;
+  // What a ray through point (s, t) of cell c finds: nothing (below the horizon, no ray),
+  // the scene (blocked), or the sky, with the irradiance it stands for.
+  enum class Seen : uint8_t { kNothing, kScene, kSky };
+  struct Through {
+    Seen seen = Seen::kNothing;
+    Rgb irradiance{0.0f};
+  };
+  Through through(const Cell& c, float s, float t, const Vec3f& p, const Vec3f& n,
+                  const Vec3f& ng, uint64_t* rays) const;
   const Scene& scene_;
   std::vector<Cell> cells_;          // cells with any light
   std::vector<uint32_t> neighbours_;  // of each cell, the cells that touch it (indices)

@@ -37,7 +37,8 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // surfels' disks folded at the receiver's horizon instead of cut there, 6 near disks as exact
 // polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
 // spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
-// glossy surfels reflect).
+// glossy surfels reflect), 9 records gathering for patches of surfels, 10 later bounces' records
+// coarser, 11 shut sides not gathered after the first bounce.
 constexpr int kBounceRevision = 11;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
