@@ -21,8 +21,8 @@
 // last bounce's light is scaled by 1 + r / (1 - r) instead of being baked further.
 #include <array>
 #include <cstdint>
-#include <unordered_map>
 #include <span>
+#include <unordered_map>
 #include <vector>
 
 #include <absl/status/status.h>

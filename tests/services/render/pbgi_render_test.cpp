@@ -387,11 +387,6 @@ TEST_F(PbgiRender, AMatchingBakeOnDiskIsReusedAndAChangedShotIsBakedAgain) {
   EXPECT_TRUE(third.tree->baked);
 }
 
-}  // namespace
-}  // namespace pbgi
-
-namespace pbgi {
-namespace {
 
 // Records on every second pixel (record_spacing 2): at a size where pixels are narrow in the
 // box, most samples interpolate records instead of gathering, the pixels stay the same at any
