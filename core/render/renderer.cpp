@@ -10,6 +10,7 @@
 #include <tbb/task_arena.h>
 
 #include "core/render/filter.h"
+#include "core/sampling/low_discrepancy.h"
 #include "core/sampling/rng.h"
 #include "core/util/check.h"
 #include "core/util/status.h"
@@ -17,6 +18,9 @@
 namespace pbgi {
 
 namespace {
+
+// Keys a pixel's scramble of its samples' positions apart from its samples' own streams.
+constexpr uint64_t kPixelPatternKey = 0x70697865ull;  // "pixe"
 
 enum Channel : int {
   kR, kG, kB, kA,
@@ -213,11 +217,17 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
   for (size_t i = 0; i < buf.pixels.size(); ++i) {
     const Vec2i px = buf.pixels[i];
     const uint64_t pixel = static_cast<uint64_t>(px.y) * camera.imageWidth() + px.x;
+    // The position in the pixel and on the lens are stratified over the pixel's samples
+    // (low_discrepancy.h); the sample's own stream, which the integrator goes on drawing from,
+    // still skips the four numbers it once gave them, so the paths keep their random numbers.
+    const uint64_t pattern = hashKeys(settings.seed, frame, pixel, kPixelPatternKey);
     for (int s = 0; s < spp; ++s) {
       const size_t k = i * spp + s;
       Rng& rng = buf.rngs[k] = Rng::forKeys(settings.seed, frame, pixel, s);
-      const Vec2f uFilter(rng.uniform(), rng.uniform());
-      const Vec2f uLens(rng.uniform(), rng.uniform());
+      for (int skip = 0; skip < 4; ++skip) rng.nextU32();
+      const auto index = static_cast<uint32_t>(s);
+      const Vec2f uFilter = owenSobol2D(index, pattern);
+      const Vec2f uLens = owenSobol2D(shuffledIndex(index, pattern), pattern + 1);
       const Vec2f offset = filter.sample(uFilter);
       buf.rays[k] = camera.generateRay(static_cast<float>(px.x) + 0.5f + offset.x,
                                        static_cast<float>(px.y) + 0.5f + offset.y, uLens);
