@@ -10,12 +10,12 @@
 //     against the direct light that the surfaces the rays meet reflect.
 //   --light bounce: the bake's own first bounce (SurfelBouncer) at surfels in runs along the
 //     Morton curve, both sides, against rays; sides shut in by geometry (every ray meets dark
-//     geometry: the insides of walls) apart, as they should gather nothing; with --brute, the
-//     brute force by the distance to the nearest other geometry.
+//     geometry: the insides of walls) apart, as they should gather nothing.
 // Rays (--rays per receiver, cosine-weighted) measure the exact answer: the ratio is the
 // surfels' discretization and the cut's together. With --brute, the sum over every surfel at
 // every receiver (bruteForceIrradiance) splits the two: the cut against it is its clustering
-// error alone.
+// error alone; and the brute force against rays is printed by the receivers' distance to the
+// nearest other geometry, where the discretization loses light (near contacts).
 // Reports one line per quality preset; never fails on a number.
 //
 // Run: build/bin/transfer_bench --shot ../shared/scenes/sponza/sponza.shot.toml
@@ -148,6 +148,29 @@ double sumLuminance(std::span<const Rgb> v) {
   return sum;
 }
 
+// Brute force against rays, the receivers binned by the distance from them to the nearest
+// geometry the rays met, in surfel radii: where the surfels' discretization loses light.
+template <typename Skip>
+void printByNearest(std::span<const RayGather> rays, std::span<const Rgb> brute, float radius,
+                    bool unitLight, Skip skip) {
+  double bc[6] = {}, br[6] = {}, all = 0.0;
+  int bn[6] = {};
+  for (size_t i = 0; i < rays.size(); ++i) {
+    if (skip(i)) continue;
+    const float nearest = rays[i].nearest / radius;
+    const int b = nearest < 0.5f ? 0 : nearest < 1.0f ? 1 : nearest < 2.0f ? 2
+                : nearest < 4.0f ? 3 : nearest < 16.0f ? 4 : 5;
+    const double want = unitLight ? rays[i].covered : rays[i].reflected;
+    bc[b] += luminance(brute[i]), br[b] += want, ++bn[b];
+    all += want;
+  }
+  const char* names[6] = {"<0.5r", "<1r", "<2r", "<4r", "<16r", "far"};
+  for (int b = 0; b < 6; ++b) {
+    std::printf("    nearest geometry %-5s: %5d receivers, %.4f of the light, brute / rays %.4f\n",
+                names[b], bn[b], br[b] / all, br[b] > 0 ? bc[b] / br[b] : 0.0);
+  }
+}
+
 // The bake's own first bounce (SurfelBouncer: surfel receivers, a cut per side) at random
 // diffuse surfels, against rays from the same points: the irradiance on both sides, from the
 // direct light the surfaces the rays meet reflect.
@@ -191,21 +214,7 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
     }
     std::printf("  brute force: open sides / rays %.4f; shut-in sides gather %.4f of the total\n",
                 open / openRef, shut / exact);
-    // Open sides by the distance from their surfel to the nearest geometry the rays met.
-    double bc[6] = {}, br[6] = {};
-    int bn[6] = {};
-    for (size_t i = 0; i < sides.size(); ++i) {
-      if (isShut(i)) continue;
-      const float nearest = rays[i].nearest / picked[i / 2].radius;
-      const int b = nearest < 0.5f ? 0 : nearest < 1.0f ? 1 : nearest < 2.0f ? 2
-                  : nearest < 4.0f ? 3 : nearest < 16.0f ? 4 : 5;
-      bc[b] += luminance(brute[i]), br[b] += rays[i].reflected, ++bn[b];
-    }
-    const char* names[6] = {"<0.5r", "<1r", "<2r", "<4r", "<16r", "far"};
-    for (int b = 0; b < 6; ++b) {
-      std::printf("    nearest geometry %-5s: %5d sides, %.4f of the open light, brute / rays %.4f\n",
-                  names[b], bn[b], br[b] / openRef, br[b] > 0 ? bc[b] / br[b] : 0.0);
-    }
+    printByNearest(rays, brute, surfels.front().radius, false, isShut);
   }
   for (const char* preset : {"draft", "default", "high"}) {
     SurfelBouncer bouncer(*cutPreset(preset), /*receiverSpacing=*/1);
@@ -274,9 +283,8 @@ int run(const Args& args) {
 
   double exact = 0.0;
   const char* against = "rays";
-  for (const RayGather& g : raysGather(scene, receivers, args.rays, !unitLight)) {
-    exact += unitLight ? g.covered : g.reflected;
-  }
+  const std::vector<RayGather> rays = raysGather(scene, receivers, args.rays, !unitLight);
+  for (const RayGather& g : rays) exact += unitLight ? g.covered : g.reflected;
   if (args.brute) {
     std::vector<Rgb> brute(receivers.size());
     auto options = cutPreset("default");
@@ -285,6 +293,8 @@ int run(const Args& args) {
     }
     const double sum = sumLuminance(brute);
     std::printf("  brute force / rays %.4f\n", sum / exact);
+    printByNearest(rays, brute, surfels->front().radius, unitLight,
+                   [](size_t) { return false; });
     exact = sum;
     against = "brute force";
   }
