@@ -30,11 +30,23 @@ PageCache::PageCache(TreePageSource& source, const PageCacheOptions& options)
 
 void PageCache::evict(Shard& shard) {
   while (shard.bytes > shardBudget_) {
-    // The least used unpinned page (pinned ones are held outside the cache), the least
-    // recently used among equals: scanning from the old end, the first of the fewest uses.
     auto victim = shard.entries.end();
     std::list<uint32_t>::iterator victimLru;
-    for (auto it = shard.lru.end(); it != shard.lru.begin();) {
+    if (policy_ == PageCachePolicy::kSweeps) {
+      // The most recent unpinned page: scanning from the new end.
+      for (auto it = shard.lru.begin(); it != shard.lru.end(); ++it) {
+        auto entry = shard.entries.find(*it);
+        PBGI_CHECK(entry != shard.entries.end());
+        if (entry->second.page.use_count() > 1) continue;
+        victim = entry;
+        victimLru = it;
+        break;
+      }
+    }
+    // The least used unpinned page (pinned ones are held outside the cache), the least
+    // recently used among equals: scanning from the old end, the first of the fewest uses.
+    for (auto it = shard.lru.end();
+         policy_ != PageCachePolicy::kSweeps && it != shard.lru.begin();) {
       --it;
       auto entry = shard.entries.find(*it);
       PBGI_CHECK(entry != shard.entries.end());

@@ -46,6 +46,13 @@ enum class PageCachePolicy {
   // bounces). Counting uses would keep the pages of sweeps past and evict those of the
   // sweep under way.
   kLeastRecent,
+  // The most recently used: for the same sweep repeated over more pages than the cache holds
+  // (a bake's bounce: each batch of cuts sweeps the pages from the highest down, and the next
+  // batch sweeps them again). Least recent would evict each page just before the next sweep
+  // asks for it, and load every page of every sweep; evicting the page just finished keeps
+  // the rest of the last sweep resident for the next (what Belady's optimal choice keeps on a
+  // cyclic scan), so a sweep over n pages with room for m loads about n - m.
+  kSweeps,
 };
 
 struct PageCacheOptions {

@@ -140,9 +140,9 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
                                            FrameBakeReport* report, Rgb* power) {
   auto from = TreeFile::open(fromPath);
   if (!from.ok()) return from.status();
-  // The bounce's cuts sweep the tree's pages (see bidirectional_cut.h).
+  // The bounce's batches of cuts each sweep the tree's pages (see bidirectional_cut.h).
   PageCache cache(**from, {.budgetBytes = request.memoryBudget / 4,
-                           .policy = PageCachePolicy::kLeastRecent});
+                           .policy = PageCachePolicy::kSweeps});
   std::unique_ptr<TreeFileWriter> writer;
   // Glossy surfels add the light they reflect of the tree the bounce gathers from: the light
   // reaching diffuse surfaces by way of glossy ones then bounces on.

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <thread>
 #include <vector>
@@ -180,6 +181,35 @@ TEST(PageCache, LeastRecentKeepsTheSweepUnderWay) {
       EXPECT_GT(loads, 3u);  // the old favourites hold two of the three places
     }
   }
+}
+
+// Sweeps: the same sweep from the highest page down, repeated over twice the pages the cache
+// holds. Least recent evicts each page before the next sweep comes back to it and loads every
+// page every time; evicting the page just finished keeps the rest of the sweep for the next.
+TEST(PageCache, SweepsKeepMostOfARepeatedSweepTooBigForTheCache) {
+  auto source = makeSource();
+  const auto n = static_cast<uint32_t>(source->pageCount());
+  ASSERT_GE(n, 8u);
+  size_t half = 0;  // room for the largest half of the pages
+  std::vector<size_t> sizes;
+  for (uint32_t id = 0; id < n; ++id) sizes.push_back((*source->page(id))->memoryBytes());
+  std::sort(sizes.rbegin(), sizes.rend());
+  for (uint32_t k = 0; k < n / 2; ++k) half += sizes[k];
+  const int sweeps = 5;
+  uint64_t loads[2] = {0, 0};
+  for (const PageCachePolicy policy : {PageCachePolicy::kLeastRecent, PageCachePolicy::kSweeps}) {
+    PageCache cache(*source, {.budgetBytes = half, .policy = policy, .shards = 1});
+    for (int k = 0; k < sweeps; ++k) {
+      for (uint32_t id = n; id-- > 0;) ASSERT_TRUE(cache.page(id).ok());
+    }
+    loads[policy == PageCachePolicy::kSweeps] = cache.counters().misses;
+    EXPECT_LE(cache.counters().bytesResident, half);
+  }
+  EXPECT_EQ(loads[0], uint64_t{sweeps} * n);
+  // The first sweep loads all n; each later one at most the n - n/2 + 1 the cache lacks room
+  // for (pages differ in size: the held ones can be the smaller).
+  EXPECT_LE(loads[1], n + uint64_t{sweeps - 1} * (n - n / 4));
+  EXPECT_LT(loads[1], loads[0] * 3 / 4) << loads[1] << " against " << loads[0];
 }
 
 }  // namespace
