@@ -64,6 +64,7 @@ struct StressCase {
   int spp = 16;
   std::string materials;  // [[material]] tables beside white, red and green
   std::string geometry;   // more keys for [[geometry]] (a transform)
+  int resolution = 32;    // pixels a side
 };
 
 // The room's quad light under its ceiling; `radiance` as TOML writes a float.
@@ -85,7 +86,8 @@ inline std::string defaultCamera(double s) {
   return fmt::format("position = [0.0, 0.0, {:.9g}]\nlook_at = [0.0, 0.0, 0.0]\n", -3.4 * s);
 }
 
-// Writes the case's OBJ (dir/scene.obj) and a 32 x 32 shot of one frame rendered by
+// Writes the case's OBJ (dir/scene.obj) and a square shot (32 x 32 unless said) of one frame
+// rendered by
 // `integrator` (and, for PBGI, `gather`, at the case's bake_points in the draft preset) into
 // `dir`; returns the shot's path. The image goes to dir/INTEGRATORGATHER.exr.
 inline std::filesystem::path writeStressShot(const std::filesystem::path& dir, const StressCase& c,
@@ -94,14 +96,15 @@ inline std::filesystem::path writeStressShot(const std::filesystem::path& dir, c
   std::ofstream(dir / "scene.obj") << c.obj;
   const std::filesystem::path shot = dir / fmt::format("{}.shot.toml", integrator + gather);
   std::ofstream(shot) << fmt::format(
-      "version = 1\n[shot]\nname = \"stress\"\nframes = [1, 1]\nresolution = [32, 32]\n"
+      "version = 1\n[shot]\nname = \"stress\"\nframes = [1, 1]\nresolution = [{}, {}]\n"
       "output = \"{}.exr\"\n[camera]\n{}up = [0.0, 1.0, 0.0]\nfov_y_deg = 40.0\n"
       "[[geometry]]\nfile = \"scene.obj\"\n{}"
       "[[material]]\nname = \"white\"\ntype = \"diffuse\"\nalbedo = [0.7, 0.7, 0.7]\n"
       "[[material]]\nname = \"red\"\ntype = \"diffuse\"\nalbedo = [0.6, 0.1, 0.1]\n"
       "[[material]]\nname = \"green\"\ntype = \"diffuse\"\nalbedo = [0.1, 0.6, 0.1]\n"
       "{}{}[render]\nintegrator = \"{}\"\nspp = {}\n{}",
-      integrator + gather, c.camera.empty() ? defaultCamera(c.scale) : c.camera, c.geometry,
+      c.resolution, c.resolution, integrator + gather,
+      c.camera.empty() ? defaultCamera(c.scale) : c.camera, c.geometry,
       c.materials, c.lights.empty() ? defaultLight(c.scale) : c.lights, integrator, c.spp,
       integrator == "pbgi" ? fmt::format("gather = \"{}\"\nbake_points = {}\nquality = \"draft\"\n",
                                          gather, c.bakePoints)

@@ -558,43 +558,12 @@ double neighbourSquaredDifference(const std::vector<double>& l, const Interior& 
 // own image held constant over 4 x 4 blocks measures 1.61 times the truth (6 x 6: 1.9), PBGI
 // 1.05 (64 x 64, 16 spp, a 50,000-surfel bake of 3 bounces).
 TEST_F(PbgiRender, ARoomLitOffItsCeilingHasNoPatchesOrSteps) {
-  std::ofstream(dir_ / "room.obj") << testing::roomObj(1.0);
-  const fs::path shotPath = dir_ / "room.shot.toml";
-  std::ofstream(shotPath) << R"(version = 1
-[shot]
-name = "uplit"
-frames = [1, 1]
-resolution = [64, 64]
-output = "uplit.exr"
-[camera]
-position = [0.0, 0.0, -3.4]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y_deg = 40.0
-[[geometry]]
-file = "room.obj"
-[[material]]
-name = "white"
-type = "diffuse"
-albedo = [0.7, 0.7, 0.7]
-[[material]]
-name = "red"
-type = "diffuse"
-albedo = [0.6, 0.1, 0.1]
-[[material]]
-name = "green"
-type = "diffuse"
-albedo = [0.1, 0.6, 0.1]
-[[light]]
-type = "spot"
-position = [0.4, -0.6, 0.3]
-direction = [0.0, 1.0, 0.0]
-cone_deg = 35.0
-intensity = [3.0, 3.0, 3.0]
-[render]
-integrator = "path"
-spp = 16
-)";
+  testing::StressCase room{.name = "uplit", .obj = testing::roomObj(1.0)};
+  room.lights =
+      "[[light]]\ntype = \"spot\"\nposition = [0.4, -0.6, 0.3]\ndirection = [0.0, 1.0, 0.0]\n"
+      "cone_deg = 35.0\nintensity = [3.0, 3.0, 3.0]\n";
+  room.resolution = 64;
+  const fs::path shotPath = testing::writeStressShot(dir_, room, "path", "");
   auto shot = loadShotFile(shotPath.string());
   ASSERT_TRUE(shot.ok()) << shot.status();
   shot_ = *shot;
