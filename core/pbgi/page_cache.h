@@ -42,16 +42,17 @@ enum class PageCachePolicy {
   // the whole tree (the per-pixel gather), where the pages near the root are read by all.
   kLeastUsed,
   // The least recently used: for sweeps that read the pages in order, each page by many
-  // traversals within a short time and then no more (the cut's lockstep sweeps, the bake's
-  // bounces). Counting uses would keep the pages of sweeps past and evict those of the
-  // sweep under way.
+  // traversals within a short time and then no more (the cut's lockstep sweeps of a render
+  // unit). Counting uses would keep the pages of sweeps past and evict those of the sweep
+  // under way.
   kLeastRecent,
   // The most recently used: for the same sweep repeated over more pages than the cache holds
   // (a bake's bounce: each batch of cuts sweeps the pages from the highest down, and the next
   // batch sweeps them again). Least recent would evict each page just before the next sweep
   // asks for it, and load every page of every sweep; evicting the page just finished keeps
   // the rest of the last sweep resident for the next (what Belady's optimal choice keeps on a
-  // cyclic scan), so a sweep over n pages with room for m loads about n - m.
+  // cyclic scan). Sponza at 4,000,000 surfels under 256M, whose batches sweep different but
+  // overlapping pages: 2.90 million loads against least recent's 3.38 million.
   kSweeps,
 };
 

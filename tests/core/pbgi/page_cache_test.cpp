@@ -206,8 +206,8 @@ TEST(PageCache, SweepsKeepMostOfARepeatedSweepTooBigForTheCache) {
     EXPECT_LE(cache.counters().bytesResident, half);
   }
   EXPECT_EQ(loads[0], uint64_t{sweeps} * n);
-  // The first sweep loads all n; each later one at most the n - n/2 + 1 the cache lacks room
-  // for (pages differ in size: the held ones can be the smaller).
+  // The first sweep loads all n; each later one about the n - n/2 the cache has no room for
+  // (any n/2 pages fit), checked loosely (n - n/4).
   EXPECT_LE(loads[1], n + uint64_t{sweeps - 1} * (n - n / 4));
   EXPECT_LT(loads[1], loads[0] * 3 / 4) << loads[1] << " against " << loads[0];
 }
