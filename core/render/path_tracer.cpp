@@ -1,6 +1,7 @@
 #include "core/render/path_tracer.h"
 
 #include <algorithm>
+#include <span>
 
 namespace pbgi {
 
@@ -8,6 +9,8 @@ namespace {
 
 // Seeds the first hit's light samples past the first ("FIRSTLGT").
 constexpr uint64_t kFirstHitLightDomain = 0x46495253544c4754ull;
+// Random numbers a light sample draws (sampleUnoccludedLight): the light, a point on it.
+constexpr int kLightSampleNumbers = 3;
 
 Vec2f next2(Rng& rng) {
   const float a = rng.uniform();
@@ -23,8 +26,8 @@ Frame shadingFrame(const SurfaceHit& hit) { return Frame(hit.ns); }
 std::optional<LightSample> sampleUnoccludedLight(const Scene& scene, const Vec3f& p,
                                                  const Vec3f& ng, Rng& rng, float* selectPdf,
                                                  bool skipSky) {
-  // A fixed count of random numbers whatever happens, so that later decisions of the same
-  // path use the same numbers whichever branch this one took.
+  // A fixed count of random numbers whatever happens (kLightSampleNumbers), so that later
+  // decisions of the same path use the same numbers whichever branch this one took.
   const float uLight = rng.uniform();
   const Vec2f u = next2(rng);
   const Light* light = scene.sampleLight(uLight, selectPdf, skipSky);
@@ -64,25 +67,44 @@ TwoSidedIrradiance sampleIrradianceBothSides(const Scene& scene, const Vec3f& p,
   return e;
 }
 
-Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
-                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng, bool skipSky) {
-  float selectPdf = 0.0f;
-  const std::optional<LightSample> ls =
-      sampleUnoccludedLight(scene, hit.p, hit.ng, rng, &selectPdf, skipSky);
-  if (!ls) return Rgb(0.0f);
-  const Vec3f wiLocal = frame.toLocal(ls->wi);
+// What the BSDF reflects of an unoccluded light sample, picked with probability selectPdf
+// among the lights (MIS-weighted against the BSDF's own sampling unless a delta).
+Rgb reflectedLight(const SurfaceHit& hit, const Frame& frame, const Bsdf& bsdf,
+                   const Vec3f& woLocal, const LightSample& sample, float selectPdf) {
+  const Vec3f wiLocal = frame.toLocal(sample.wi);
   // Reflection or transmission must agree between the shading and geometric normals, or
   // light leaks through the surface.
-  const float cosGeo = dot(ls->wi, hit.ng);
+  const float cosGeo = dot(sample.wi, hit.ng);
   const float cosGeoOut = dot(frame.toWorld(woLocal), hit.ng);
   const bool reflectGeo = cosGeo * cosGeoOut > 0.0f;
   const bool reflectShading = wiLocal.z * woLocal.z > 0.0f;
   if (reflectGeo != reflectShading) return Rgb(0.0f);
   const Rgb f = bsdf.f(woLocal, wiLocal);
   if (isBlack(f)) return Rgb(0.0f);
-  const float lightPdf = ls->pdf * selectPdf;
-  const float weight = ls->delta ? 1.0f : powerHeuristic(lightPdf, bsdf.pdf(woLocal, wiLocal));
-  return f * ls->radiance * (std::abs(wiLocal.z) * weight / lightPdf);
+  const float lightPdf = sample.pdf * selectPdf;
+  const float weight = sample.delta ? 1.0f : powerHeuristic(lightPdf, bsdf.pdf(woLocal, wiLocal));
+  return f * sample.radiance * (std::abs(wiLocal.z) * weight / lightPdf);
+}
+
+Rgb sampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
+                      const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng, bool skipSky) {
+  float selectPdf = 0.0f;
+  const std::optional<LightSample> ls =
+      sampleUnoccludedLight(scene, hit.p, hit.ng, rng, &selectPdf, skipSky);
+  return ls ? reflectedLight(hit, frame, bsdf, woLocal, *ls, selectPdf) : Rgb(0.0f);
+}
+
+// The light of each of `deltas` (delta lights: no sample to draw), a shadow ray each.
+Rgb deltaLightsExactly(const Scene& scene, std::span<const int> deltas, const SurfaceHit& hit,
+                       const Frame& frame, const Bsdf& bsdf, const Vec3f& woLocal) {
+  Rgb sum(0.0f);
+  for (const int i : deltas) {
+    const std::optional<LightSample> ls = scene.lights()[i]->sample(hit.p, Vec2f(0.5f));
+    if (!ls || ls->pdf <= 0.0f || isBlack(ls->radiance)) continue;
+    if (scene.occluded(scene.spawnShadowRay(hit.p, hit.ng, *ls))) continue;
+    sum += reflectedLight(hit, frame, bsdf, woLocal, *ls, 1.0f);
+  }
+  return sum;
 }
 
 PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
@@ -150,7 +172,16 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
               material.type == MaterialType::kDiffuse;
     // Light arriving at this vertex belongs to the next bounce's sink.
     Rgb* nextSink = bounce + 1 >= 2 ? &out.indirect : &out.direct;
-    if (!bsdf.isDelta()) {
+    const std::vector<int>& deltas = scene.deltaLightsOnly(skipSky);
+    if (!bsdf.isDelta() && bounce == 0 && !deltas.empty() &&
+        deltas.size() <= static_cast<size_t>(settings.firstHitLightSamples) &&
+        settings.firstHitLightSamples > 1) {
+      // Several light samples where every light they could pick is a delta (a sun, with the
+      // sky taken by the records): each delta light once, exactly, instead of samples that
+      // repeat its shadow ray. The path draws the numbers one sample would have.
+      for (int k = 0; k < kLightSampleNumbers; ++k) rng.uniform();
+      *nextSink += beta * deltaLightsExactly(scene, deltas, hit, frame, bsdf, woLocal);
+    } else if (!bsdf.isDelta()) {
       Rgb light = sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng, skipSky);
       if (bounce == 0 && settings.firstHitLightSamples > 1) {
         // Keyed by the number the path draws next: its own stream, the path's untouched.

@@ -400,6 +400,16 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
     scene->anyLightButSky_ = scene->anyLightButSky_ || withoutSky[i] > 0.0f;
   }
   if (scene->anyLightButSky_) scene->lightDistributionWithoutSky_ = Distribution1D(withoutSky);
+  for (const bool skyLeftOut : {false, true}) {
+    std::vector<int> deltas;
+    bool onlyDeltas = true;
+    for (size_t i = 0; i < scene->lights_.size() && onlyDeltas; ++i) {
+      if (!(scene->lightProbability(static_cast<int>(i), skyLeftOut) > 0.0f)) continue;
+      onlyDeltas = scene->lights_[i]->isDelta();
+      deltas.push_back(static_cast<int>(i));
+    }
+    if (onlyDeltas) scene->deltaLightsOnly_[skyLeftOut ? 1 : 0] = std::move(deltas);
+  }
   scene->stats_.lights = scene->lights_.size();
   return scene;
 }

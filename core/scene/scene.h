@@ -2,6 +2,7 @@
 // The renderable scene of one frame: triangle meshes, materials and lights in an Embree 3
 // BVH (robust intersection mode), plus the light-selection distribution.
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -67,6 +68,13 @@ class Scene {
   // environment light is taken otherwise (PBGI's records).
   const Light* sampleLight(float u, float* probability, bool withoutSky = false) const;
   float lightProbability(int lightIndex, bool withoutSky = false) const;
+  // The lights sampleLight can pick (the sky left out if asked) when every one of them is a
+  // delta light (point, spot, directional), whose light needs no sampling: a shadow ray each
+  // gives it exactly, where more samples would repeat the same rays. Empty when an area light
+  // or an environment can be picked, or none.
+  const std::vector<int>& deltaLightsOnly(bool withoutSky = false) const {
+    return deltaLightsOnly_[withoutSky ? 1 : 0];
+  }
 
   // Albedo of a material at a hit (texture looked up).
   Rgb albedoAt(const SurfaceHit& hit) const;
@@ -92,6 +100,7 @@ class Scene {
   Distribution1D lightDistribution_;
   Distribution1D lightDistributionWithoutSky_;
   bool anyLightButSky_ = false;  // with power
+  std::array<std::vector<int>, 2> deltaLightsOnly_;  // with the sky, without
   Bounds3f bounds_;
   SceneStats stats_;
 };

@@ -247,3 +247,61 @@ TEST(PathTracerTest, SampleIrradianceMatchesAnalytic) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+// PBGI's first hits take several light samples and leave the sky to the records. Where every
+// light those samples could pick is a delta light, each is taken once, exactly: the direct
+// light is their sum, the same whatever the random numbers, at a shadow ray a light. An area
+// light or the sky among them keeps sampling.
+TEST(PathTracerTest, SeveralDeltaLightsAreSummedExactlyWhereOnlyTheyCanBePicked) {
+  SceneBuilder b;
+  Material m;
+  m.albedo = Rgb(0.6f);
+  b.addMesh(testing::makeQuadMesh({-4, 0, -4}, {0, 0, 8}, {8, 0, 0}, b.addMaterial(m)));
+  const Vec3f at[2] = {{0.3f, 1.0f, 0.0f}, {-0.5f, 2.0f, 0.2f}};
+  const float intensity[2] = {2.0f, 5.0f};
+  for (int i = 0; i < 2; ++i) {
+    LightDesc point;
+    point.type = LightType::kPoint;
+    point.position = at[i];
+    point.intensity = Rgb(intensity[i]);
+    b.addLight(point);
+  }
+  b.addLight(makeUniformEnvironmentLight(Rgb(0.5f)));
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok());
+  EXPECT_TRUE((*scene)->deltaLightsOnly(false).empty());  // the sky can be picked
+  EXPECT_EQ((*scene)->deltaLightsOnly(true), (std::vector<int>{0, 1}));
+
+  // Straight down onto the origin: E = sum of I cos / d^2, reflected at 0.6 / pi.
+  double expected = 0.0;
+  for (int i = 0; i < 2; ++i) {
+    const float d2 = at[i].length2();
+    expected += intensity[i] * (at[i].y / std::sqrt(d2)) / d2 * 0.6 / kPi;
+  }
+  const PathTracerSettings settings{
+      .maxDepth = 1, .firstHitLightSamples = 16, .skyAtDiffuseFirstHit = false};
+  const Ray down(Vec3f(0.0f, 3.0f, 0.0f), Vec3f(0.0f, -1.0f, 0.0f));
+  for (uint64_t seed = 0; seed < 8; ++seed) {
+    Rng rng(seed);
+    const PathSample s = tracePath(**scene, down, rng, settings, nullptr);
+    EXPECT_NEAR(s.direct.x, expected, 1e-5 * expected) << "seed " << seed;
+  }
+
+  // With an area light among them, the samples pick among all: no exact sum.
+  LightDesc quad;
+  quad.type = LightType::kQuad;
+  quad.corner = {2.0f, 3.0f, 2.0f};
+  quad.edgeU = {0.0f, 0.0f, 0.5f};
+  quad.edgeV = {0.5f, 0.0f, 0.0f};
+  quad.radiance = Rgb(1.0f);
+  b.addLight(quad);
+  auto withArea = b.build();
+  ASSERT_TRUE(withArea.ok());
+  EXPECT_TRUE((*withArea)->deltaLightsOnly(true).empty());
+}
+
+}  // namespace
+}  // namespace pbgi
