@@ -172,10 +172,11 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
               material.type == MaterialType::kDiffuse;
     // Light arriving at this vertex belongs to the next bounce's sink.
     Rgb* nextSink = bounce + 1 >= 2 ? &out.indirect : &out.direct;
-    const std::vector<int>& deltas = scene.deltaLightsOnly(skipSky);
-    if (!bsdf.isDelta() && bounce == 0 && !deltas.empty() &&
-        deltas.size() <= static_cast<size_t>(settings.firstHitLightSamples) &&
-        settings.firstHitLightSamples > 1) {
+    const bool severalSamples = bounce == 0 && settings.firstHitLightSamples > 1;
+    std::span<const int> deltas;
+    if (severalSamples) deltas = scene.deltaLightsOnly(skipSky);
+    if (!bsdf.isDelta() && !deltas.empty() &&
+        deltas.size() <= static_cast<size_t>(settings.firstHitLightSamples)) {
       // Several light samples where every light they could pick is a delta (a sun, with the
       // sky taken by the records): each delta light once, exactly, instead of samples that
       // repeat its shadow ray. The path draws the numbers one sample would have.
@@ -183,7 +184,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       *nextSink += beta * deltaLightsExactly(scene, deltas, hit, frame, bsdf, woLocal);
     } else if (!bsdf.isDelta()) {
       Rgb light = sampleDirectLight(scene, hit, frame, bsdf, woLocal, rng, skipSky);
-      if (bounce == 0 && settings.firstHitLightSamples > 1) {
+      if (severalSamples) {
         // Keyed by the number the path draws next: its own stream, the path's untouched.
         Rng peek = rng;
         Rng more = Rng::forKeys(uint64_t{peek.nextU32()}, kFirstHitLightDomain);

@@ -159,11 +159,16 @@ double writeBiasMap(const Image& indirect, const Image& refIndirect, const Image
   return sumRef > 0.0 ? sumImage / sumRef : 0.0;
 }
 
+// The regions every run renders: the crop, or none (the whole frame).
+std::vector<TileRect> cropRegions(const Args& args) {
+  if (args.crop.size() != 4) return {};
+  return {{args.crop[0], args.crop[1], args.crop[2], args.crop[3]}};
+}
+
 absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& args) {
   const fs::path dir = args.cache.empty() ? fs::path(args.out) / "reference" : fs::path(args.cache);
-  std::vector<TileRect> regions;
-  if (args.crop.size() == 4) regions.push_back({args.crop[0], args.crop[1], args.crop[2], args.crop[3]});
-  return testing::cachedPathReference(shot, frame, args.referenceSpp, dir, args.threads, regions);
+  return testing::cachedPathReference(shot, frame, args.referenceSpp, dir, args.threads,
+                                      cropRegions(args));
 }
 
 absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, const Image& ref,
@@ -373,7 +378,7 @@ int runBench(const Args& args) {
   base.frame = frame;
   base.threads = args.threads;
   base.bakeDir = (fs::path(args.out) / "bake").string();
-  if (args.crop.size() == 4) base.regions = {{args.crop[0], args.crop[1], args.crop[2], args.crop[3]}};
+  base.regions = cropRegions(args);
 
   std::vector<Run> path;
   for (const int spp : args.ptSpp) {

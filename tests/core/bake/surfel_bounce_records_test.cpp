@@ -130,7 +130,9 @@ TEST_F(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
       const Rgb& o = front ? open[i].front : open[i].back;
       const Rgb& s = front ? shut[i].front : shut[i].back;
       const Rgb& f = front ? first[i].front : first[i].back;
-      if (isBlack(f)) ASSERT_TRUE(isBlack(o) && isBlack(s)) << "surfel " << i;
+      if (isBlack(f)) {
+        ASSERT_TRUE(isBlack(o) && isBlack(s)) << "surfel " << i;
+      }
       openSum += luminance(o);
       shutSum += luminance(s);
     }

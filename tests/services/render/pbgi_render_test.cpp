@@ -512,7 +512,9 @@ Interior planeInteriors(const Image& image) {
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
           float d = 0.0f;
-          for (int c = 0; c < 3; ++c) d += std::abs(image.at(x + dx, y + dy, n + c) - image.at(x, y, n + c));
+          for (int c = 0; c < 3; ++c) {
+            d += std::abs(image.at(x + dx, y + dy, n + c) - image.at(x, y, n + c));
+          }
           flat = flat && d < 1e-3f;
         }
       }
