@@ -23,6 +23,12 @@ CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
   return o;
 }
 
+absl::StatusOr<CutOptions> bounceCutPreset(std::string_view quality) {
+  absl::StatusOr<CutOptions> cut = cutPreset(quality);
+  if (cut.ok()) cut->nearRays = 0;
+  return cut;
+}
+
 int bounceReceiverSpacing(int first, int bounce) {
   if (bounce <= 1 || first <= 1) return first;
   return std::min(kMaxBounceSpacing,

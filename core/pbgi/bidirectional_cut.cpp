@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -16,7 +17,9 @@
 
 #include "core/math/solid_angle.h"
 #include "core/pbgi/gather_internal.h"
+#include "core/sampling/low_discrepancy.h"
 #include "core/sampling/rng.h"
+#include "core/sampling/sampling.h"
 #include "core/scene/scene.h"
 
 namespace pbgi {
@@ -126,9 +129,28 @@ struct Probe {
   PointSource src;
 };
 
+// A near-field ray's hit: the surface point it met, that surface's normal (by its winding),
+// the ray's direction, and the radiance read there so far (a weighted sum of surfels).
+struct NearHit {
+  Vec3f x{0.0f};
+  Vec3f n{0.0f};
+  Vec3f w{0.0f};
+  uint32_t receiver = 0;
+  Rgb sum{0.0f};
+  float weight = 0.0f;
+};
+
+// A hit's reading going on from a node of the light tree.
+struct NearStep {
+  NodeRef at;
+  uint32_t depth = 0;
+  uint32_t hit = 0;
+};
+
 struct Bucket {
   std::vector<Pair> pairs;
   std::vector<Probe> probes;
+  std::vector<NearStep> near;
   bool queued = false;
 };
 
@@ -404,11 +426,14 @@ float projectedSolidAngle(const ClippedPolygon& polygon, const Vec3f& n) {
 // of its edges). False for a surfel on or behind the receiver's tangent plane, on whose disk
 // the receiver lies facing its way (its own surface: a wall whose disk reaches a floor
 // receiver is gathered), or dark.
-bool surfelLight(const Surfel& s, const CutReceiver& r, float selfSkipRadius, Rgb* light) {
+// Nor for a surfel whose centre lies within `nearRadius` (the near field's rays take its light).
+bool surfelLight(const Surfel& s, const CutReceiver& r, float selfSkipRadius, float nearRadius,
+                 Rgb* light) {
   Vec3f v;
   float dist2;
   if (skipSurfel(s, r.p, r.n, 1e-6f * maxAbsComponent(r.p), selfSkipRadius, &v, &dist2,
-                 gather_internal::kOwnSurfaceCos)) {
+                 gather_internal::kOwnSurfaceCos) ||
+      dist2 < nearRadius * nearRadius) {
     return false;
   }
   const FacingSide side = facingSide(s, v);
@@ -448,6 +473,155 @@ bool surfelLight(const Surfel& s, const CutReceiver& r, float selfSkipRadius, Rg
   return true;
 }
 
+// The near field (bidirectional_cut.h, CutOptions::nearRays).
+
+// Surfels are read within this many mean radii of a near-field hit: a few of them on a
+// surface they cover evenly.
+constexpr float kNearReadRadii = 2.0f;
+// ... on the hit's surface: off its plane by at most this fraction of the reading radius (a
+// curved surface bends away from its tangent plane by d^2 / 2 rho, and the other face of a
+// wall lies a wall's thickness away), its normal within 60 degrees of the hit's either way
+// (surfels are two-sided, and a mesh's winding says nothing of which side is out).
+constexpr float kNearPlaneFraction = 0.5f;
+constexpr float kNearSurfaceCos = 0.5f;
+// ... and seen from the hit along the surface: a ray from the hit, lifted off the surface on
+// the side the near-field ray came from by this fraction of their distance d, to the surfel,
+// lifted by kNearEndLift of it. A chord of length d over a convex surface of radius rho lies
+// d^2 / 8 rho inside it at its middle, so it clears surfaces curved less than d / 2; a surfel
+// of the far face of a thin wall stays behind the near face, and one below a floor that meets
+// its wall stays below the floor.
+constexpr float kNearLiftFraction = 0.25f;
+constexpr float kNearEndLift = 0.02f;
+
+// The tree's mean surfel radius, from its root: sqrt(area / (pi count)).
+float meanSurfelRadius(const NodeAttributes& root) {
+  return root.pointCount > 0 ? std::sqrt(root.area / (kPi * static_cast<float>(root.pointCount)))
+                             : 0.0f;
+}
+
+// The squared gap between a box and another box around `center` (half-size `halfExtent`).
+float boxGap2(const Bounds3f& b, const Vec3f& center, const Vec3f& halfExtent) {
+  const Vec3f c = b.center(), h = b.diagonal() * 0.5f;
+  float g2 = 0.0f;
+  for (int a = 0; a < 3; ++a)
+    g2 += sqr(std::max(0.0f, std::abs(c[a] - center[a]) - h[a] - halfExtent[a]));
+  return g2;
+}
+
+// Each receiver's near-field rays, `rays` of them cosine-weighted about its normal and as long
+// as `radius`, and the hits (on surfaces that are not lights'). A ray below the receiver's
+// geometric surface sees nothing.
+void traceNearField(const Scene& scene, std::span<const CutReceiver> receivers, int rays,
+                    float radius, std::vector<NearHit>* hits, CutStats* stats) {
+  for (uint32_t r = 0; r < receivers.size(); ++r) {
+    const CutReceiver& rec = receivers[r];
+    const uint64_t seed =
+        hashKeys(std::bit_cast<uint32_t>(rec.p.x), std::bit_cast<uint32_t>(rec.p.y),
+                 std::bit_cast<uint32_t>(rec.p.z), std::bit_cast<uint32_t>(rec.n.x),
+                 std::bit_cast<uint32_t>(rec.n.y), std::bit_cast<uint32_t>(rec.n.z));
+    const Frame frame(rec.n);
+    for (int i = 0; i < rays; ++i) {
+      const Vec3f dir =
+          frame.toWorld(sampleCosineHemisphere(owenSobol2D(static_cast<uint32_t>(i), seed)));
+      if (!(dot(dir, rec.ng) > 0.0f)) continue;
+      Ray ray = scene.spawnRay(rec.p, rec.ng, dir);
+      ray.tMax = radius;
+      ++stats->nearRays;
+      SurfaceHit h;
+      if (!scene.intersect(ray, &h) || h.material == kNoMaterial) continue;
+      ++stats->nearHits;
+      hits->push_back({.x = h.p, .n = h.ng, .w = dir, .receiver = r});
+    }
+  }
+}
+
+// Reads into `hit` the surfels of `page` on the hit's surface within `radius` of it that the
+// hit sees along that surface (a wall's surfels below a floor that meets it, in the dark, are
+// not the wall's light above it), from node `step.at` down (children whose ghosts lie farther
+// are skipped), weighted (1 - d^2/R^2)^2 and taken on the side the ray sees; children in other
+// pages go to `elsewhere`.
+template <typename Elsewhere>
+absl::Status readNearSurface(const Scene& scene, const TreePage& page, const NearStep& from,
+                             float radius, NearHit& hit, std::vector<NearStep>& stack,
+                             Elsewhere&& elsewhere, CutStats* stats) {
+  const float r2 = radius * radius;
+  const Vec3f side = dot(hit.n, hit.w) < 0.0f ? hit.n : -hit.n;  // towards the receiver
+  const auto seen = [&](const Vec3f& to) {
+    const float apart = length(to - hit.x);
+    const Vec3f from = hit.x + side * (kNearLiftFraction * apart);
+    const Vec3f v = to + side * (kNearEndLift * apart) - from;
+    const float d = length(v);
+    if (!(d > 0.0f)) return true;
+    Ray ray{.origin = from, .dir = v / d};
+    ray.tMax = d;
+    ++stats->shadowRays;
+    if (!scene.occluded(ray)) return true;
+    ++stats->occluded;
+    return false;
+  };
+  const auto reaches = [&](const NodeAttributes& a) {
+    return boxGap2(a.bounds, hit.x, Vec3f(0.0f)) <= r2;
+  };
+  stack.clear();
+  stack.push_back(from);
+  while (!stack.empty()) {
+    const NearStep step = stack.back();
+    stack.pop_back();
+    absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, step.at);
+    if (!nodeOr.ok()) return nodeOr.status();
+    const TreeNode& node = **nodeOr;
+    if (!reaches(node.attributes)) continue;
+    if (node.leaf()) {
+      if (absl::Status s = checkLeaf(page, node, step.at); !s.ok()) return s;
+      for (const Surfel& sf : page.surfelsOf(node)) {
+        const Vec3f v = sf.position - hit.x;
+        const float d2 = v.length2();
+        if (d2 >= r2 || std::abs(dot(v, hit.n)) > kNearPlaneFraction * radius ||
+            std::abs(dot(sf.normal, hit.n)) < kNearSurfaceCos || !seen(sf.position)) {
+          continue;
+        }
+        const float w = sqr(1.0f - d2 / r2);
+        hit.sum += facingSide(sf, hit.w).radiance * w;
+        hit.weight += w;
+      }
+      continue;
+    }
+    if (absl::Status s = checkInterior(page, node, step.at, step.depth); !s.ok()) return s;
+    for (uint32_t c = 0; c < node.childCount; ++c) {
+      const NodeRef child = page.children[node.first + c];
+      const NearStep next{.at = child, .depth = step.depth + 1, .hit = step.hit};
+      if (child.page == page.id) {
+        stack.push_back(next);
+      } else if (const NodeAttributes* ghost = page.childAttributes(node, c);
+                 ghost == nullptr || reaches(*ghost)) {
+        elsewhere(next);
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+// Adds each hit's radiance, pi / rays of it (a cosine-weighted estimate), to its receiver. A hit
+// where no surfel was read (a corner the reading radius does not fit, a sliver of geometry the
+// surfels missed) takes the mean of its receiver's other hits, or nothing when it has none.
+// Hits come grouped by receiver (traceNearField).
+void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, CutStats* stats) {
+  const float scale = kPi / static_cast<float>(rays);
+  for (size_t first = 0, end = 0; first < hits.size(); first = end) {
+    const uint32_t r = hits[first].receiver;
+    Rgb sum(0.0f);
+    uint32_t read = 0;
+    for (end = first; end < hits.size() && hits[end].receiver == r; ++end) {
+      if (!(hits[end].weight > 0.0f)) continue;
+      sum += hits[end].sum / hits[end].weight;
+      ++read;
+    }
+    const uint32_t unread = static_cast<uint32_t>(end - first) - read;
+    stats->nearUnread += unread;
+    if (read > 0) out[r] += sum * (scale * (1.0f + static_cast<float>(unread) / static_cast<float>(read)));
+  }
+}
+
 }  // namespace
 
 absl::Status CutOptions::validate() const {
@@ -463,6 +637,10 @@ absl::Status CutOptions::validate() const {
   if (auto s = check("receiverBound", receiverBound, 4.0f * kPi); !s.ok()) return s;
   if (auto s = check("normalAngle", normalAngle, kPi); !s.ok()) return s;
   if (auto s = check("selfSkipRadius", selfSkipRadius, 100.0f); !s.ok()) return s;
+  if (nearRays < 0 || nearRays > kMaxNearRays) {
+    return absl::InvalidArgumentError(
+        fmt::format("cut options: nearRays must be in [0, {}], got {}", kMaxNearRays, nearRays));
+  }
   if (receiverLeafSize < 1 || receiverLeafSize > 64) {
     return absl::InvalidArgumentError(fmt::format(
         "cut options: receiverLeafSize must be in [1, 64], got {}", receiverLeafSize));
@@ -477,16 +655,19 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
     o.lightBound = 0.3f;
     o.receiverBound = 0.05f;
     o.normalAngle = radians(45.0f);
+    o.nearRays = 32;
   } else if (name == "default") {
     o.lightSolidAngle = 0.02f;
     o.lightBound = 0.2f;
     o.receiverBound = 0.03f;
     o.normalAngle = radians(30.0f);
+    o.nearRays = 64;
   } else if (name == "high") {
     o.lightSolidAngle = 0.005f;
     o.lightBound = 0.05f;
     o.receiverBound = 0.01f;
     o.normalAngle = radians(20.0f);
+    o.nearRays = 128;
   } else {
     return absl::InvalidArgumentError(
         fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
@@ -494,11 +675,13 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
   return o;
 }
 
+// (nearRays only where there are some: a bake's hash holds its bounces' cut.)
 std::string CutOptions::toString() const {
   return fmt::format(
       "cut(lightSolidAngle={:g} lightBound={:g} receiverBound={:g} normalAngle={:g} "
-      "receiverLeafSize={} selfSkipRadius={:g})",
-      lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius);
+      "receiverLeafSize={} selfSkipRadius={:g}{})",
+      lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius,
+      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "");
 }
 
 CutStats& CutStats::operator+=(const CutStats& o) {
@@ -517,6 +700,9 @@ CutStats& CutStats::operator+=(const CutStats& o) {
   occluded += o.occluded;
   pageRequests += o.pageRequests;
   peakPendingPairs = std::max(peakPendingPairs, o.peakPendingPairs);
+  nearRays += o.nearRays;
+  nearHits += o.nearHits;
+  nearUnread += o.nearUnread;
   return *this;
 }
 
@@ -524,10 +710,11 @@ std::string CutStats::toString() const {
   return fmt::format(
       "cuts={} receivers={} receiver_nodes={} pairs={} cluster_pairs={} leaf_pairs={} "
       "surfel_terms={} receivers_served={} refined_light={} refined_receiver={} culled={} "
-      "shadow_rays={} occluded={} page_requests={} peak_pending_pairs={}",
-      cuts, receivers, receiverNodes, pairs, clusterPairs, leafPairs, surfelTerms,
-      receiversServed, refinedLight, refinedReceiver, culled, shadowRays, occluded, pageRequests,
-      peakPendingPairs);
+      "shadow_rays={} occluded={} page_requests={} peak_pending_pairs={} near_rays={} "
+      "near_hits={} near_unread={}",
+      cuts, receivers, receiverNodes, pairs, clusterPairs, leafPairs, surfelTerms, receiversServed,
+      refinedLight, refinedReceiver, culled, shadowRays, occluded, pageRequests, peakPendingPairs,
+      nearRays, nearHits, nearUnread);
 }
 
 struct BidirectionalCut::State {
@@ -541,7 +728,14 @@ struct BidirectionalCut::State {
   std::vector<Probe> probes;  // the page's being resolved
   std::vector<uint8_t> lit;  // a leaf's surfels that send light
   std::vector<Rgb> leafLight;  // and what each sends a single receiver
+  std::vector<NearHit> nearHits;    // the near field's
+  std::vector<NearStep> nearSteps;  // the page's readings under way
+  std::vector<NearStep> nearStack;
   uint64_t pending = 0;
+  NodeRef root;
+  bool nearTraced = false;  // the near field's rays are traced when the root's page is read
+  float nearRadius = 0.0f;  // 0 without a near field, or before the root's page
+  float readRadius = 0.0f;
 
   // The cut under way (begin() to finish()).
   CutOptions opts;
@@ -707,7 +901,7 @@ struct BidirectionalCut::State {
       bool sends = false;
       if (rv.single) {
         sends = surfelLight(s, receivers[pair.receiver & ~kReceiverBit], opts.selfSkipRadius,
-                            &leafLight[k]);
+                            nearRadius, &leafLight[k]);
       } else {
         sends = !isBlack(facingSide(s, s.position - rv.center).radiance);
       }
@@ -792,6 +986,10 @@ struct BidirectionalCut::State {
     }
     const bool aboveAll = along - extent - spread > slack;
     const bool separated = centerDist2 > reach * reach;
+    // Light that may hold surfels within the near field of one of the receivers: taken surfel
+    // by surfel at single receivers, whose near field's rays take the nearest.
+    const bool reachesNear =
+        nearRadius > 0.0f && boxGap2(lightBounds, rv.center, rv.halfExtent) < sqr(nearRadius);
 
     // The paper's criteria, the bounding spheres' first (no square root, no SH).
     const Vec3f toCentroid = a.centroid - rv.center;
@@ -816,7 +1014,7 @@ struct BidirectionalCut::State {
       viewCluster(a, dir, &view);
       solidAngle = view.coverage() / d2;
     }
-    const bool small = boundsSmall && within(solidAngle, opts.lightSolidAngle);
+    const bool small = !reachesNear && boundsSmall && within(solidAngle, opts.lightSolidAngle);
     if (small) {
       // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
       const float cosGamma = dot(rv.axis, dir);
@@ -853,7 +1051,8 @@ struct BidirectionalCut::State {
       if (absl::Status s = checkLeaf(page, node, pair.light); !s.ok()) return s;
       const float nearest = std::max(std::sqrt(centerDist2) - lightRadius, 1e-30f);
       if (rv.single ||
-          (aboveAll && within(kPi * rv.radius * rv.radius / (nearest * nearest), opts.receiverBound))) {
+          (!reachesNear && aboveAll &&
+           within(kPi * rv.radius * rv.radius / (nearest * nearest), opts.receiverBound))) {
         evaluateLeaf(pair, page, node, rv);
       } else {
         refineReceiver(pair, page.id);
@@ -986,14 +1185,19 @@ absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& s
   for (auto& [id, bucket] : buckets) {
     bucket.pairs.clear();
     bucket.probes.clear();
+    bucket.near.clear();
     bucket.queued = false;
   }
   probes.clear();
   pages = {};
   stack.clear();
   pending = 0;
+  nearHits.clear();
+  nearSteps.clear();
+  nearTraced = opts.nearRays == 0;
+  nearRadius = readRadius = 0.0f;
   if (receivers.empty()) return absl::OkStatus();
-  const NodeRef root = tree.root();
+  root = tree.root();
   push({root, 0, 0}, ~root.page);
   return absl::OkStatus();
 }
@@ -1004,15 +1208,30 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
     pages.pop();
     Bucket& bucket = buckets[id];
     bucket.queued = false;
-    pending -= bucket.pairs.size();
-    pending -= bucket.probes.size();
+    pending -= bucket.pairs.size() + bucket.probes.size() + bucket.near.size();
     std::swap(stack, bucket.pairs);
     std::swap(probes, bucket.probes);
-    if (stack.empty() && probes.empty()) continue;
+    std::swap(nearSteps, bucket.near);
+    if (stack.empty() && probes.empty() && nearSteps.empty()) continue;
     ++stats.pageRequests;
     absl::StatusOr<std::shared_ptr<const TreePage>> page = source->page(id);
     if (!page.ok()) return page.status();
     PBGI_CHECK(*page != nullptr);
+    if (!nearTraced && id == root.page) {
+      // The first page of the sweep: the near field's radius, its rays, their readings.
+      nearTraced = true;
+      absl::StatusOr<const TreeNode*> rootNode = nodeAt(**page, root);
+      if (!rootNode.ok()) return rootNode.status();
+      const float mean = meanSurfelRadius((*rootNode)->attributes);
+      nearRadius = kNearFieldRadii * mean;
+      readRadius = kNearReadRadii * mean;
+      if (nearRadius > 0.0f) {
+        traceNearField(*scn, receivers, opts.nearRays, nearRadius, &nearHits, &stats);
+        for (uint32_t i = 0; i < nearHits.size(); ++i) {
+          nearSteps.push_back({.at = root, .depth = 0, .hit = i});
+        }
+      }
+    }
     while (!stack.empty()) {
       const Pair pair = stack.back();
       stack.pop_back();
@@ -1027,6 +1246,15 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
       resolve(*target, probe.receiver, probe.origin, probe.rng, probe.src);
     }
     probes.clear();
+    for (const NearStep& step : nearSteps) {
+      if (absl::Status s = readNearSurface(
+              *scn, **page, step, readRadius, nearHits[step.hit], nearStack,
+              [&](const NearStep& next) { waitOn(next.at.page).near.push_back(next); }, &stats);
+          !s.ok()) {
+        return s;
+      }
+    }
+    nearSteps.clear();
   }
   return absl::OkStatus();
 }
@@ -1034,6 +1262,7 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
 absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* statsOut) {
   PBGI_CHECK_EQ(out.size(), receivers.size());
   std::fill(out.begin(), out.end(), Rgb(0.0f));
+  addNearLight(nearHits, opts.nearRays, single, &stats);
   // Push each node's field down to its children (re-centred), then read it at each receiver.
   for (size_t i = 1; i < nodes.size(); ++i) {
     ReceiverNode& n = nodes[i];
@@ -1062,6 +1291,7 @@ absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* stats
   std::unordered_map<uint32_t, Bucket>().swap(buckets);
   std::vector<Pair>().swap(stack);
   std::vector<Probe>().swap(probes);
+  std::vector<NearHit>().swap(nearHits);
   return absl::OkStatus();
 }
 
@@ -1135,6 +1365,36 @@ absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
   PBGI_CHECK_EQ(out.size(), receivers.size());
   std::fill(out.begin(), out.end(), Rgb(0.0f));
   CutStats stats;
+  float nearRadius = 0.0f;
+  if (options.nearRays > 0 && !receivers.empty()) {
+    // The near field as the cut takes it, each hit read by a descent of its own.
+    const NodeRef root = tree.root();
+    absl::StatusOr<std::shared_ptr<const TreePage>> page = tree.page(root.page);
+    if (!page.ok()) return page.status();
+    absl::StatusOr<const TreeNode*> rootNode = nodeAt(**page, root);
+    if (!rootNode.ok()) return rootNode.status();
+    const float mean = meanSurfelRadius((*rootNode)->attributes);
+    nearRadius = kNearFieldRadii * mean;
+    std::vector<NearHit> hits;
+    traceNearField(scene, receivers, options.nearRays, nearRadius, &hits, &stats);
+    std::vector<NearStep> steps, stack;
+    for (uint32_t i = 0; i < hits.size(); ++i) {
+      steps.push_back({.at = root, .depth = 0, .hit = i});
+      while (!steps.empty()) {
+        const NearStep step = steps.back();
+        steps.pop_back();
+        absl::StatusOr<std::shared_ptr<const TreePage>> at = tree.page(step.at.page);
+        if (!at.ok()) return at.status();
+        if (absl::Status s = readNearSurface(
+                scene, **at, step, kNearReadRadii * mean, hits[i], stack,
+                [&](const NearStep& next) { steps.push_back(next); }, &stats);
+            !s.ok()) {
+          return s;
+        }
+      }
+    }
+    addNearLight(hits, options.nearRays, out, &stats);
+  }
   std::vector<std::pair<NodeRef, uint32_t>> stack = {{tree.root(), 0}};
   while (!stack.empty()) {
     const auto [ref, depth] = stack.back();
@@ -1148,7 +1408,7 @@ absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
       for (const Surfel& s : (*page)->surfelsOf(**node)) {
         for (size_t r = 0; r < receivers.size(); ++r) {
           Rgb light;
-          if (surfelLight(s, receivers[r], options.selfSkipRadius, &light) &&
+          if (surfelLight(s, receivers[r], options.selfSkipRadius, nearRadius, &light) &&
               visibleSurfel(scene, receivers[r], s, &stats)) {
             out[r] += light;
           }

@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include "core/bake/surfel_bounce.h"
 #include "core/render/pbgi_integrator.h"
 #include "core/render/pbgi_receiver.h"
 
@@ -51,6 +52,10 @@ const std::vector<ParamSpec>& pbgiParams() {
       {.key = "normal_angle_deg", .type = ParamType::kFloat, .lo = 0.0, .hi = 180.0,
        .defaultText = "the preset's",
        .help = "bidirectional: alpha, widest half-angle (degrees) of a receiver cluster's normals"},
+      {.key = "near_rays", .type = ParamType::kInt, .lo = 0, .hi = kMaxNearRays,
+       .defaultText = "the preset's",
+       .help = "bidirectional: rays per record that take the light of what lies within four "
+               "surfel radii from the surfaces they meet (0: those surfels, as disks)"},
       {.key = "light_samples", .type = ParamType::kInt, .lo = 1, .hi = 1024, .defaultText = "16",
        .help = "light samples for the direct light at each camera sample's first hit (a camera "
                "sample costs a gather; a light sample is one shadow ray)"},
@@ -115,6 +120,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.cut.receiverBound = static_cast<float>(p.floatOr("receiver_bound", s.cut.receiverBound));
   s.cut.normalAngle = radians(
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
+  s.cut.nearRays = static_cast<int>(p.intOr("near_rays", s.cut.nearRays));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
   s.recordSpacing = static_cast<int>(p.intOr("record_spacing", 2));
   s.skyAtRecords = p.choiceOr("sky", "records") == "records";
@@ -151,7 +157,7 @@ TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
   t.cachePolicy = PageCachePolicy::kLeastRecent;
   t.bakePoints = static_cast<uint64_t>(r.params.intOr("bake_points", 0));
   t.bakeBounces = static_cast<int>(r.params.intOr("bake_bounces", 3));
-  t.bakeCut = *cutPreset(r.params.choiceOr("bake_quality", "draft"));
+  t.bakeCut = *bounceCutPreset(r.params.choiceOr("bake_quality", "draft"));
   t.bakeWaveletError = static_cast<float>(r.params.floatOr("bake_wavelet_error", 0.2));
   t.bakeWaveletResolution = std::stoi(r.params.choiceOr("bake_wavelet_resolution", "16"));
   return t;

@@ -72,7 +72,7 @@ int runBake(const BakeOptions& o) {
                                                  : PointCloudMode::kAuto;
   if (o.bounces) request.bounces = *o.bounces;
   if (o.bounceQuality) {
-    auto cut = cutPreset(*o.bounceQuality);
+    auto cut = bounceCutPreset(*o.bounceQuality);
     if (!cut.ok()) return reportError(cut.status());
     request.bounceCut = *cut;
   }

@@ -7,8 +7,9 @@
 #include <vector>
 
 #include "core/bake/surfel_sampler.h"
-#include "core/pbgi/page_cache.h"
 #include "core/bake/surfel_shading.h"
+#include "core/math/solid_angle.h"
+#include "core/pbgi/page_cache.h"
 #include "core/sampling/rng.h"
 #include "tests/core/render/test_scenes.h"
 #include "tests/support/memory_tree.h"
@@ -75,21 +76,30 @@ double meanLuminance(const std::vector<Rgb>& v) {
 
 // With every threshold at zero the cut refines down to every surfel against every receiver,
 // which is the brute force sum (the same visibility rays), whatever pages the tree is in.
+// With the near field's rays too: the cut reads their hits in its page sweep, the brute force
+// by a descent of its own, and both leave out the same surfels.
 TEST(BidirectionalCut, ZeroThresholdsEqualBruteForce) {
   BoxCase c = boxCase(3000, 64);
-  for (int splitDepth : {0, 2, 4}) {
+  for (const auto& [splitDepth, nearRays] : {std::pair{0, 0}, {2, 0}, {4, 0}, {0, 16}, {4, 16}}) {
     auto tree = memoryTree(c.surfels, kDefaultLeafSize, splitDepth);
     ASSERT_TRUE(tree.ok()) << tree.status();
+    CutOptions options = zeroThresholds();
+    options.nearRays = nearRays;
     std::vector<Rgb> brute(c.receivers.size()), cut(c.receivers.size());
-    ASSERT_TRUE(bruteForceIrradiance(**tree, *c.scene, c.receivers, zeroThresholds(), brute).ok());
-    BidirectionalCut bc(zeroThresholds());
+    ASSERT_TRUE(bruteForceIrradiance(**tree, *c.scene, c.receivers, options, brute).ok());
+    BidirectionalCut bc(options);
     CutStats stats;
     ASSERT_TRUE(bc.irradiance(**tree, *c.scene, c.receivers, 1, cut, &stats).ok());
+    if (nearRays > 0) {
+      EXPECT_GT(stats.nearHits, 0u) << stats.toString();  // the block is near the floor
+      EXPECT_EQ(stats.nearRays, uint64_t{c.receivers.size()} * nearRays) << stats.toString();
+    }
     int lit = 0;
     for (size_t i = 0; i < c.receivers.size(); ++i) {
       for (int ch = 0; ch < 3; ++ch) {
         EXPECT_NEAR(cut[i][ch], brute[i][ch], 1e-4f * std::max(1.0f, std::abs(brute[i][ch])))
-            << "receiver " << i << " channel " << ch << " split " << splitDepth;
+            << "receiver " << i << " channel " << ch << " split " << splitDepth << " near rays "
+            << nearRays;
       }
       lit += luminance(brute[i]) > 0.0f;
     }
@@ -164,33 +174,100 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
     const Vec3f n = dot(Vec3f(0.5f) - s.position, s.normal) > 0.0f ? s.normal : -s.normal;
     receivers.push_back({s.position, n, n});
   }
-  std::vector<Rgb> out(receivers.size());
-  BidirectionalCut cut(CutOptions{});
-  CutStats stats;
-  ASSERT_TRUE(cut.irradiance(**tree, **scene, receivers, 5, out, &stats).ok());
-  double all = 0.0, nearEdge = 0.0;
-  int nearCount = 0;
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    const Vec3f& p = receivers[i].p;
-    float edge = 1.0f;  // distance to the nearest edge of the receiver's face
-    for (int a = 0; a < 3; ++a) {
-      if (std::abs(receivers[i].n[a]) < 0.5f) edge = std::min({edge, p[a], 1.0f - p[a]});
+  // And with the near field by rays (CutOptions::nearRays), whose hits read radiance 1
+  // wherever they land, in place of the disks within four radii.
+  for (int nearRays : {0, 64}) {
+    SCOPED_TRACE(::testing::Message() << "near rays " << nearRays);
+    std::vector<Rgb> out(receivers.size());
+    CutOptions options;
+    options.nearRays = nearRays;
+    BidirectionalCut cut(options);
+    CutStats stats;
+    ASSERT_TRUE(cut.irradiance(**tree, **scene, receivers, 5, out, &stats).ok());
+    double all = 0.0, nearEdge = 0.0;
+    int nearCount = 0;
+    for (size_t i = 0; i < receivers.size(); ++i) {
+      const Vec3f& p = receivers[i].p;
+      float edge = 1.0f;  // distance to the nearest edge of the receiver's face
+      for (int a = 0; a < 3; ++a) {
+        if (std::abs(receivers[i].n[a]) < 0.5f) edge = std::min({edge, p[a], 1.0f - p[a]});
+      }
+      const double e = out[i].x / kPi;
+      EXPECT_NEAR(out[i].y, out[i].x, 1e-5f * out[i].x);
+      all += e;
+      if (edge < radius) nearEdge += e, ++nearCount;
     }
-    const double e = out[i].x / kPi;
-    EXPECT_NEAR(out[i].y, out[i].x, 1e-5f * out[i].x);
-    all += e;
-    if (edge < radius) nearEdge += e, ++nearCount;
+    all /= static_cast<double>(receivers.size());
+    nearEdge /= nearCount;
+    std::printf(
+        "[ measured ] closed box, %zu surfels of radius %.4f: E / pi %.4f, within a radius "
+        "of an edge %.4f (%d receivers)  %s\n",
+        surfels->size(), radius, all, nearEdge, nearCount, stats.toString().c_str());
+    EXPECT_GT(nearCount, 100);
+    EXPECT_NEAR(all, 1.0, 0.01);
+    EXPECT_GT(nearEdge, 0.95);
+    EXPECT_LT(nearEdge, 1.07);
+    EXPECT_EQ(stats.occluded, 0u);  // nothing inside the box hides anything
+    // Hits where no surfel is read (in the corners) are few.
+  if (nearRays > 0) EXPECT_LT(stats.nearUnread * 100, stats.nearHits) << stats.toString();
   }
-  all /= static_cast<double>(receivers.size());
-  nearEdge /= nearCount;
-  std::printf("[ measured ] closed box, %zu surfels of radius %.4f: E / pi %.4f, within a radius "
-              "of an edge %.4f (%d receivers)  %s\n",
-              surfels->size(), radius, all, nearEdge, nearCount, stats.toString().c_str());
-  EXPECT_GT(nearCount, 100);
-  EXPECT_NEAR(all, 1.0, 0.01);
-  EXPECT_GT(nearEdge, 0.95);
-  EXPECT_LT(nearEdge, 1.07);
-  EXPECT_EQ(stats.occluded, 0u);  // nothing inside the box hides anything
+}
+
+// A floor receiver next to a wall of radiance 1 (a contact, as at the foot of every wall and
+// column): the wall's light is its projected solid angle (Lambert's formula), exact at any
+// distance. The near field by rays within a quarter of a surfel radius to three radii from the
+// wall, the mean over receivers along it; printed against the disks (nearRays 0). The floor
+// runs on under the wall, as scenes model it, its surfels there dark.
+TEST(BidirectionalCut, TheNearFieldByRaysGathersAWallAtItsFoot) {
+  SceneBuilder b;
+  Material white;
+  white.albedo = Rgb(0.5f);
+  const uint32_t m = b.addMaterial(white);
+  b.addMesh(testing::makeQuadMesh({-1, 0, -1}, {0, 0, 2}, {2, 0, 0}, m));  // floor, facing +y
+  b.addMesh(testing::makeQuadMesh({0, 0, -1}, {0, 0, 2}, {0, 1, 0}, m));   // wall x = 0, facing -x
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  auto surfels = surfelsOf(**scene, 30000);
+  ASSERT_TRUE(surfels.ok()) << surfels.status();
+  for (Surfel& s : *surfels) {
+    const bool wall = std::abs(s.normal.x) > 0.5f;
+    s.radiance = Rgb(wall ? 1.0f : 0.0f);
+    s.backRadiance = Rgb(0.0f);
+  }
+  auto tree = memoryTree(*surfels);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  const float radius = surfels->front().radius;
+  const std::array<Vec3d, 4> wall = {Vec3d{0, 0, -1}, Vec3d{0, 1, -1}, Vec3d{0, 1, 1},
+                                     Vec3d{0, 0, 1}};
+  Rng rng(3);
+  for (float radii : {0.25f, 0.5f, 1.0f, 3.0f}) {
+    std::vector<CutReceiver> receivers;
+    double exact = 0.0;
+    for (int i = 0; i < 64; ++i) {
+      const Vec3f p(-radii * radius, 0.0f, 0.6f * rng.uniform() - 0.3f);
+      receivers.push_back({p, {0, 1, 0}, {0, 1, 0}});
+      std::array<Vec3d, 4> v;
+      for (int k = 0; k < 4; ++k) {
+        for (int a = 0; a < 3; ++a) v[k][a] = wall[k][a] - p[a];
+      }
+      exact += vectorSolidAngle(v, Vec3d{0, 1, 0})[1];
+    }
+    double got[2] = {};
+    for (int nearRays : {0, 64}) {
+      CutOptions options = *cutPreset("default");
+      options.nearRays = nearRays;
+      BidirectionalCut cut(options);
+      std::vector<Rgb> out(receivers.size());
+      CutStats stats;
+      ASSERT_TRUE(cut.irradiance(**tree, **scene, receivers, 9, out, &stats).ok());
+      got[nearRays > 0] = meanLuminance(out) * static_cast<double>(receivers.size()) / exact;
+    }
+    std::printf(
+        "[ measured ] a wall %.2f surfel radii away: gathered / exact %.4f by disks, "
+        "%.4f by the near field's rays\n",
+        radii, got[0], got[1]);
+    EXPECT_NEAR(got[1], 1.0, 0.03) << radii << " radii";
+  }
 }
 
 // Two closed rooms either side of a wall 1 cm thick, a light in one: the other stays dark.
