@@ -45,8 +45,8 @@ CutOptions bounceCutOptions(const CutOptions& first, int bounce);
 
 // The first bounce's cut for a quality preset: the preset without the near field's rays
 // (CutOptions::nearRays). Bounce light reaches the frame through one more gather, whose records
-// take the near field by rays; in the bounces they cost a tenth more time and moved neither the
-// dev Sponza image's mean (+0.03 %) nor its error.
+// take the near field by rays; in the bounces too they cost 4 s of a 57 s bake (1M-surfel
+// Sponza) for 0.25 % more of the image's mean and 2.5 % less relMSE.
 absl::StatusOr<CutOptions> bounceCutPreset(std::string_view quality);
 
 // Whether a surfel reflects gathered light at all.

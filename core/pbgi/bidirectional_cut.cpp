@@ -618,7 +618,8 @@ void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, C
     }
     const uint32_t unread = static_cast<uint32_t>(end - first) - read;
     stats->nearUnread += unread;
-    if (read > 0) out[r] += sum * (scale * (1.0f + static_cast<float>(unread) / static_cast<float>(read)));
+    if (read > 0)
+      out[r] += sum * (scale * (1.0f + static_cast<float>(unread) / static_cast<float>(read)));
   }
 }
 
@@ -655,19 +656,19 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
     o.lightBound = 0.3f;
     o.receiverBound = 0.05f;
     o.normalAngle = radians(45.0f);
-    o.nearRays = 32;
+    o.nearRays = 16;
   } else if (name == "default") {
     o.lightSolidAngle = 0.02f;
     o.lightBound = 0.2f;
     o.receiverBound = 0.03f;
     o.normalAngle = radians(30.0f);
-    o.nearRays = 64;
+    o.nearRays = 32;
   } else if (name == "high") {
     o.lightSolidAngle = 0.005f;
     o.lightBound = 0.05f;
     o.receiverBound = 0.01f;
     o.normalAngle = radians(20.0f);
-    o.nearRays = 128;
+    o.nearRays = 64;
   } else {
     return absl::InvalidArgumentError(
         fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));

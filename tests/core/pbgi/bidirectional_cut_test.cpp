@@ -209,7 +209,7 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
     EXPECT_LT(nearEdge, 1.07);
     EXPECT_EQ(stats.occluded, 0u);  // nothing inside the box hides anything
     // Hits where no surfel is read (in the corners) are few.
-  if (nearRays > 0) EXPECT_LT(stats.nearUnread * 100, stats.nearHits) << stats.toString();
+    if (nearRays > 0) EXPECT_LT(stats.nearUnread * 100, stats.nearHits) << stats.toString();
   }
 }
 
@@ -469,6 +469,19 @@ TEST(BidirectionalCut, BadInputAndDamagedPagesAreErrors) {
   CutOptions o;
   o.normalAngle = -1.0f;
   EXPECT_EQ(o.validate().code(), absl::StatusCode::kInvalidArgument);
+  for (int rays : {-1, kMaxNearRays + 1}) {
+    CutOptions near;
+    near.nearRays = rays;
+    const absl::Status v = near.validate();
+    EXPECT_EQ(v.code(), absl::StatusCode::kInvalidArgument) << rays;
+    EXPECT_NE(v.message().find("nearRays"), std::string::npos) << v;
+  }
+  // The page source failing under the near field's readings is the cut's error too.
+  CutOptions withNear;
+  withNear.nearRays = 8;
+  BidirectionalCut nearCut(withNear);
+  s = nearCut.irradiance(failing, *c.scene, c.receivers, 1, out, nullptr);
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss) << s;
 }
 
 }  // namespace
