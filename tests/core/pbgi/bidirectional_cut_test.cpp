@@ -216,8 +216,9 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
 // A floor receiver next to a wall of radiance 1 (a contact, as at the foot of every wall and
 // column): the wall's light is its projected solid angle (Lambert's formula), exact at any
 // distance. The near field by rays within a quarter of a surfel radius to three radii from the
-// wall, the mean over receivers along it; printed against the disks (nearRays 0). The floor
-// runs on under the wall, as scenes model it, its surfels there dark.
+// wall, the mean over receivers along it; printed against the disks (nearRays 0), which
+// measured 0.98, 0.97, 0.955 and 0.96 and would fail the bound from one radius out. The floor
+// is dark and runs on under the wall, as scenes model it.
 TEST(BidirectionalCut, TheNearFieldByRaysGathersAWallAtItsFoot) {
   SceneBuilder b;
   Material white;
