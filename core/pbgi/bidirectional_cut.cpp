@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <array>
-#include <bit>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -33,6 +32,7 @@ using gather_internal::clusterRadiance;
 using gather_internal::ClusterView;
 using gather_internal::facingSide;
 using gather_internal::FacingSide;
+using gather_internal::meanSurfelRadius;
 using gather_internal::skipSurfel;
 using gather_internal::nodeAt;
 using gather_internal::viewCluster;
@@ -493,10 +493,11 @@ constexpr float kNearSurfaceCos = 0.5f;
 constexpr float kNearLiftFraction = 0.25f;
 constexpr float kNearEndLift = 0.02f;
 
-// The tree's mean surfel radius, from its root: sqrt(area / (pi count)).
-float meanSurfelRadius(const NodeAttributes& root) {
-  return root.pointCount > 0 ? std::sqrt(root.area / (kPi * static_cast<float>(root.pointCount)))
-                             : 0.0f;
+// The tree's mean surfel radius, from its root node in `page`.
+absl::StatusOr<float> rootSurfelRadius(const TreePage& page, NodeRef root) {
+  absl::StatusOr<const TreeNode*> node = nodeAt(page, root);
+  if (!node.ok()) return node.status();
+  return meanSurfelRadius((*node)->attributes);
 }
 
 // The squared gap between a box and another box around `center` (half-size `halfExtent`).
@@ -515,10 +516,7 @@ void traceNearField(const Scene& scene, std::span<const CutReceiver> receivers, 
                     float radius, std::vector<NearHit>* hits, CutStats* stats) {
   for (uint32_t r = 0; r < receivers.size(); ++r) {
     const CutReceiver& rec = receivers[r];
-    const uint64_t seed =
-        hashKeys(std::bit_cast<uint32_t>(rec.p.x), std::bit_cast<uint32_t>(rec.p.y),
-                 std::bit_cast<uint32_t>(rec.p.z), std::bit_cast<uint32_t>(rec.n.x),
-                 std::bit_cast<uint32_t>(rec.n.y), std::bit_cast<uint32_t>(rec.n.z));
+    const uint64_t seed = hashPoint(rec.p, rec.n);
     const Frame frame(rec.n);
     for (int i = 0; i < rays; ++i) {
       const Vec3f dir =
@@ -988,9 +986,12 @@ struct BidirectionalCut::State {
     const bool aboveAll = along - extent - spread > slack;
     const bool separated = centerDist2 > reach * reach;
     // Light that may hold surfels within the near field of one of the receivers: taken surfel
-    // by surfel at single receivers, whose near field's rays take the nearest.
-    const bool reachesNear =
-        nearRadius > 0.0f && boxGap2(lightBounds, rv.center, rv.halfExtent) < sqr(nearRadius);
+    // by surfel at single receivers, whose near field's rays take the nearest. (Asked only of
+    // pairs that could otherwise be evaluated whole.)
+    const auto reachesNear = [&] {
+      return nearRadius > 0.0f &&
+             boxGap2(lightBounds, rv.center, rv.halfExtent) < sqr(nearRadius);
+    };
 
     // The paper's criteria, the bounding spheres' first (no square root, no SH).
     const Vec3f toCentroid = a.centroid - rv.center;
@@ -1015,7 +1016,8 @@ struct BidirectionalCut::State {
       viewCluster(a, dir, &view);
       solidAngle = view.coverage() / d2;
     }
-    const bool small = !reachesNear && boundsSmall && within(solidAngle, opts.lightSolidAngle);
+    const bool small =
+        boundsSmall && within(solidAngle, opts.lightSolidAngle) && !reachesNear();
     if (small) {
       // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
       const float cosGamma = dot(rv.axis, dir);
@@ -1052,8 +1054,9 @@ struct BidirectionalCut::State {
       if (absl::Status s = checkLeaf(page, node, pair.light); !s.ok()) return s;
       const float nearest = std::max(std::sqrt(centerDist2) - lightRadius, 1e-30f);
       if (rv.single ||
-          (!reachesNear && aboveAll &&
-           within(kPi * rv.radius * rv.radius / (nearest * nearest), opts.receiverBound))) {
+          (aboveAll &&
+           within(kPi * rv.radius * rv.radius / (nearest * nearest), opts.receiverBound) &&
+           !reachesNear())) {
         evaluateLeaf(pair, page, node, rv);
       } else {
         refineReceiver(pair, page.id);
@@ -1221,11 +1224,10 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
     if (!nearTraced && id == root.page) {
       // The first page of the sweep: the near field's radius, its rays, their readings.
       nearTraced = true;
-      absl::StatusOr<const TreeNode*> rootNode = nodeAt(**page, root);
-      if (!rootNode.ok()) return rootNode.status();
-      const float mean = meanSurfelRadius((*rootNode)->attributes);
-      nearRadius = kNearFieldRadii * mean;
-      readRadius = kNearReadRadii * mean;
+      absl::StatusOr<float> mean = rootSurfelRadius(**page, root);
+      if (!mean.ok()) return mean.status();
+      nearRadius = kNearFieldRadii * *mean;
+      readRadius = kNearReadRadii * *mean;
       if (nearRadius > 0.0f) {
         traceNearField(*scn, receivers, opts.nearRays, nearRadius, &nearHits, &stats);
         for (uint32_t i = 0; i < nearHits.size(); ++i) {
@@ -1372,10 +1374,9 @@ absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
     const NodeRef root = tree.root();
     absl::StatusOr<std::shared_ptr<const TreePage>> page = tree.page(root.page);
     if (!page.ok()) return page.status();
-    absl::StatusOr<const TreeNode*> rootNode = nodeAt(**page, root);
-    if (!rootNode.ok()) return rootNode.status();
-    const float mean = meanSurfelRadius((*rootNode)->attributes);
-    nearRadius = kNearFieldRadii * mean;
+    absl::StatusOr<float> mean = rootSurfelRadius(**page, root);
+    if (!mean.ok()) return mean.status();
+    nearRadius = kNearFieldRadii * *mean;
     std::vector<NearHit> hits;
     traceNearField(scene, receivers, options.nearRays, nearRadius, &hits, &stats);
     std::vector<NearStep> steps, stack;
@@ -1387,7 +1388,7 @@ absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
         absl::StatusOr<std::shared_ptr<const TreePage>> at = tree.page(step.at.page);
         if (!at.ok()) return at.status();
         if (absl::Status s = readNearSurface(
-                scene, **at, step, kNearReadRadii * mean, hits[i], stack,
+                scene, **at, step, kNearReadRadii * *mean, hits[i], stack,
                 [&](const NearStep& next) { steps.push_back(next); }, &stats);
             !s.ok()) {
           return s;

@@ -42,20 +42,20 @@ void PageCache::evict(Shard& shard) {
         victimLru = it;
         break;
       }
-    }
-    // The least used unpinned page (pinned ones are held outside the cache), the least
-    // recently used among equals: scanning from the old end, the first of the fewest uses.
-    for (auto it = shard.lru.end();
-         policy_ != PageCachePolicy::kSweeps && it != shard.lru.begin();) {
-      --it;
-      auto entry = shard.entries.find(*it);
-      PBGI_CHECK(entry != shard.entries.end());
-      if (entry->second.page.use_count() > 1) continue;
-      if (victim == shard.entries.end() || entry->second.uses < victim->second.uses) {
-        victim = entry;
-        victimLru = it;
+    } else {
+      // The least used unpinned page (pinned ones are held outside the cache), the least
+      // recently used among equals: scanning from the old end, the first of the fewest uses.
+      for (auto it = shard.lru.end(); it != shard.lru.begin();) {
+        --it;
+        auto entry = shard.entries.find(*it);
+        PBGI_CHECK(entry != shard.entries.end());
+        if (entry->second.page.use_count() > 1) continue;
+        if (victim == shard.entries.end() || entry->second.uses < victim->second.uses) {
+          victim = entry;
+          victimLru = it;
+        }
+        if (policy_ == PageCachePolicy::kLeastRecent) break;  // the oldest unpinned page
       }
-      if (policy_ == PageCachePolicy::kLeastRecent) break;  // the oldest unpinned page
     }
     if (victim == shard.entries.end()) break;
     shard.bytes -= victim->second.bytes;

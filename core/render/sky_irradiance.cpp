@@ -1,7 +1,6 @@
 #include "core/render/sky_irradiance.h"
 
 #include <array>
-#include <bit>
 #include <cmath>
 
 #include "core/sampling/rng.h"
@@ -142,9 +141,6 @@ Rgb SkyIrradiance::at(const Vec3f& p, const Vec3f& n, const Vec3f& ng, uint64_t 
   return e;
 }
 
-uint64_t skyKey(const Vec3f& p) {
-  return hashKeys(std::bit_cast<uint32_t>(p.x), std::bit_cast<uint32_t>(p.y),
-                  std::bit_cast<uint32_t>(p.z));
-}
+uint64_t skyKey(const Vec3f& p) { return hashPoint(p); }
 
 }  // namespace pbgi

@@ -3,7 +3,10 @@
 // serves, (seed, frame, pixel, sample) or (seed, frame, surfel), never by thread or time:
 // this is what makes a tile bit-identical whatever the tiling, threads, worker or retry.
 
+#include <bit>
 #include <cstdint>
+
+#include "core/math/vec.h"
 
 namespace pbgi {
 
@@ -23,6 +26,18 @@ inline constexpr uint64_t hashKeys(Keys... keys) {
   uint64_t h = 0x9e3779b97f4a7c15ull;
   ((h = mix64(h ^ (static_cast<uint64_t>(keys) + 0x632be59bd9b4e019ull))), ...);
   return h;
+}
+
+// A point's bits hashed (and a direction's with it): random numbers keyed by where they are
+// used, the same for the same point whichever tile, block or thread asks.
+inline uint64_t hashPoint(const Vec3f& p) {
+  return hashKeys(std::bit_cast<uint32_t>(p.x), std::bit_cast<uint32_t>(p.y),
+                  std::bit_cast<uint32_t>(p.z));
+}
+inline uint64_t hashPoint(const Vec3f& p, const Vec3f& n) {
+  return hashKeys(std::bit_cast<uint32_t>(p.x), std::bit_cast<uint32_t>(p.y),
+                  std::bit_cast<uint32_t>(p.z), std::bit_cast<uint32_t>(n.x),
+                  std::bit_cast<uint32_t>(n.y), std::bit_cast<uint32_t>(n.z));
 }
 
 // PCG32 (O'Neill 2014): small state, good statistics, and a stream selector.
