@@ -31,8 +31,10 @@ absl::StatusOr<CutOptions> bounceCutPreset(std::string_view quality) {
 
 int bounceReceiverSpacing(int first, int bounce) {
   if (bounce <= 1 || first <= 1) return first;
-  return std::min(kMaxBounceSpacing,
-                  static_cast<int>(static_cast<float>(first) * kLaterBounceCoarsening));
+  // kLaterBounceSpacing times the first's at the second bounce, twice that at each later one.
+  int64_t spacing = int64_t{first} * kLaterBounceSpacing;
+  for (int b = 2; b < bounce && spacing < kMaxBounceSpacing; ++b) spacing *= 2;
+  return static_cast<int>(std::min<int64_t>(kMaxBounceSpacing, spacing));
 }
 
 SurfelBouncer::SurfelBouncer(const CutOptions& options, int receiverSpacing)

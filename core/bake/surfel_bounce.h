@@ -62,8 +62,12 @@ struct SurfelIrradiance {
 inline constexpr int kBounceReceiverSpacing = 16;
 inline constexpr int kMaxBounceSpacing = 1024;
 // Bounce `bounce`'s spacing, given the first's: light reflected twice or more is smoother, so
-// later bounces' records stand for kLaterBounceCoarsening times as many surfels (up to
-// kMaxBounceSpacing; a spacing of 1 stays 1, every surfel its own).
+// the second bounce's records stand for kLaterBounceSpacing times as many surfels and each
+// later bounce's for twice as many as the one before (up to kMaxBounceSpacing; a spacing of 1
+// stays 1, every surfel its own). Sponza, 1M surfels, 16 / 128 / 256 against 16 / 64 / 64: the
+// bake 60.5 s against 67.9 s in one run, the image's mean 0.13 % lower, its relMSE the same
+// (0.00479); 16 / 256 / 1024: 57.3 s, the mean 0.23 % lower, relMSE 0.00482.
+inline constexpr int kLaterBounceSpacing = 8;
 int bounceReceiverSpacing(int first, int bounce);
 // The least cosine between the normals of surfels of one patch, and of a surfel and a record
 // it reads (about 18 degrees).

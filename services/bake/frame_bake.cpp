@@ -38,8 +38,10 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
 // spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
 // glossy surfels reflect), 9 records gathering for patches of surfels, 10 later bounces' records
-// coarser, 11 shut sides not gathered after the first bounce.
-constexpr int kBounceRevision = 11;
+// coarser, 11 shut sides not gathered after the first bounce, 12 a cluster's light weighed by
+// its shadow ray's descent (what each level's children send over their parent's estimate),
+// later bounces' records sparser.
+constexpr int kBounceRevision = 12;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 

@@ -16,7 +16,8 @@
 // every receiver (bruteForceIrradiance) splits the two: the cut against it is its clustering
 // error alone; and the brute force against rays is printed by the receivers' distance to the
 // nearest other geometry, where the discretization loses light (near contacts).
-// Reports one line per quality preset; never fails on a number.
+// Reports one line per quality preset and one for the bake's later bounces' cut; never fails
+// on a number.
 //
 // Run: build/bin/transfer_bench --shot ../shared/scenes/sponza/sponza.shot.toml
 //        [--points 100000] [--receivers 1000] [--rays 1024] [--light unit|direct|bounce]
@@ -28,6 +29,8 @@
 #include <limits>
 #include <string>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "core/bake/surfel_bounce.h"
 #include "core/bake/surfel_sampler.h"
@@ -285,8 +288,8 @@ int run(const Args& args) {
   const char* against = "rays";
   const std::vector<RayGather> rays = raysGather(scene, receivers, args.rays, !unitLight);
   for (const RayGather& g : rays) exact += unitLight ? g.covered : g.reflected;
+  std::vector<Rgb> brute(receivers.size());
   if (args.brute) {
-    std::vector<Rgb> brute(receivers.size());
     auto options = cutPreset("default");
     if (absl::Status s = bruteForceIrradiance(**tree, scene, receivers, *options, brute); !s.ok()) {
       return std::fprintf(stderr, "%s\n", s.ToString().c_str()), 1;
@@ -298,15 +301,31 @@ int run(const Args& args) {
     exact = sum;
     against = "brute force";
   }
-  for (const char* preset : {"draft", "default", "high"}) {
+  // The presets, and the bake's later bounces' cut (bounceCutOptions: the draft preset's
+  // thresholds times kLaterBounceCoarsening; with the draft's near field, as the brute force
+  // has one).
+  for (const char* preset : {"draft", "default", "high", "later"}) {
     std::vector<Rgb> out(receivers.size());
-    BidirectionalCut cut(*cutPreset(preset));
+    const CutOptions options = std::strcmp(preset, "later") == 0
+                                   ? bounceCutOptions(*cutPreset("draft"), 2)
+                                   : *cutPreset(preset);
+    BidirectionalCut cut(options);
     CutStats stats;
     if (absl::Status s = cut.irradiance(**tree, scene, receivers, 5, out, &stats); !s.ok()) {
       return std::fprintf(stderr, "%s\n", s.ToString().c_str()), 1;
     }
-    std::printf("  %-8s cut / %s %.4f  (%s)\n", preset, against, sumLuminance(out) / exact,
-                stats.toString().c_str());
+    // With --brute: each receiver's error against it, RMS, over the mean receiver's light.
+    std::string rms;
+    if (args.brute) {
+      double sq = 0.0;
+      for (size_t r = 0; r < out.size(); ++r) {
+        sq += sqr(static_cast<double>(luminance(out[r])) - luminance(brute[r]));
+      }
+      rms = fmt::format(", RMS {:.4f}", std::sqrt(sq / static_cast<double>(out.size())) /
+                                            (exact / static_cast<double>(out.size())));
+    }
+    std::printf("  %-8s cut / %s %.4f%s  (%s)\n", preset, against, sumLuminance(out) / exact,
+                rms.c_str(), stats.toString().c_str());
   }
   return 0;
 }

@@ -32,8 +32,11 @@ TEST(SurfelBounce, LaterBouncesGatherAtCoarserSolidAnglesThanTheFirst) {
 
 TEST(SurfelBounce, LaterBouncesStandForMoreSurfelsARecord) {
   EXPECT_EQ(bounceReceiverSpacing(16, 1), 16);
-  EXPECT_EQ(bounceReceiverSpacing(16, 2), 64);
-  EXPECT_EQ(bounceReceiverSpacing(16, 5), 64);
+  EXPECT_EQ(bounceReceiverSpacing(16, 2), 16 * kLaterBounceSpacing);
+  EXPECT_EQ(bounceReceiverSpacing(16, 3), 32 * kLaterBounceSpacing);
+  EXPECT_EQ(bounceReceiverSpacing(16, 4), 64 * kLaterBounceSpacing);
+  EXPECT_EQ(bounceReceiverSpacing(16, 16), kMaxBounceSpacing);
+  EXPECT_EQ(bounceReceiverSpacing(2, 2), 2 * kLaterBounceSpacing);
   EXPECT_EQ(bounceReceiverSpacing(1, 3), 1);  // every surfel its own, in every bounce
   EXPECT_EQ(bounceReceiverSpacing(kMaxBounceSpacing, 2), kMaxBounceSpacing);
 }

@@ -209,7 +209,9 @@ TEST(BidirectionalCut, AClosedBoxOfUnitRadianceGathersPiUpToItsEdges) {
     EXPECT_LT(nearEdge, 1.07);
     EXPECT_EQ(stats.occluded, 0u);  // nothing inside the box hides anything
     // Hits where no surfel is read (in the corners) are few.
-    if (nearRays > 0) EXPECT_LT(stats.nearUnread * 100, stats.nearHits) << stats.toString();
+    if (nearRays > 0) {
+      EXPECT_LT(stats.nearUnread * 100, stats.nearHits) << stats.toString();
+    }
   }
 }
 
@@ -345,7 +347,7 @@ TEST(BidirectionalCut, ThresholdsTradePairsForError) {
   const double reference = meanLuminance(brute);
   double previousError = 1e30;
   uint64_t previousPairs = 0;
-  for (const float scale : {4.0f, 1.0f, 0.25f}) {
+  for (const float scale : {16.0f, 4.0f, 1.0f, 0.25f}) {
     CutOptions o;
     o.lightSolidAngle *= scale;
     o.lightBound *= scale;
@@ -368,7 +370,11 @@ TEST(BidirectionalCut, ThresholdsTradePairsForError) {
                 static_cast<unsigned long long>(stats.clusterPairs),
                 static_cast<unsigned long long>(stats.leafPairs),
                 static_cast<unsigned long long>(stats.shadowRays), c.surfels.size() * out.size());
-    EXPECT_LT(meanError, 0.05);
+    // A cluster's light is its estimate times the corrections its shadow ray's descent met,
+    // so coarse cuts keep the surfels' light: their mean stays on the brute force's. Without
+    // the corrections the mean fell 3.5 % below it at 16 times the default thresholds and
+    // 1.5 % at 4 times (the later bounces' cut, bounceCutOptions).
+    EXPECT_LT(meanError, 0.005) << "scale " << scale;
     EXPECT_LT(stats.shadowRays, c.surfels.size() * out.size() / 8);
     EXPECT_LT(rmse, previousError * 1.05);
     EXPECT_GT(stats.pairs, previousPairs);
