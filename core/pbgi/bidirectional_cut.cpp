@@ -121,12 +121,12 @@ struct PointSource {
 // Light from a cluster waiting for its shadow ray's target, picked below the cluster in a
 // lower page (see descend()).
 struct Probe {
-  NodeRef at;            // the node the descent goes on from
-  uint32_t depth = 0;    // of `at`
-  uint32_t receiver = 0; // the receiver item the light goes to
-  uint32_t origin = 0;   // the receiver the ray leaves from
-  float estimate = 0.0f; // what `at` sends the origin, as its parent estimated it
-  float scale = 1.0f;    // the descent's corrections so far (see descend())
+  NodeRef at;             // the node the descent goes on from
+  uint32_t depth = 0;     // of `at`
+  uint32_t receiver = 0;  // the receiver item the light goes to
+  uint32_t origin = 0;    // the receiver the ray leaves from
+  float estimate = 0.0f;  // what `at` sends the origin, as its parent estimated it
+  float scale = 1.0f;     // the descent's corrections so far (see descend())
   Rng rng{0};
   PointSource src;
 };
@@ -214,9 +214,9 @@ float nodeContribution(const NodeAttributes& a, const WaveletRadiance* wavelet, 
 // cluster's size. Without it, coarse clusters lost light: a descent that reached a node whose
 // children send the receiver nothing dropped the cluster's whole light, and nothing made up for
 // children that send more than their parent's estimate. transfer_bench (Sponza, 300k surfels,
-// direct light, cut / brute force) measured 0.979, 0.989 and 0.958 for the draft and default
-// presets and the later bounces' cut (4 times the default's thresholds), 0.995, 0.997 and
-// 0.998 with the corrections; each receiver's RMS error fell too.
+// direct light, cut / brute force) measured 0.979, 0.989 and 0.941 for the draft and default
+// presets and the bake's later bounces' cut (the draft's thresholds times 4); 0.995, 0.997 and
+// 0.989 with the corrections, and each receiver's RMS error fell too.
 //
 // A cluster's SH can send a receiver light that none of its children's estimates, or none of a
 // leaf's surfels, does (SH ringing past a face that looks away: a wall's two faces, the lit one
@@ -241,8 +241,8 @@ struct Descent {
   float scale = 1.0f;          // the corrections' product on the way (kSurfel, kElsewhere)
 };
 
-absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t depth,
-                                float estimate, float scale, const CutReceiver& to, Rng& rng) {
+absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t depth, float estimate,
+                                float scale, const CutReceiver& to, Rng& rng) {
   // One level's correction: what the children send by their own estimates (`total`) over what
   // their parent's estimate said.
   const auto correct = [&](float total) {
@@ -272,7 +272,10 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
         total += w;
       }
       if (!(total > 0.0f)) return Descent{};
-      correct(total);
+      // A leaf with a wavelet (glossy surfels) sends the receiver what the wavelet says,
+      // which its surfels' own estimates (their diffuse radiance) do not hold: its estimate
+      // stands.
+      if (page.wavelets.empty() || page.waveletOf(node) == nullptr) correct(total);
       float x = u * total;
       size_t pick = surfels.size() - 1;
       for (size_t k = 0; k < surfels.size(); ++k) {
@@ -315,8 +318,11 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
     estimate = weights[pick];
     ++depth;
     if (ref.page != page.id) {
-      return Descent{.kind = Descent::Kind::kElsewhere, .next = ref, .depth = depth,
-                     .estimate = estimate, .scale = scale};
+      return Descent{.kind = Descent::Kind::kElsewhere,
+                     .next = ref,
+                     .depth = depth,
+                     .estimate = estimate,
+                     .scale = scale};
     }
   }
 }
@@ -892,9 +898,14 @@ struct BidirectionalCut::State {
         return;
       case Descent::Kind::kElsewhere:
         waitOn(d.next.page)
-            .probes.push_back({.at = d.next, .depth = d.depth, .receiver = receiver,
-                               .origin = origin, .estimate = d.estimate, .scale = d.scale,
-                               .rng = rng, .src = src});
+            .probes.push_back({.at = d.next,
+                               .depth = d.depth,
+                               .receiver = receiver,
+                               .origin = origin,
+                               .estimate = d.estimate,
+                               .scale = d.scale,
+                               .rng = rng,
+                               .src = src});
         return;
     }
   }
@@ -1068,7 +1079,8 @@ struct BidirectionalCut::State {
         // Towards one of the cluster's surfels, picked in proportion to the light it sends:
         // the fraction of rays that arrive is then the fraction of the cluster's light that
         // does, wherever the light sits in the cluster (a floor cluster reaching under a block
-        // has its centroid, or points of its bounds, where no light is).
+        // has its centroid, or points of its bounds, where no light is). The descent starts
+        // from the cluster's own estimate at the ray's origin, which its corrections divide.
         const CutReceiver& from = receivers[origin];
         absl::StatusOr<Descent> target =
             descend(page, pair.light, pair.depth,
@@ -1281,9 +1293,8 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
     // Descents that reached this page, in the order they arrived (pairs refined here go to
     // other pages: none arrive while these run).
     for (Probe& probe : probes) {
-      absl::StatusOr<Descent> target =
-          descend(**page, probe.at, probe.depth, probe.estimate, probe.scale,
-                  receivers[probe.origin], probe.rng);
+      absl::StatusOr<Descent> target = descend(**page, probe.at, probe.depth, probe.estimate,
+                                               probe.scale, receivers[probe.origin], probe.rng);
       if (!target.ok()) return target.status();
       resolve(*target, probe.receiver, probe.origin, probe.rng, probe.src);
     }

@@ -373,7 +373,7 @@ TEST(BidirectionalCut, ThresholdsTradePairsForError) {
     // A cluster's light is its estimate times the corrections its shadow ray's descent met,
     // so coarse cuts keep the surfels' light: their mean stays on the brute force's. Without
     // the corrections the mean fell 3.5 % below it at 16 times the default thresholds and
-    // 1.5 % at 4 times (the later bounces' cut, bounceCutOptions).
+    // 1.5 % at 4 times (the factor the bake's later bounces apply: bounceCutOptions).
     EXPECT_LT(meanError, 0.005) << "scale " << scale;
     EXPECT_LT(stats.shadowRays, c.surfels.size() * out.size() / 8);
     EXPECT_LT(rmse, previousError * 1.05);
