@@ -246,8 +246,9 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
   // One level's correction: what the children send by their own estimates (`total`) over what
   // their parent's estimate said.
   const auto correct = [&](float total) {
-    scale = estimate > 0.0f ? std::min(scale * (total / estimate), kMaxDescentCorrection)
-                            : kMaxDescentCorrection;
+    const float next = estimate > 0.0f ? scale * (total / estimate) : kMaxDescentCorrection;
+    // Within the cap, NaN too (an infinite total over an infinite estimate).
+    scale = next <= kMaxDescentCorrection ? next : kMaxDescentCorrection;
   };
   for (;;) {
     absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, ref);
