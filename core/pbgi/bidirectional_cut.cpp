@@ -585,11 +585,11 @@ absl::Status readNearSurface(const Scene& scene, const TreePage& page, const Nea
   const Vec3f side = dot(hit.n, hit.w) < 0.0f ? hit.n : -hit.n;  // towards the receiver
   const auto seen = [&](const Vec3f& to) {
     const float apart = length(to - hit.x);
-    const Vec3f from = hit.x + side * (kNearLiftFraction * apart);
-    const Vec3f v = to + side * (kNearEndLift * apart) - from;
+    const Vec3f start = hit.x + side * (kNearLiftFraction * apart);
+    const Vec3f v = to + side * (kNearEndLift * apart) - start;
     const float d = length(v);
     if (!(d > 0.0f)) return true;
-    Ray ray{.origin = from, .dir = v / d};
+    Ray ray{.origin = start, .dir = v / d};
     ray.tMax = d;
     ++stats->shadowRays;
     if (!scene.occluded(ray)) return true;
@@ -655,8 +655,9 @@ void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, C
     }
     const uint32_t unread = static_cast<uint32_t>(end - first) - read;
     stats->nearUnread += unread;
-    if (read > 0)
+    if (read > 0) {
       out[r] += sum * (scale * (1.0f + static_cast<float>(unread) / static_cast<float>(read)));
+    }
   }
 }
 
@@ -1081,11 +1082,14 @@ struct BidirectionalCut::State {
         // the fraction of rays that arrive is then the fraction of the cluster's light that
         // does, wherever the light sits in the cluster (a floor cluster reaching under a block
         // has its centroid, or points of its bounds, where no light is). The descent starts
-        // from the cluster's own estimate at the ray's origin, which its corrections divide.
+        // from the cluster's own estimate at the ray's origin, which its corrections divide: at
+        // a single receiver, the source's, seen at the cosine and distance just measured.
         const CutReceiver& from = receivers[origin];
+        const float estimate = rv.single
+                                   ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
+                                   : nodeContribution(a, page.waveletOf(node), from.p, from.n);
         absl::StatusOr<Descent> target =
-            descend(page, pair.light, pair.depth,
-                    nodeContribution(a, page.waveletOf(node), from.p, from.n), 1.0f, from, rng);
+            descend(page, pair.light, pair.depth, estimate, 1.0f, from, rng);
         if (!target.ok()) return target.status();
         resolve(*target, pair.receiver, origin, rng, src);
         return absl::OkStatus();

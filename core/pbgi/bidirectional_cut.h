@@ -40,17 +40,17 @@
 // receiver node), so the result does not depend on threads or on the order pages arrive in.
 //
 // Near field. Within a few surfel radii of a receiver, surfels as disks miss light: which disks
-// happen to lie next to it, how they overlap and gap, what of them a ray to their centre
-// sees. Receivers within half a radius of other geometry gathered 0.92 of what rays measure
-// with unit radiance on every surfel, 0.98 by the near field's rays (Sponza, 250k surfels,
-// transfer_bench --light unit --brute). With nearRays > 0 the surfels whose centres lie within the near
-// radius (kNearFieldRadii mean surfel radii of the tree's root) are left out, and rays from
-// the receiver as long as that radius take their place: where a ray meets a surface, the
-// radiance there is the weighted mean of that surface's surfels around the hit (the side the
-// ray sees), read from the tree in the cut's own page sweep. The rays' directions are a
-// scrambled Sobol set keyed by the receiver's position and normal, so a receiver gathers the
-// same light in any cut, tile or thread. Clusters that reach into a receiver's near radius
-// are refined until their surfels are taken one by one.
+// happen to lie next to it, how they overlap and gap, what of them a ray to their centre sees.
+// Receivers within half a radius of other geometry gathered 0.92 of what rays measure with unit
+// radiance on every surfel, 0.98 by the near field's rays (Sponza, 250k surfels, transfer_bench
+// --light unit --brute). With nearRays > 0 the surfels whose centres lie within the near radius
+// (kNearFieldRadii mean surfel radii of the tree's root) are left out, and rays from the receiver
+// as long as that radius take their place: where a ray meets a surface, the radiance there is the
+// weighted mean of that surface's surfels around the hit (the side the ray sees), read from the
+// tree in the cut's own page sweep. The rays' directions are a scrambled Sobol set keyed by the
+// receiver's position and normal, so a receiver gathers the same light in any cut, tile or
+// thread. Clusters that reach into a receiver's near radius are refined until their surfels are
+// taken one by one.
 //
 // Pages. Pairs wait in one bucket per light page, and the pages are visited from the highest
 // id down: the tree writer places children before their parents, so every reference points to

@@ -124,16 +124,16 @@ TEST(PbgiAccuracy, CornellBoxDefaultPresetMatchesThePathTracer) {
 // 100,000 surfels are coarse for Sponza (a radius of 15 cm): its mean indirect light measures
 // 0.890 / 0.904 / 0.921 of the path tracer's here, relMSE 0.0059, with the cut's descent
 // corrections (the bound fails without them). Before them, 0.854 / 0.866 / 0.880 and relMSE
-// 0.01131, with the bake's bounces at records (0.876 / 0.887 / 0.899 and relMSE 0.01155 with every surfel gathering: at 100,000
-// surfels a record's cell is a metre wide, and interpolating records loses light where it
-// grows steeply, beside creases; at the dev shot's 1M surfels, 0.45 % of the image's mean.
-// Making every surfel beside a crease its own record gave 0.868 but a 1M bake of 231 s
-// against 62 s) (0.863 / 0.881 / 0.901 and
-// 0.01135 before stop 22 changed how the cut treats near surfels and light no surfel sends:
-// transfer_bench shows each change; at the dev shot's 1M surfels they lowered the indirect
-// light's relMSE by 12 %). What is left is lost where surfels pass light to surfels one to
-// four radii from other geometry (transfer_bench --light bounce --brute); 250,000 surfels
-// lose less. The bound holds this bake's bias; accuracy_bench reports the product's.
+// 0.01131, with the bake's bounces at records (0.876 / 0.887 / 0.899 and relMSE 0.01155 with
+// every surfel gathering: at 100,000 surfels a record's cell is a metre wide, and interpolating
+// records loses light where it grows steeply, beside creases; at the dev shot's 1M surfels,
+// 0.45 % of the image's mean. Making every surfel beside a crease its own record gave 0.868 but a 1M
+// bake of 231 s against 62 s) (0.863 / 0.881 / 0.901 and 0.01135 before stop 22 changed how the
+// cut treats near surfels and light no surfel sends: transfer_bench shows each change; at the dev
+// shot's 1M surfels they lowered the indirect light's relMSE by 12 %). What is left is lost where
+// surfels pass light to surfels one to four radii from other geometry (transfer_bench --light
+// bounce --brute); 250,000 surfels lose less. The bound holds this bake's bias; accuracy_bench
+// reports the product's.
 TEST(PbgiAccuracy, SponzaDefaultPresetMatchesThePathTracer) {
   expectAccurate({"sponza/sponza.shot.toml", 80, 45, 100000, 3, 0.12, 0.05});
 }
