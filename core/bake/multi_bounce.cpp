@@ -7,6 +7,7 @@
 
 #include "core/sampling/rng.h"
 #include "core/util/bytes.h"
+#include "core/util/check.h"
 #include "core/util/status.h"
 
 namespace pbgi {
@@ -73,9 +74,10 @@ absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats)
   std::vector<uint64_t> keys;
   std::vector<uint8_t> bytes;
   double sum[3] = {0.0, 0.0, 0.0};
+  PBGI_CHECK(request.batchSurfels > 0 && request.batchSurfels % kBounceChunkSurfels == 0);
   for (uint64_t done = 0; done < request.surfels;) {
     const size_t n =
-        static_cast<size_t>(std::min<uint64_t>(request.surfels - done, kBounceBatchSurfels));
+        static_cast<size_t>(std::min<uint64_t>(request.surfels - done, request.batchSurfels));
     if (auto s = readSurfels(*request.sorted, n, bytes, batch); !s.ok()) return s;
     if (auto s = readIrradiance(request.previous, n, bytes, previous); !s.ok()) return s;
     chunk.resize(n);

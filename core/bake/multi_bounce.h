@@ -31,7 +31,7 @@ namespace pbgi {
 
 // A bounce's receivers: this many consecutive sorted surfels make one cut.
 inline constexpr size_t kBounceChunkSurfels = 4096;
-// Surfels read from the spills at a time (whole groups).
+// Surfels read from the spills at a time by default (whole groups).
 inline constexpr size_t kBounceBatchSurfels = 64 * 1024;
 static_assert(kBounceBatchSurfels % kBounceChunkSurfels == 0);
 
@@ -52,6 +52,7 @@ struct BounceRequest {
   int bounce = 1;
   uint64_t surfels = 0;            // in the spill
   size_t groupsTogether = 1;       // groups whose cuts sweep the tree together
+  size_t batchSurfels = kBounceBatchSurfels;  // read at a time: a multiple of the group's size
   std::function<void(uint64_t done, uint64_t total)> progress;
   uint64_t* shutSides = nullptr;   // adds the records' sides not gathered: shut (SurfelBouncer)
 };

@@ -1265,12 +1265,20 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
   while (!pages.empty() && pages.top() >= lowest) {
     const uint32_t id = pages.top();
     pages.pop();
-    Bucket& bucket = buckets[id];
-    bucket.queued = false;
-    pending -= bucket.pairs.size() + bucket.probes.size() + bucket.near.size();
-    std::swap(stack, bucket.pairs);
-    std::swap(probes, bucket.probes);
-    std::swap(nearSteps, bucket.near);
+    {
+      // The bucket's waiting work moves to the page's own buffers, and the bucket goes (work
+      // for the page later gets a new one): a kept bucket would hold the capacity the buffers
+      // had, and a cut's memory would grow with the pages it sweeps, not with what waits
+      // (Sponza 1M, 64 groups of cuts together: 967 MB peak against 651 MB).
+      auto it = buckets.find(id);
+      PBGI_CHECK(it != buckets.end());
+      Bucket& bucket = it->second;
+      pending -= bucket.pairs.size() + bucket.probes.size() + bucket.near.size();
+      std::swap(stack, bucket.pairs);
+      std::swap(probes, bucket.probes);
+      std::swap(nearSteps, bucket.near);
+      buckets.erase(it);
+    }
     if (stack.empty() && probes.empty() && nearSteps.empty()) continue;
     ++stats.pageRequests;
     absl::StatusOr<std::shared_ptr<const TreePage>> page = source->page(id);

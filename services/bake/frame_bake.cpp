@@ -132,6 +132,29 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
 
 namespace {
 
+// How many groups of kBounceChunkSurfels surfels sweep the tree together. Each sweep loads the
+// pages its cuts need once, so more groups load fewer pages (Sponza, 4,000,000 surfels under
+// 256M, 9,477 pages a tree: 2 groups 2.75 million loads and 803 s, 64 groups 117,091 loads and
+// 191 s), but a group's cuts hold what waits on pages below the sweep, and the batch the groups'
+// surfels (kBatchBytesPerSurfel each: the spill's record, the surfel, three irradiances). What
+// waits grows with the group's receivers: about 30 MB when every surfel gathers (heaptrack,
+// Cornell 250k: 36 MB), about 2.6 MB with a record per 16 surfels (peak resident, Sponza 4M).
+// The cuts' waiting work and the batch each get a quarter of the budget (the page cache has
+// another); at least a group per thread.
+size_t groupsSweepingTogether(uint64_t memoryBudget, int receiverSpacing) {
+  constexpr uint64_t kEveryoneGathersGroupBytes = uint64_t{32} << 20;
+  constexpr uint64_t kBatchBytesPerSurfel = 384;
+  const uint64_t spacing = static_cast<uint64_t>(std::max(1, receiverSpacing));
+  // 1.5 times the records' share (normals split a record's cell), never more than everyone's.
+  const uint64_t groupBytes =
+      spacing <= 1 ? kEveryoneGathersGroupBytes : kEveryoneGathersGroupBytes * 3 / (2 * spacing);
+  const uint64_t byCuts = memoryBudget / 4 / groupBytes;
+  const uint64_t byBatch = memoryBudget / 4 / (kBatchBytesPerSurfel * kBounceChunkSurfels);
+  const auto threads =
+      static_cast<uint64_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  return static_cast<size_t>(std::max(threads, std::min(byCuts, byBatch)));
+}
+
 // Bounce `bounce` of the bake (multi_bounce.h): gathers from the tree at `fromPath` through a
 // page cache of a quarter of the budget and, when `toPath` is given, writes the tree of the
 // light the bounce adds there. Adds the bounce's reflected power to `power`.
@@ -165,15 +188,9 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   bounce.from = &cache;
   bounce.receiverSpacing = bounceReceiverSpacing(request.bounceSpacing, bounce.bounce);
   bounce.shutSides = &report->bounceShutSides;
-  // How many groups of 4,096 surfels sweep together: more share more page loads (Cornell box,
-  // 250,000 surfels, 4 MiB cache: 16 groups 2,476 loads, 2 groups 19,184, and 20 % faster)
-  // but hold their cuts' waiting pairs, probes and receiver trees at once: about 30 MB a
-  // group (heaptrack, Cornell 250k: 36 MB; Sponza 1M: 803 MB peak with 16 groups against
-  // 518 MB with 8). A group per 32 MiB of a quarter of the budget, at least one per thread.
-  constexpr size_t kGroupBytes = size_t{32} << 20;
-  bounce.groupsTogether =
-      std::max<size_t>(static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency())),
-                       request.memoryBudget / 4 / kGroupBytes);
+  bounce.groupsTogether = groupsSweepingTogether(request.memoryBudget, bounce.receiverSpacing);
+  bounce.batchSurfels =
+      std::max(kBounceBatchSurfels, bounce.groupsTogether * kBounceChunkSurfels);
   if (request.progress) {
     bounce.progress = [&](uint64_t done, uint64_t total) {
       request.progress(fmt::format("bounce {} of {}", bounce.bounce, request.bounces), done, total);
