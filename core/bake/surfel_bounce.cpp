@@ -14,8 +14,10 @@ bool reflectsLight(const Surfel& s) {
 }
 
 CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
-  if (bounce <= 1) return first;
   CutOptions o = first;
+  // The first bounce's descents by cones, the later ones' by SH (bidirectional_cut.h).
+  o.coneDescent = bounce <= 1;
+  if (bounce <= 1) return o;
   const float hi = 4.0f * kPi;
   o.lightSolidAngle = std::min(hi, o.lightSolidAngle * kLaterBounceCoarsening);
   o.lightBound = std::min(hi, o.lightBound * kLaterBounceCoarsening);

@@ -39,7 +39,11 @@ namespace pbgi {
 // How bounce `bounce` (1 is the first) gathers, given how the first gathers: light reflected
 // twice or more is smoother and dimmer than the direct light the first bounce gathers, so
 // later bounces gather with the first's solid-angle thresholds (eps_L, eps~_L, eps~_E) times
-// kLaterBounceCoarsening, clamped to their valid range.
+// kLaterBounceCoarsening, clamped to their valid range. The first bounce's shadow rays descend
+// by cones (CutOptions::coneDescent): the first bounce is most of a bake's time, and its
+// records are dense and its clusters small, where cones lose least (transfer_bench: cut / brute
+// force 0.9959 against 0.9953 by SH at its thresholds, 0.9858 against 0.9888 at the later
+// bounces', which stay by SH).
 inline constexpr float kLaterBounceCoarsening = 4.0f;
 CutOptions bounceCutOptions(const CutOptions& first, int bounce);
 

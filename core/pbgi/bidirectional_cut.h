@@ -96,6 +96,10 @@ struct CutOptions {
   // radiance the tree's surfels hold there, in place of the surfels whose centres lie that
   // near (0: those surfels, as disks). See "Near field" above.
   int nearRays = 0;
+  // How a shadow ray's descent weighs a cluster's children (descend() in the .cpp): false, by
+  // what each one's SH sends the receiver; true, by its power and normal cone alone (no SH:
+  // faster, and noisier where children face different ways). The bake's first bounce uses it.
+  bool coneDescent = false;
 
   bool operator==(const CutOptions&) const = default;
   // InvalidArgument naming the field when a value is out of range. Zero thresholds are

@@ -9,9 +9,8 @@ namespace pbgi {
 
 namespace {
 
-// sqrt(1 / (4 pi)), sqrt(3 / (4 pi)), sqrt(15 / (4 pi)), sqrt(5 / (16 pi)), sqrt(15 / (16 pi)),
-// the normalisation constants of Sloan's table, in double so the floats round once.
-constexpr double kY00 = 0.28209479177387814;
+// sqrt(3 / (4 pi)), sqrt(15 / (4 pi)), sqrt(5 / (16 pi)), sqrt(15 / (16 pi)): with kY00, the
+// normalisation constants of Sloan's table, in double so the floats round once.
 constexpr double kY1 = 0.4886025119029199;
 constexpr double kY2a = 1.0925484305920792;
 constexpr double kY20 = 0.31539156525252005;

@@ -21,6 +21,8 @@
 namespace pbgi {
 
 inline constexpr int kShCoefficients = 9;
+// The constant basis function, sqrt(1 / (4 pi)) (in double so that floats round once).
+inline constexpr double kY00 = 0.28209479177387814;
 
 // Fills out[0..8] with the basis at unit direction dir.
 void evalShBasis(const Vec3f& dir, float out[kShCoefficients]);

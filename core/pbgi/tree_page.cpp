@@ -16,7 +16,6 @@ namespace pbgi {
 namespace {
 
 constexpr float kU16Max = 65535.0f;
-constexpr double kY00 = 0.28209479177387814;
 
 // ---- Octahedral normals (Meyer et al. 2010) ----------------------------------------------
 

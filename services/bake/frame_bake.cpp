@@ -40,8 +40,8 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // glossy surfels reflect), 9 records gathering for patches of surfels, 10 later bounces' records
 // coarser, 11 shut sides not gathered after the first bounce, 12 a cluster's light weighed by
 // its shadow ray's descent (what each level's children send over their parent's estimate),
-// later bounces' records sparser.
-constexpr int kBounceRevision = 12;
+// later bounces' records sparser, 13 the first bounce's descents by normal cones.
+constexpr int kBounceRevision = 13;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 

@@ -16,8 +16,8 @@
 // every receiver (bruteForceIrradiance) splits the two: the cut against it is its clustering
 // error alone; and the brute force against rays is printed by the receivers' distance to the
 // nearest other geometry, where the discretization loses light (near contacts).
-// Reports one line per quality preset and one for the bake's later bounces' cut; never fails
-// on a number.
+// Reports one line per quality preset and one each for the bake's first and later bounces'
+// cuts; never fails on a number.
 //
 // Run: build/bin/transfer_bench --shot ../shared/scenes/sponza/sponza.shot.toml
 //        [--points 100000] [--receivers 1000] [--rays 1024] [--light unit|direct|bounce]
@@ -301,12 +301,15 @@ int run(const Args& args) {
     exact = sum;
     against = "brute force";
   }
-  // The presets, and the bake's later bounces' cut (bounceCutOptions: the draft preset's
-  // thresholds times kLaterBounceCoarsening; with the draft's near field, as the brute force
-  // has one).
-  for (const char* preset : {"draft", "default", "high", "later"}) {
+  // The presets, and the bake's first and later bounces' cuts (bounceCutOptions: the draft
+  // preset's thresholds, its descents by normal cones for the first; times
+  // kLaterBounceCoarsening for the later; with the draft's near field, as the brute force has
+  // one).
+  for (const char* preset : {"draft", "default", "high", "first", "later"}) {
     std::vector<Rgb> out(receivers.size());
-    const CutOptions options = std::strcmp(preset, "later") == 0
+    const CutOptions options = std::strcmp(preset, "first") == 0
+                                   ? bounceCutOptions(*cutPreset("draft"), 1)
+                               : std::strcmp(preset, "later") == 0
                                    ? bounceCutOptions(*cutPreset("draft"), 2)
                                    : *cutPreset(preset);
     BidirectionalCut cut(options);

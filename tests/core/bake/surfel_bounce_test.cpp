@@ -10,9 +10,13 @@ namespace {
 
 TEST(SurfelBounce, LaterBouncesGatherAtCoarserSolidAnglesThanTheFirst) {
   const CutOptions first = *cutPreset("draft");
-  EXPECT_EQ(bounceCutOptions(first, 1), first);
+  // The first bounce's thresholds, its descents by cones; the later bounces' by SH.
+  CutOptions byCones = first;
+  byCones.coneDescent = true;
+  EXPECT_EQ(bounceCutOptions(first, 1), byCones);
   for (int bounce : {2, 3, 16}) {
     const CutOptions later = bounceCutOptions(first, bounce);
+    EXPECT_FALSE(later.coneDescent);
     EXPECT_FLOAT_EQ(later.lightSolidAngle, first.lightSolidAngle * kLaterBounceCoarsening);
     EXPECT_FLOAT_EQ(later.lightBound, first.lightBound * kLaterBounceCoarsening);
     EXPECT_FLOAT_EQ(later.receiverBound, first.receiverBound * kLaterBounceCoarsening);

@@ -345,41 +345,46 @@ TEST(BidirectionalCut, ThresholdsTradePairsForError) {
   std::vector<Rgb> brute(c.receivers.size());
   ASSERT_TRUE(bruteForceIrradiance(**tree, *c.scene, c.receivers, CutOptions{}, brute).ok());
   const double reference = meanLuminance(brute);
-  double previousError = 1e30;
-  uint64_t previousPairs = 0;
-  for (const float scale : {16.0f, 4.0f, 1.0f, 0.25f}) {
-    CutOptions o;
-    o.lightSolidAngle *= scale;
-    o.lightBound *= scale;
-    o.receiverBound *= scale;
-    std::vector<Rgb> out(c.receivers.size());
-    BidirectionalCut cut(o);
-    CutStats stats;
-    ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 11, out, &stats).ok());
-    double sq = 0.0;
-    for (size_t i = 0; i < out.size(); ++i) {
-      const double d = luminance(out[i]) - luminance(brute[i]);
-      sq += d * d;
+  // Descents weighed by SH, and by normal cones (the bake's first bounce).
+  for (const bool cones : {false, true}) {
+    double previousError = 1e30;
+    uint64_t previousPairs = 0;
+    for (const float scale : {16.0f, 4.0f, 1.0f, 0.25f}) {
+      CutOptions o;
+      o.lightSolidAngle *= scale;
+      o.lightBound *= scale;
+      o.receiverBound *= scale;
+      o.coneDescent = cones;
+      std::vector<Rgb> out(c.receivers.size());
+      BidirectionalCut cut(o);
+      CutStats stats;
+      ASSERT_TRUE(cut.irradiance(**tree, *c.scene, c.receivers, 11, out, &stats).ok());
+      double sq = 0.0;
+      for (size_t i = 0; i < out.size(); ++i) {
+        const double d = luminance(out[i]) - luminance(brute[i]);
+        sq += d * d;
+      }
+      const double rmse = std::sqrt(sq / out.size()) / reference;
+      const double meanError = std::abs(meanLuminance(out) / reference - 1.0);
+      std::printf("%s, scale %.2f: mean %+.4f, relative RMSE %.4f, %llu pairs (%llu clusters, "
+                  "%llu leaves), %llu shadow rays; brute force %zu pairs\n",
+                  cones ? "cones" : "SH", scale, meanLuminance(out) / reference - 1.0, rmse,
+                  static_cast<unsigned long long>(stats.pairs),
+                  static_cast<unsigned long long>(stats.clusterPairs),
+                  static_cast<unsigned long long>(stats.leafPairs),
+                  static_cast<unsigned long long>(stats.shadowRays),
+                  c.surfels.size() * out.size());
+      // A cluster's light is its estimate times the corrections its shadow ray's descent met,
+      // so coarse cuts keep the surfels' light: their mean stays on the brute force's. Without
+      // the corrections the mean fell 3.5 % below it at 16 times the default thresholds and
+      // 1.5 % at 4 times (the factor the bake's later bounces apply: bounceCutOptions).
+      EXPECT_LT(meanError, 0.005) << "scale " << scale << (cones ? " cones" : " SH");
+      EXPECT_LT(stats.shadowRays, c.surfels.size() * out.size() / 8);
+      EXPECT_LT(rmse, previousError * 1.05);
+      EXPECT_GT(stats.pairs, previousPairs);
+      previousError = rmse;
+      previousPairs = stats.pairs;
     }
-    const double rmse = std::sqrt(sq / out.size()) / reference;
-    const double meanError = std::abs(meanLuminance(out) / reference - 1.0);
-    std::printf("scale %.2f: mean %+.4f, relative RMSE %.4f, %llu pairs (%llu clusters, %llu "
-                "leaves), %llu shadow rays; brute force %zu pairs\n",
-                scale, meanLuminance(out) / reference - 1.0, rmse,
-                static_cast<unsigned long long>(stats.pairs),
-                static_cast<unsigned long long>(stats.clusterPairs),
-                static_cast<unsigned long long>(stats.leafPairs),
-                static_cast<unsigned long long>(stats.shadowRays), c.surfels.size() * out.size());
-    // A cluster's light is its estimate times the corrections its shadow ray's descent met,
-    // so coarse cuts keep the surfels' light: their mean stays on the brute force's. Without
-    // the corrections the mean fell 3.5 % below it at 16 times the default thresholds and
-    // 1.5 % at 4 times (the factor the bake's later bounces apply: bounceCutOptions).
-    EXPECT_LT(meanError, 0.005) << "scale " << scale;
-    EXPECT_LT(stats.shadowRays, c.surfels.size() * out.size() / 8);
-    EXPECT_LT(rmse, previousError * 1.05);
-    EXPECT_GT(stats.pairs, previousPairs);
-    previousError = rmse;
-    previousPairs = stats.pairs;
   }
 }
 
