@@ -181,20 +181,33 @@ bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s,
   return visible(scene, from, s.position, stop, stats);
 }
 
+// A node's centroid seen from a receiver at p facing n: the unit direction to it, its squared
+// distance and the cosine at p; nullopt when it lies at p or behind p's horizon.
+struct Sight {
+  Vec3f dir{0.0f};
+  float d2 = 0.0f;
+  float cosR = 0.0f;
+};
+std::optional<Sight> sightOf(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) {
+  const Vec3f v = a.centroid - p;
+  const float d2 = v.length2();
+  if (!(d2 > 0.0f)) return std::nullopt;
+  const Vec3f dir = v / std::sqrt(d2);
+  const float cosR = dot(n, dir);
+  if (!(cosR > 0.0f)) return std::nullopt;
+  return Sight{.dir = dir, .d2 = d2, .cosR = cosR};
+}
+
 // What a node sends a receiver at p facing n, as the cut would evaluate it alone: its SH
 // intensity towards p times the cosine at p over the squared distance (0 behind p).
 float nodeContribution(const NodeAttributes& a, const WaveletRadiance* wavelet, const Vec3f& p,
                        const Vec3f& n) {
-  const Vec3f v = a.centroid - p;
-  const float d2 = v.length2();
-  if (!(d2 > 0.0f)) return 0.0f;
-  const Vec3f dir = v / std::sqrt(d2);
-  const float cosR = dot(n, dir);
-  if (!(cosR > 0.0f)) return 0.0f;
+  const std::optional<Sight> sight = sightOf(a, p, n);
+  if (!sight) return 0.0f;
   ClusterView view;
-  viewCluster(a, dir, &view);
-  return std::max(0.0f, luminance(clusterRadiance(a, view, wavelet))) * view.coverage() * cosR /
-         d2;
+  viewCluster(a, sight->dir, &view);
+  return std::max(0.0f, luminance(clusterRadiance(a, view, wavelet))) * view.coverage() *
+         sight->cosR / sight->d2;
 }
 
 // Where a shadow ray towards a cluster goes: one of its surfels, picked by descending from the
@@ -246,13 +259,9 @@ inline constexpr float kMaxConeDescentCorrection = 64.0f;
 // largest cosine its cone allows towards p, its back sides' power likewise, times the cosine
 // at p over the squared distance (0 behind p).
 float coneContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) {
-  const Vec3f v = a.centroid - p;
-  const float d2 = v.length2();
-  if (!(d2 > 0.0f)) return 0.0f;
-  const Vec3f dir = v / std::sqrt(d2);
-  const float cosR = dot(n, dir);
-  if (!(cosR > 0.0f)) return 0.0f;
-  const float cosT = -dot(a.cone.axis, dir);  // the cone's axis against the way to p
+  const std::optional<Sight> sight = sightOf(a, p, n);
+  if (!sight) return 0.0f;
+  const float cosT = -dot(a.cone.axis, sight->dir);  // the cone's axis against the way to p
   const float sinT = safeSqrt(1.0f - cosT * cosT);
   const float cosG = a.cone.cosAngle, sinG = safeSqrt(1.0f - cosG * cosG);
   const auto largestCosine = [&](float c) {
@@ -263,7 +272,7 @@ float coneContribution(const NodeAttributes& a, const Vec3f& p, const Vec3f& n) 
   constexpr float kDiskOverDc = 1.0f / (kPi * static_cast<float>(kY00));
   const float front = std::max(0.0f, luminance(a.powerSh.c[0])) * kDiskOverDc * largestCosine(cosT);
   const float back = std::max(0.0f, luminance(a.backPower)) * largestCosine(-cosT);
-  return (front + back) * cosR / d2;
+  return (front + back) * sight->cosR / sight->d2;
 }
 
 struct Descent {
@@ -343,8 +352,7 @@ absl::StatusOr<Descent> descend(const TreePage& page, NodeRef ref, uint32_t dept
       // (A page without wavelets, every page of a diffuse scene's tree, skips the lookup.)
       // By cones, a child with a wavelet still by its SH and wavelet: glossy surfels' light
       // is in the wavelet, which the cone does not see (nor, then, picks).
-      const WaveletRadiance* wavelet =
-          page.wavelets.empty() ? nullptr : page.childWavelet(node, c);
+      const WaveletRadiance* wavelet = page.wavelets.empty() ? nullptr : page.childWavelet(node, c);
       weights[c] = cones && wavelet == nullptr ? coneContribution(*child, to.p, to.n)
                                                : nodeContribution(*child, wavelet, to.p, to.n);
       total += weights[c];
@@ -765,8 +773,7 @@ std::string CutOptions::toString() const {
       "cut(lightSolidAngle={:g} lightBound={:g} receiverBound={:g} normalAngle={:g} "
       "receiverLeafSize={} selfSkipRadius={:g}{}{})",
       lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius,
-      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "",
-      coneDescent ? " coneDescent" : "");
+      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "", coneDescent ? " coneDescent" : "");
 }
 
 CutStats& CutStats::operator+=(const CutStats& o) {

@@ -150,8 +150,7 @@ size_t groupsSweepingTogether(uint64_t memoryBudget, int receiverSpacing) {
       spacing <= 1 ? kEveryoneGathersGroupBytes : kEveryoneGathersGroupBytes * 3 / (2 * spacing);
   const uint64_t byCuts = memoryBudget / 4 / groupBytes;
   const uint64_t byBatch = memoryBudget / 4 / (kBatchBytesPerSurfel * kBounceChunkSurfels);
-  const auto threads =
-      static_cast<uint64_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const auto threads = static_cast<uint64_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   return static_cast<size_t>(std::max(threads, std::min(byCuts, byBatch)));
 }
 
@@ -189,8 +188,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   bounce.receiverSpacing = bounceReceiverSpacing(request.bounceSpacing, bounce.bounce);
   bounce.shutSides = &report->bounceShutSides;
   bounce.groupsTogether = groupsSweepingTogether(request.memoryBudget, bounce.receiverSpacing);
-  bounce.batchSurfels =
-      std::max(kBounceBatchSurfels, bounce.groupsTogether * kBounceChunkSurfels);
+  bounce.batchSurfels = std::max(kBounceBatchSurfels, bounce.groupsTogether * kBounceChunkSurfels);
   if (request.progress) {
     bounce.progress = [&](uint64_t done, uint64_t total) {
       request.progress(fmt::format("bounce {} of {}", bounce.bounce, request.bounces), done, total);

@@ -307,11 +307,10 @@ int run(const Args& args) {
   // one).
   for (const char* preset : {"draft", "default", "high", "first", "later"}) {
     std::vector<Rgb> out(receivers.size());
-    const CutOptions options = std::strcmp(preset, "first") == 0
-                                   ? bounceCutOptions(*cutPreset("draft"), 1)
-                               : std::strcmp(preset, "later") == 0
-                                   ? bounceCutOptions(*cutPreset("draft"), 2)
-                                   : *cutPreset(preset);
+    const CutOptions options =
+        std::strcmp(preset, "first") == 0   ? bounceCutOptions(*cutPreset("draft"), 1)
+        : std::strcmp(preset, "later") == 0 ? bounceCutOptions(*cutPreset("draft"), 2)
+                                            : *cutPreset(preset);
     BidirectionalCut cut(options);
     CutStats stats;
     if (absl::Status s = cut.irradiance(**tree, scene, receivers, 5, out, &stats); !s.ok()) {

@@ -366,14 +366,14 @@ TEST(BidirectionalCut, ThresholdsTradePairsForError) {
       }
       const double rmse = std::sqrt(sq / out.size()) / reference;
       const double meanError = std::abs(meanLuminance(out) / reference - 1.0);
-      std::printf("%s, scale %.2f: mean %+.4f, relative RMSE %.4f, %llu pairs (%llu clusters, "
-                  "%llu leaves), %llu shadow rays; brute force %zu pairs\n",
-                  cones ? "cones" : "SH", scale, meanLuminance(out) / reference - 1.0, rmse,
-                  static_cast<unsigned long long>(stats.pairs),
-                  static_cast<unsigned long long>(stats.clusterPairs),
-                  static_cast<unsigned long long>(stats.leafPairs),
-                  static_cast<unsigned long long>(stats.shadowRays),
-                  c.surfels.size() * out.size());
+      std::printf(
+          "%s, scale %.2f: mean %+.4f, relative RMSE %.4f, %llu pairs (%llu clusters, "
+          "%llu leaves), %llu shadow rays; brute force %zu pairs\n",
+          cones ? "cones" : "SH", scale, meanLuminance(out) / reference - 1.0, rmse,
+          static_cast<unsigned long long>(stats.pairs),
+          static_cast<unsigned long long>(stats.clusterPairs),
+          static_cast<unsigned long long>(stats.leafPairs),
+          static_cast<unsigned long long>(stats.shadowRays), c.surfels.size() * out.size());
       // A cluster's light is its estimate times the corrections its shadow ray's descent met,
       // so coarse cuts keep the surfels' light: their mean stays on the brute force's. Without
       // the corrections the mean fell 3.5 % below it at 16 times the default thresholds and
