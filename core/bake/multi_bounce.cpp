@@ -1,7 +1,6 @@
 #include "core/bake/multi_bounce.h"
 
 #include <algorithm>
-#include <bit>
 #include <vector>
 
 #include <fmt/format.h>
@@ -63,12 +62,6 @@ absl::Status writeIrradiance(SpillFile& spill, std::span<const SurfelIrradiance>
 
 }  // namespace
 
-size_t bounceGroupSurfels(int receiverSpacing) {
-  const int sparser = std::clamp(receiverSpacing / kBounceReceiverSpacing, 1,
-                                 kMaxBounceSpacing / kBounceReceiverSpacing);
-  return kBounceChunkSurfels * std::bit_floor(static_cast<unsigned>(sparser));
-}
-
 absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats) {
   if (auto s = request.sorted->rewind(); !s.ok()) return s;
   if (request.previous != nullptr) {
@@ -81,8 +74,7 @@ absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats)
   std::vector<uint64_t> keys;
   std::vector<uint8_t> bytes;
   double sum[3] = {0.0, 0.0, 0.0};
-  const size_t group = request.groupSurfels;
-  PBGI_CHECK(group > 0 && request.batchSurfels > 0 && request.batchSurfels % group == 0);
+  PBGI_CHECK(request.batchSurfels > 0 && request.batchSurfels % kBounceChunkSurfels == 0);
   for (uint64_t done = 0; done < request.surfels;) {
     const size_t n =
         static_cast<size_t>(std::min<uint64_t>(request.surfels - done, request.batchSurfels));
@@ -91,14 +83,14 @@ absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats)
     chunk.resize(n);
     for (size_t i = 0; i < n; ++i) chunk[i] = batch[i].surfel;
     added.assign(n, SurfelIrradiance{});
-    // The cuts' groups start at multiples of the group's size in the sorted order and key
+    // The cuts' groups start at multiples of kBounceChunkSurfels in the sorted order and key
     // their random numbers by it, whatever the threads; the batch's cuts sweep together.
     keys.clear();
-    for (size_t first = 0; first < n; first += group) {
+    for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
       keys.push_back(hashKeys(request.seed, request.frame, request.bounce, done + first));
     }
     // After the first bounce, sides that gathered nothing so far are shut.
-    if (auto s = bouncer.gather(*request.from, *request.scene, chunk, group, keys,
+    if (auto s = bouncer.gather(*request.from, *request.scene, chunk, kBounceChunkSurfels, keys,
                                 request.groupsTogether, added, stats,
                                 request.previous != nullptr
                                     ? std::span<const SurfelIrradiance>(previous)

@@ -5,7 +5,7 @@
 //
 // Bounce k gathers, for every surfel, the irradiance on its two sides from the tree of the
 // light bounce k - 1 added (the direct light's tree for the first), with a SurfelBouncer over
-// groups of consecutive surfels (bounceGroupSurfels) whose random numbers are keyed by (seed,
+// groups of kBounceChunkSurfels consecutive surfels whose random numbers are keyed by (seed,
 // frame, bounce, the group's first surfel): the result does not depend on threads, budget or
 // batch size. It keeps each surfel's irradiance so far in a spill (the last bounce's plus its
 // own), and hands on the light it adds (albedo / pi of its irradiance, on diffuse surfels) for
@@ -29,14 +29,8 @@
 
 namespace pbgi {
 
-// A bounce's receivers: this many consecutive sorted surfels make one cut at the first
-// bounce's record spacing (kBounceReceiverSpacing) or less.
+// A bounce's receivers: this many consecutive sorted surfels make one cut.
 inline constexpr size_t kBounceChunkSurfels = 4096;
-// The surfels of one cut at a record spacing of `receiverSpacing`: kBounceChunkSurfels, times
-// how many times sparser than the first bounce's its records are, so that a later bounce's cut
-// still has about as many records to share its pairs among (Sponza at 1M surfels, bounces 2 and
-// 3 with 16 records a cut: 1 ms a record; see bounceSurfels). Powers of two times the chunk.
-size_t bounceGroupSurfels(int receiverSpacing);
 // Surfels read from the spills at a time by default (whole groups).
 inline constexpr size_t kBounceBatchSurfels = 64 * 1024;
 static_assert(kBounceBatchSurfels % kBounceChunkSurfels == 0);
@@ -57,9 +51,8 @@ struct BounceRequest {
   int frame = 0;
   int bounce = 1;
   uint64_t surfels = 0;            // in the spill
-  size_t groupSurfels = kBounceChunkSurfels;  // a cut's surfels: bounceGroupSurfels(spacing)
-  size_t groupsTogether = 1;                  // groups whose cuts sweep the tree together
-  size_t batchSurfels = kBounceBatchSurfels;  // read at a time: a multiple of groupSurfels
+  size_t groupsTogether = 1;       // groups whose cuts sweep the tree together
+  size_t batchSurfels = kBounceBatchSurfels;  // read at a time: a multiple of the group's size
   std::function<void(uint64_t done, uint64_t total)> progress;
   uint64_t* shutSides = nullptr;   // adds the records' sides not gathered: shut (SurfelBouncer)
 };

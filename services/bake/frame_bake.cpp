@@ -40,9 +40,8 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // glossy surfels reflect), 9 records gathering for patches of surfels, 10 later bounces' records
 // coarser, 11 shut sides not gathered after the first bounce, 12 a cluster's light weighed by
 // its shadow ray's descent (what each level's children send over their parent's estimate),
-// later bounces' records sparser, 13 the first bounce's descents by normal cones, 14 later
-// bounces' cuts over as many more surfels as their records are sparser.
-constexpr int kBounceRevision = 14;
+// later bounces' records sparser, 13 the first bounce's descents by normal cones.
+constexpr int kBounceRevision = 13;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -133,25 +132,24 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
 
 namespace {
 
-// How many groups of `groupSurfels` surfels sweep the tree together. Each sweep loads the
+// How many groups of kBounceChunkSurfels surfels sweep the tree together. Each sweep loads the
 // pages its cuts need once, so more groups load fewer pages (Sponza, 4,000,000 surfels under
-// 256M, 9,477 pages a tree: 2 groups of 4,096 surfels 2.75 million loads and 803 s, 64 groups
-// 117,091 loads and 191 s), but a group's cuts hold what waits on pages below the sweep, and
-// the batch the groups' surfels (kBatchBytesPerSurfel each: the spill's record, the surfel,
-// three irradiances). What waits grows with the group's receivers: about 32 MiB for 4,096
-// (every surfel gathering; heaptrack, Cornell 250k: 36 MB), and 1.5 times the records' share
-// of that with records (normals split a record's cell; 2.6 MB peak resident a group of 256
-// records, Sponza 4M). The cuts' waiting work and the batch each get a quarter of the budget
-// (the page cache has another); at least a group per thread.
-size_t groupsSweepingTogether(uint64_t memoryBudget, int receiverSpacing, size_t groupSurfels) {
-  constexpr uint64_t kBytesPerReceiver = (uint64_t{32} << 20) / 4096;
+// 256M, 9,477 pages a tree: 2 groups 2.75 million loads and 803 s, 64 groups 117,091 loads and
+// 191 s), but a group's cuts hold what waits on pages below the sweep, and the batch the groups'
+// surfels (kBatchBytesPerSurfel each: the spill's record, the surfel, three irradiances). What
+// waits grows with the group's receivers: about 30 MB when every surfel gathers (heaptrack,
+// Cornell 250k: 36 MB), about 2.6 MB with a record per 16 surfels (peak resident, Sponza 4M).
+// The cuts' waiting work and the batch each get a quarter of the budget (the page cache has
+// another); at least a group per thread.
+size_t groupsSweepingTogether(uint64_t memoryBudget, int receiverSpacing) {
+  constexpr uint64_t kEveryoneGathersGroupBytes = uint64_t{32} << 20;
   constexpr uint64_t kBatchBytesPerSurfel = 384;
   const uint64_t spacing = static_cast<uint64_t>(std::max(1, receiverSpacing));
-  const uint64_t receivers = std::max<uint64_t>(1, groupSurfels / spacing);
+  // 1.5 times the records' share (normals split a record's cell), never more than everyone's.
   const uint64_t groupBytes =
-      spacing <= 1 ? receivers * kBytesPerReceiver : receivers * kBytesPerReceiver * 3 / 2;
+      spacing <= 1 ? kEveryoneGathersGroupBytes : kEveryoneGathersGroupBytes * 3 / (2 * spacing);
   const uint64_t byCuts = memoryBudget / 4 / groupBytes;
-  const uint64_t byBatch = memoryBudget / 4 / (kBatchBytesPerSurfel * groupSurfels);
+  const uint64_t byBatch = memoryBudget / 4 / (kBatchBytesPerSurfel * kBounceChunkSurfels);
   const auto threads = static_cast<uint64_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   return static_cast<size_t>(std::max(threads, std::min(byCuts, byBatch)));
 }
@@ -189,14 +187,8 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
   bounce.from = &cache;
   bounce.receiverSpacing = bounceReceiverSpacing(request.bounceSpacing, bounce.bounce);
   bounce.shutSides = &report->bounceShutSides;
-  bounce.groupSurfels = bounceGroupSurfels(bounce.receiverSpacing);
-  bounce.groupsTogether =
-      groupsSweepingTogether(request.memoryBudget, bounce.receiverSpacing, bounce.groupSurfels);
-  // Whole groups, the default batch at least.
-  const size_t groupsABatch =
-      std::max((kBounceBatchSurfels + bounce.groupSurfels - 1) / bounce.groupSurfels,
-               bounce.groupsTogether);
-  bounce.batchSurfels = groupsABatch * bounce.groupSurfels;
+  bounce.groupsTogether = groupsSweepingTogether(request.memoryBudget, bounce.receiverSpacing);
+  bounce.batchSurfels = std::max(kBounceBatchSurfels, bounce.groupsTogether * kBounceChunkSurfels);
   if (request.progress) {
     bounce.progress = [&](uint64_t done, uint64_t total) {
       request.progress(fmt::format("bounce {} of {}", bounce.bounce, request.bounces), done, total);

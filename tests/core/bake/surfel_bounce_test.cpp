@@ -3,11 +3,7 @@
 
 #include "core/bake/surfel_bounce.h"
 
-#include <bit>
-
 #include <gtest/gtest.h>
-
-#include "core/bake/multi_bounce.h"
 
 namespace pbgi {
 namespace {
@@ -47,25 +43,6 @@ TEST(SurfelBounce, LaterBouncesStandForMoreSurfelsARecord) {
   EXPECT_EQ(bounceReceiverSpacing(2, 2), 2 * kLaterBounceSpacing);
   EXPECT_EQ(bounceReceiverSpacing(1, 3), 1);  // every surfel its own, in every bounce
   EXPECT_EQ(bounceReceiverSpacing(kMaxBounceSpacing, 2), kMaxBounceSpacing);
-}
-
-// A cut keeps about as many records whatever the bounce: sparser records, more surfels a cut
-// (whole chunks, a power of two of them, so that batches hold whole groups).
-TEST(SurfelBounce, SparserRecordsGatherInLargerGroups) {
-  EXPECT_EQ(bounceGroupSurfels(1), kBounceChunkSurfels);  // every surfel its own
-  EXPECT_EQ(bounceGroupSurfels(kBounceReceiverSpacing), kBounceChunkSurfels);
-  EXPECT_EQ(bounceGroupSurfels(24), kBounceChunkSurfels);
-  EXPECT_EQ(bounceGroupSurfels(bounceReceiverSpacing(16, 2)), 8 * kBounceChunkSurfels);
-  EXPECT_EQ(bounceGroupSurfels(bounceReceiverSpacing(16, 3)), 16 * kBounceChunkSurfels);
-  EXPECT_EQ(bounceGroupSurfels(48), 2 * kBounceChunkSurfels);
-  const size_t widest = bounceGroupSurfels(kMaxBounceSpacing);
-  EXPECT_EQ(widest, kBounceChunkSurfels * kMaxBounceSpacing / kBounceReceiverSpacing);
-  EXPECT_EQ(bounceGroupSurfels(1 << 30), widest);
-  for (int spacing = 1; spacing <= 4 * kMaxBounceSpacing; spacing += 7) {
-    const size_t g = bounceGroupSurfels(spacing);
-    EXPECT_EQ(g % kBounceChunkSurfels, 0u) << spacing;
-    EXPECT_TRUE(std::has_single_bit(g / kBounceChunkSurfels)) << spacing;
-  }
 }
 
 TEST(SurfelBounce, OnlyDiffuseSurfelsReflectAndEachSideReflectsItsOwnLight) {
