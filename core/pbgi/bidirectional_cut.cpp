@@ -244,7 +244,7 @@ float nodeContribution(const NodeAttributes& a, const WaveletRadiance* wavelet, 
 // picked rarely, and would be weighed by a spike.
 //
 // With CutOptions::coneDescent the children are weighed by coneContribution instead: their
-// power and normal cones, no SH (a Sponza bake's first bounce 32.4 s against 25.2 s in one
+// power and normal cones, no SH (a Sponza bake's first bounce 20.2 s against 27.5 s in one
 // run). What the descent is worth in expectation does not change, since the estimates between
 // the cluster and the surfel cancel in the product; only its spread does. Those estimates are in
 // other units than the cluster's own, which starts the product, and the surfels', which ends
