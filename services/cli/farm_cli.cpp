@@ -12,8 +12,8 @@
 #include "core/render/integrators.h"
 #include "core/util/status.h"
 #include "services/cli/cli.h"
-#include "services/coordinator/farm_job.h"
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_wire.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::cli {
 

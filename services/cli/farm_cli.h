@@ -10,7 +10,7 @@
 #include <absl/status/statusor.h>
 
 #include "core/scene/shot.h"
-#include "services/coordinator/farm_client.h"
+#include "services/farm/farm_client.h"
 
 namespace CLI {
 class App;

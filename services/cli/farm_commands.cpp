@@ -14,7 +14,7 @@
 #include "services/cli/cli.h"
 #include "services/cli/farm_cli.h"
 #include "services/cli/progress.h"
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_wire.h"
 
 namespace pbgi::cli {
 

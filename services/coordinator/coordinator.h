@@ -24,8 +24,8 @@
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
 
-#include "services/coordinator/farm_tls.h"
-#include "services/coordinator/job_store.h"
+#include "services/farm/farm_tls.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

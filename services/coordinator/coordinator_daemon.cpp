@@ -10,7 +10,7 @@
 #include "core/util/log.h"
 #include "core/util/status.h"
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::farm {

@@ -2,7 +2,7 @@
 
 #include <array>
 
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_tls.h"
 
 namespace pbgi::farm {
 
@@ -11,7 +11,7 @@ namespace {
 // Tasks (of every job) and jobs by state, from one read of the store; a store that cannot be
 // read shows zeros.
 struct StateCounts {
-  std::array<int, 6> tasks{};
+  PerTaskState<int> tasks{};
   std::array<int, 4> jobs{};
 };
 

@@ -2,8 +2,8 @@
 // What the coordinator counts, each metric declared once (coordinator_metrics.cpp). The names
 // are an interface: dashboards, the tests and the README use them. /metrics serves
 // registry.text(); counters reset with the process, as Prometheus expects.
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/metrics.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

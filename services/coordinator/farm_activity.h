@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "services/coordinator/job_store.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

@@ -15,8 +15,8 @@
 #include <optional>
 #include <string>
 
-#include "services/coordinator/farm_tls.h"
 #include "services/coordinator/metrics.h"
+#include "services/farm/farm_tls.h"
 
 namespace grpc {
 class ServerCredentials;

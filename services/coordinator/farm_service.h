@@ -10,9 +10,9 @@
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/farm_activity.h"
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/job_views.h"
 #include "services/coordinator/page_service.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

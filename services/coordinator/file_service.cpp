@@ -6,9 +6,9 @@
 #include <fmt/format.h>
 
 #include "core/util/status.h"
-#include "services/coordinator/farm_job.h"
-#include "services/coordinator/file_transfer.h"
 #include "services/coordinator/lease_reaper.h"
+#include "services/farm/file_transfer.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
 

@@ -1,7 +1,7 @@
 #include "services/coordinator/job_views.h"
 
 #include "core/util/status.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
 

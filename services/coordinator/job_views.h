@@ -12,8 +12,8 @@
 #include <absl/status/statusor.h>
 
 #include "core/scene/shot.h"
+#include "services/job_store/job_store.h"
 #include "services/render/frame_assembly.h"
-#include "services/coordinator/job_store.h"
 
 namespace pbgi::farm {
 

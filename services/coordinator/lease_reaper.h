@@ -8,8 +8,8 @@
 #include <mutex>
 #include <thread>
 
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/metrics.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

@@ -5,7 +5,7 @@
 #include <fmt/format.h>
 
 #include "core/util/status.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
 

@@ -1,7 +1,7 @@
 #include "services/coordinator/status_report.h"
 
 #include "core/util/status.h"
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_wire.h"
 
 namespace pbgi::farm {
 

@@ -5,8 +5,8 @@
 #include <absl/status/statusor.h>
 
 #include "pbgi/farm/v1/farm.pb.h"
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/job_views.h"
+#include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 

@@ -16,7 +16,7 @@
 #include <optional>
 #include <string>
 
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_tls.h"
 
 namespace pbgi::farm {
 

@@ -7,7 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "core/util/log.h"
-#include "services/coordinator/farm_client.h"
+#include "services/farm/farm_client.h"
 #include "services/util/daemon.h"
 #include "services/worker/worker.h"
 

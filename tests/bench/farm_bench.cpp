@@ -24,9 +24,9 @@
 #include "core/util/log.h"
 #include "services/bake/frame_bake.h"
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/farm_job.h"
-#include "services/coordinator/job_store.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/job_rules.h"
+#include "services/job_store/job_store.h"
 #include "tests/support/farm_fixtures.h"
 #include "tests/support/postgres_cluster.h"
 

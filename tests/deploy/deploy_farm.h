@@ -11,8 +11,8 @@
 #include <utility>
 #include <vector>
 
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/farm_tls.h"
 #include "tests/support/farm_fixtures.h"
 #include "tests/support/slurm_cluster.h"
 

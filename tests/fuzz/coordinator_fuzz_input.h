@@ -52,12 +52,12 @@
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/farm_activity.h"
-#include "services/coordinator/farm_job.h"
 #include "services/coordinator/farm_service.h"
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/job_views.h"
 #include "services/coordinator/lease_reaper.h"
 #include "services/coordinator/page_service.h"
+#include "services/farm/job_rules.h"
+#include "services/job_store/job_store.h"
 #include "tests/fuzz/shot_fuzz_input.h"
 
 namespace pbgi::fuzz {
@@ -219,8 +219,8 @@ class FarmFuzzCoordinator {
     for (const farm::JobInfo& job : *jobs) {
       const auto tasks = store_->tasks(job.id);
       if (!tasks.ok()) return fmt::format("tasks({}): {}", job.id, tasks.status().ToString());
-      std::array<int, 6> counts{};
-      std::array<bool, 6> present{};
+      farm::PerTaskState<int> counts{};
+      farm::PerTaskState<bool> present{};
       for (const farm::TaskInfo& t : *tasks) {
         ++counts[static_cast<size_t>(t.state)];
         present[static_cast<size_t>(t.state)] = true;

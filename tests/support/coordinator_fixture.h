@@ -10,7 +10,7 @@
 #include <string>
 
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_client.h"
+#include "services/farm/farm_client.h"
 #include "tests/support/farm_fixtures.h"
 
 namespace pbgi::testing {

@@ -15,8 +15,8 @@
 #include "formats/image/image_io.h"
 #include "formats/shot/shot_file.h"
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/job_rules.h"
 #include "services/render/frame_render.h"
 #include "tests/support/farm_fixtures.h"
 

@@ -1,4 +1,4 @@
-// The pbgi farm dashboard: reads the coordinator's JSON API (services/coordinator/dashboard.h)
+// The pbgi farm dashboard: reads the coordinator's JSON API (services/coordinator/dashboard/dashboard.h)
 // and draws it; refreshes whenever the event stream says something changed. No framework and
 // no build step: this file is served as written.
 'use strict';

@@ -14,11 +14,11 @@
 
 #include "formats/pbgi/remote_page_file.h"
 #include "services/bake/frame_bake.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/farm_wire.h"
 #include "tests/support/coordinator_fixture.h"
 #include "tests/support/farm_fixtures.h"
 

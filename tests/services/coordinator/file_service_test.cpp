@@ -5,8 +5,8 @@
 
 #include <fstream>
 
-#include "services/coordinator/farm_job.h"
-#include "services/coordinator/file_transfer.h"
+#include "services/farm/file_transfer.h"
+#include "services/farm/job_rules.h"
 #include "tests/support/coordinator_fixture.h"
 
 namespace pbgi::farm {

@@ -18,7 +18,7 @@
 
 #include "formats/image/image_io.h"
 #include "formats/shot/shot_file.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 #include "tests/support/stress_scenes.h"
 #include "tests/support/worker_farm.h"
 

@@ -10,7 +10,7 @@
 #include <cstdlib>
 #include <fstream>
 
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_tls.h"
 #include "tests/support/worker_farm.h"
 
 namespace pbgi::farm {

@@ -16,8 +16,8 @@
 #include "formats/pbgi/tree_file.h"
 #include "formats/shot/shot_file.h"
 #include "services/coordinator/coordinator.h"
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/job_rules.h"
 #include "services/render/frame_render.h"
 #include "tests/support/worker_farm.h"
 

@@ -20,7 +20,7 @@
 
 #include "formats/pbgi/remote_page_file.h"
 #include "pbgi/farm/v1/farm.pb.h"
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_tls.h"
 
 namespace pbgi::farm {
 

@@ -15,8 +15,8 @@
 #include <thread>
 
 #include "pbgi/farm/v1/farm.grpc.pb.h"
-#include "services/coordinator/farm_client.h"
-#include "services/coordinator/file_transfer.h"
+#include "services/farm/farm_client.h"
+#include "services/farm/file_transfer.h"
 #include "tests/support/test_paths.h"
 
 namespace pbgi::farm {

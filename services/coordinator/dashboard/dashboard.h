@@ -22,11 +22,11 @@
 // job needs the farm token, like every gRPC call (refusals are counted with theirs).
 #include <string>
 
+#include "services/coordinator/dashboard/frame_previews.h"
 #include "services/coordinator/farm_activity.h"
-#include "services/coordinator/frame_previews.h"
-#include "services/coordinator/job_store.h"
 #include "services/coordinator/job_views.h"
 #include "services/coordinator/metrics.h"
+#include "services/job_store/job_store.h"
 
 namespace httplib {
 class Server;

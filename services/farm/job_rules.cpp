@@ -1,4 +1,4 @@
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 #include <algorithm>
 #include <filesystem>

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "pbgi/farm/v1/farm.pb.h"
-#include "services/coordinator/job_store.h"
+#include "services/farm/farm_model.h"
 
 namespace pbgi::farm {
 
@@ -52,6 +52,6 @@ void setAuditKind(v1::LeaseTaskResponse* out);
 void setKind(TaskKind kind, v1::LogEntry* out);
 void setEvent(TaskEventKind kind, v1::LogEntry* out);
 void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out);
-void setState(JobState state, const std::array<int, 6>& tasksByState, v1::JobStatus* out);
+void setState(JobState state, const PerTaskState<int>& tasksByState, v1::JobStatus* out);
 
 }  // namespace pbgi::farm

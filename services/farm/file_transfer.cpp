@@ -1,4 +1,4 @@
-#include "services/coordinator/file_transfer.h"
+#include "services/farm/file_transfer.h"
 
 #include <filesystem>
 #include <vector>

@@ -1,4 +1,4 @@
-#include "services/coordinator/farm_client.h"
+#include "services/farm/farm_client.h"
 
 #include <atomic>
 #include <chrono>
@@ -15,10 +15,10 @@
 #include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
 
-#include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
-#include "services/coordinator/file_transfer.h"
+#include "pbgi/farm/v1/farm.grpc.pb.h"
+#include "services/farm/file_transfer.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::farm {

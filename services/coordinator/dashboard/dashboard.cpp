@@ -1,4 +1,4 @@
-#include "services/coordinator/dashboard.h"
+#include "services/coordinator/dashboard/dashboard.h"
 
 #include <algorithm>
 #include <atomic>
@@ -15,7 +15,7 @@
 
 #include "core/util/log.h"
 #include "core/util/status.h"
-#include "services/coordinator/dashboard_assets.h"
+#include "services/coordinator/dashboard/dashboard_assets.h"
 #include "services/coordinator/farm_auth.h"
 #include "services/coordinator/lease_reaper.h"
 
@@ -127,7 +127,7 @@ std::string jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& aud
     eta = (now - job.submitted) * (total - done) / done;
   }
   std::string states;
-  for (int s = 0; s < 6; ++s) {
+  for (int s = 0; s < kTaskStateCount; ++s) {
     if (s > 0) states += ',';
     states += fmt::format("\"{}\":{}", toString(static_cast<TaskState>(s)), job.tasksByState[s]);
   }

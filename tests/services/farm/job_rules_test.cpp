@@ -5,7 +5,7 @@
 
 #include <set>
 
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
 namespace {

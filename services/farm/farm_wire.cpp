@@ -1,4 +1,4 @@
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_wire.h"
 
 #include <utility>
 
@@ -150,7 +150,7 @@ void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out) {
   out->set_state(toString(state));
 }
 
-void setState(JobState state, const std::array<int, 6>& tasksByState, v1::JobStatus* out) {
+void setState(JobState state, const PerTaskState<int>& tasksByState, v1::JobStatus* out) {
   out->set_job_state(toWire(state));
   out->set_state(toString(state));
   for (const auto& [store, wire] : kTaskStates) {

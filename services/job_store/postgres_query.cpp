@@ -1,4 +1,4 @@
-#include "services/coordinator/postgres_query.h"
+#include "services/job_store/postgres_query.h"
 
 #include <chrono>
 #include <string_view>
@@ -6,7 +6,7 @@
 
 #include <fmt/format.h>
 
-#include "services/coordinator/job_store.h"  // redactedUri, sqlSummary
+#include "services/job_store/job_store.h"  // redactedUri, sqlSummary
 
 namespace pbgi::farm {
 namespace {

@@ -1,4 +1,4 @@
-#include "services/coordinator/frame_previews.h"
+#include "services/coordinator/dashboard/frame_previews.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/rgb_channels.h"
-#include "services/coordinator/farm_job.h"
+#include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
 

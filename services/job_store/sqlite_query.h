@@ -15,7 +15,7 @@
 #include <absl/status/statusor.h>
 
 #include "core/util/status.h"
-#include "services/coordinator/job_store.h"  // sqlSummary
+#include "services/job_store/job_store.h"  // sqlSummary
 
 namespace pbgi::farm {
 

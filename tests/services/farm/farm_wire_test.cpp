@@ -3,7 +3,7 @@
 
 #include <gtest/gtest.h>
 
-#include "services/coordinator/farm_wire.h"
+#include "services/farm/farm_wire.h"
 
 namespace pbgi::farm {
 namespace {

@@ -21,7 +21,7 @@
 
 #include <fmt/format.h>
 
-#include "services/coordinator/job_store.h"
+#include "services/job_store/job_store.h"
 #include "tests/support/postgres_cluster.h"
 #include "tests/support/test_paths.h"
 

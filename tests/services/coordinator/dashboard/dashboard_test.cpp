@@ -1,5 +1,5 @@
-// The dashboard's HTTP API on a real coordinator (tests/services/coordinator/
-// dashboard_browser.test.mjs drives the page itself in Chromium): what it says about jobs and
+// The dashboard's HTTP API on a real coordinator (dashboard_browser.test.mjs,
+// beside this file, drives the page itself in Chromium): what it says about jobs and
 // tasks, who may change a job, how bad requests are answered, and that its event stream
 // speaks as soon as something changes.
 
@@ -11,8 +11,8 @@
 #include <future>
 #include <thread>
 
-#include "services/coordinator/dashboard.h"
-#include "services/coordinator/farm_job.h"
+#include "services/coordinator/dashboard/dashboard.h"
+#include "services/farm/job_rules.h"
 #include "tests/support/coordinator_fixture.h"
 
 namespace pbgi::farm {

@@ -1,4 +1,4 @@
-#include "services/coordinator/sqlite_query.h"
+#include "services/job_store/sqlite_query.h"
 
 #include <fmt/format.h>
 

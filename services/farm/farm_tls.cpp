@@ -1,4 +1,4 @@
-#include "services/coordinator/farm_tls.h"
+#include "services/farm/farm_tls.h"
 
 #include <atomic>
 #include <cerrno>

@@ -20,8 +20,8 @@
 #include <absl/strings/ascii.h>
 #include <fmt/format.h>
 
-#include "services/coordinator/job_store.h"
-#include "services/coordinator/sqlite_query.h"
+#include "services/job_store/job_store.h"
+#include "services/job_store/sqlite_query.h"
 
 namespace pbgi::farm {
 namespace {
@@ -211,7 +211,7 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<JobState> jobState(int64_t job);
   absl::StatusOr<JobInfo> readJob(const Query& q);
   absl::Status addTaskSummary(JobInfo& info);
-  absl::StatusOr<std::array<int, 6>> countTasksByState(int64_t job);
+  absl::StatusOr<PerTaskState<int>> countTasksByState(int64_t job);
   absl::StatusOr<TaskInfo> loadTask(int64_t task);
   absl::StatusOr<TaskInfo> currentLease(int64_t task, int attempt);
   absl::Status touchWorker(const std::string& worker, Seconds now);
@@ -438,8 +438,8 @@ absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) {
 }
 
 // Indexed by TaskState.
-absl::StatusOr<std::array<int, 6>> SqliteJobStore::countTasksByState(int64_t job) {
-  std::array<int, 6> counts{};
+absl::StatusOr<PerTaskState<int>> SqliteJobStore::countTasksByState(int64_t job) {
+  PerTaskState<int> counts{};
   Query q = query("SELECT state, COUNT(*) FROM tasks WHERE job = ?1 GROUP BY state");
   q.bind(1, job);
   for (;;) {
@@ -572,7 +572,7 @@ absl::Status SqliteJobStore::settleJob(int64_t job) {
   // Every completion settles its job: an index probe per state, not a count of every task
   // of the job (4096 a frame for a big one). A ready or leased task decides it alone (the job
   // is active), so those are probed first and, on a busy farm, are the only probes.
-  std::array<bool, 6> present{};
+  PerTaskState<bool> present{};
   for (const TaskState s : {TaskState::kReady, TaskState::kLeased, TaskState::kBlocked,
                             TaskState::kDead, TaskState::kCancelled}) {
     Query q = query("SELECT 1 FROM tasks WHERE job = ?1 AND state = ?2 LIMIT 1");

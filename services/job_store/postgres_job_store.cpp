@@ -26,8 +26,8 @@
 #include <fmt/format.h>
 
 #include "core/util/status.h"
-#include "services/coordinator/job_store.h"
-#include "services/coordinator/postgres_query.h"
+#include "services/job_store/job_store.h"
+#include "services/job_store/postgres_query.h"
 
 namespace pbgi::farm {
 namespace {
@@ -393,7 +393,7 @@ absl::Status PostgresJobStore::settleJob(PgTx& tx, int64_t job) {
       "EXISTS (SELECT 1 FROM tasks WHERE job = $1 AND state = 4), "
       "EXISTS (SELECT 1 FROM tasks WHERE job = $1 AND state = 5)",
       job);
-  std::array<bool, 6> present{};
+  PerTaskState<bool> present{};
   present[number(TaskState::kBlocked)] = r[0][0].as<bool>();
   present[number(TaskState::kReady)] = r[0][1].as<bool>();
   present[number(TaskState::kLeased)] = r[0][2].as<bool>();
