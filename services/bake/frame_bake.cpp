@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <filesystem>
+#include <functional>
 #include <optional>
 
 #include <fmt/format.h>
@@ -32,15 +33,8 @@ namespace {
 
 // Surfels shaded per batch: enough to keep every core busy, small next to any budget.
 constexpr size_t kChunkSurfels = 64 * 1024;
-// How bounces gather, for the bake hash: 3 is the bidirectional cut with the estimated tail, 4
-// each bounce gathering only the light the last one added, later bounces coarser, 5 near
-// surfels' disks folded at the receiver's horizon instead of cut there, 6 near disks as exact
-// polygons, walls reaching a receiver gathered, light no surfel sends dropped, 7 near disks
-// spread to twice their radius, 8 glossy light as wavelets (direct, and the indirect light
-// glossy surfels reflect), 9 records gathering for patches of surfels, 10 later bounces' records
-// coarser, 11 shut sides not gathered after the first bounce, 12 a cluster's light weighed by
-// its shadow ray's descent (what each level's children send over their parent's estimate),
-// later bounces' records sparser, 13 the first bounce's descents by normal cones.
+// How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
+// differ, so that no bake made before it is reused (the commit log says what each changed).
 constexpr int kBounceRevision = 13;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
@@ -133,14 +127,13 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
 namespace {
 
 // How many groups of kBounceChunkSurfels surfels sweep the tree together. Each sweep loads the
-// pages its cuts need once, so more groups load fewer pages (Sponza, 4,000,000 surfels under
-// 256M, 9,477 pages a tree: 2 groups 2.75 million loads and 803 s, 64 groups 117,091 loads and
-// 191 s), but a group's cuts hold what waits on pages below the sweep, and the batch the groups'
-// surfels (kBatchBytesPerSurfel each: the spill's record, the surfel, three irradiances). What
-// waits grows with the group's receivers: about 30 MB when every surfel gathers (heaptrack,
-// Cornell 250k: 36 MB), about 2.6 MB with a record per 16 surfels (peak resident, Sponza 4M).
-// The cuts' waiting work and the batch each get a quarter of the budget (the page cache has
-// another); at least a group per thread.
+// pages its cuts need once, so more groups load fewer pages, but a group's cuts hold what waits
+// on pages below the sweep, and the batch holds the groups' surfels (kBatchBytesPerSurfel each:
+// the spill's record, the surfel, three irradiances). What waits grows with the group's
+// receivers: about 32 MiB when every surfel gathers, about a sixteenth of that with a record per
+// 16 surfels (measured in the README's "Baking"). The cuts' waiting work and the
+// batch each get a quarter of the budget (the page cache has another); at least a group per
+// thread.
 size_t groupsSweepingTogether(uint64_t memoryBudget, int receiverSpacing) {
   constexpr uint64_t kEveryoneGathersGroupBytes = uint64_t{32} << 20;
   constexpr uint64_t kBatchBytesPerSurfel = 384;
@@ -211,15 +204,15 @@ std::string bakeTreePath(const ShotDesc& shot, const FrameBakeRequest& request) 
   return framePathStem(shot, request).string() + ".pbgi";
 }
 
-absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
-                                              const FrameBakeRequest& request,
-                                              const Scene* loadedScene) {
-  if (absl::Status s = checkShotFrame(shot, request.frame); !s.ok()) return s;
+namespace {
+
+// InvalidArgument naming the field for a request no bake can serve.
+absl::Status validateBakeRequest(const FrameBakeRequest& request) {
   if (request.bounces < 0 || request.bounces > kMaxBakeBounces) {
     return absl::InvalidArgumentError(
         fmt::format("bounces {}: expected 0 to {}", request.bounces, kMaxBakeBounces));
   }
-  if (auto s = request.bounceCut.validate(); !s.ok()) return s;
+  PBGI_RETURN_IF_ERROR(request.bounceCut.validate());
   if (!(request.tree.wavelets.relativeError >= 0.0f && request.tree.wavelets.relativeError < 1.0f)) {
     return absl::InvalidArgumentError(fmt::format(
         "wavelet error {}: expected a fraction in [0, 1)", request.tree.wavelets.relativeError));
@@ -239,313 +232,414 @@ absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot,
     return absl::InvalidArgumentError(
         fmt::format("light samples {}: expected at least 1", request.lightSamples));
   }
-  const size_t sortBudget = request.memoryBudget / 2;
-  ExternalSortOptions sortOptions;
-  sortOptions.memoryBudgetBytes = sortBudget;
-  sortOptions.tempDir = request.tempDir;
-  sortOptions.threads = request.threads;
-  if (auto s = ExternalSurfelSorter::validateOptions(sortOptions); !s.ok()) {
+  return absl::OkStatus();
+}
+
+// The sort's options: half the budget. InvalidArgument when the budget cannot hold a run.
+absl::StatusOr<ExternalSortOptions> bakeSortOptions(const FrameBakeRequest& request) {
+  ExternalSortOptions options;
+  options.memoryBudgetBytes = request.memoryBudget / 2;
+  options.tempDir = request.tempDir;
+  options.threads = request.threads;
+  if (auto s = ExternalSurfelSorter::validateOptions(options); !s.ok()) {
     return absl::InvalidArgumentError(fmt::format(
         "memory budget {} MiB is too small: {}", request.memoryBudget >> 20, s.message()));
   }
+  return options;
+}
+
+// Glossy and refractive light the SH cannot hold goes into the direct-light tree and the final
+// one as wavelets; a scene without such materials bakes none.
+struct GlossyBakers {
+  GlossyBakers(const Scene& scene, const ShotDesc& shot, const FrameBakeRequest& request)
+      : options(glossyOptions(shot, request)),
+        direct(scene, directTreeOptions(options, request)),
+        reflector(scene, reflectOnly(options)) {}
+  bool any() const { return direct.anyWavelets(); }
+
+  GlossyBakeOptions options;  // the final tree's: direct light, reflection and specular chains
+  // The direct-light tree of a bake with bounces leaves the specular chains (caustics) to the
+  // final tree: they cost most and only light what bounces after them.
+  GlossyLeafBaker direct;
+  GlossyLeafBaker reflector;  // a bounce's: the light glossy surfels reflect of the last tree
+
+ private:
+  static GlossyBakeOptions glossyOptions(const ShotDesc& shot, const FrameBakeRequest& request) {
+    GlossyBakeOptions o;
+    o.resolution = request.waveletResolution;
+    o.seed = shot.render.seed;
+    o.frame = request.frame;
+    return o;
+  }
+  static GlossyBakeOptions directTreeOptions(GlossyBakeOptions o, const FrameBakeRequest& r) {
+    o.specularChains = r.bounces == 0;
+    return o;
+  }
+  static GlossyBakeOptions reflectOnly(GlossyBakeOptions o) {
+    o.directLight = false;
+    return o;
+  }
+};
+
+// Whether to write the OpenVDB point cloud: always, never, or (auto) when OpenVDB's copy fits
+// a quarter of the budget, warning when it does not.
+bool keepPointCloud(const FrameBakeRequest& request, uint64_t surfels,
+                    std::vector<std::string>* warnings) {
+  if (request.pointCloud != PointCloudMode::kAuto) {
+    return request.pointCloud == PointCloudMode::kAlways;
+  }
+  const uint64_t bytes = surfels * kPointCloudBytesPerPoint;
+  if (bytes <= request.memoryBudget / 4) return true;
+  warnings->push_back(fmt::format(
+      "point cloud not written: OpenVDB would hold {} surfels (about {} MiB) in memory, over a "
+      "quarter of the {} MiB budget (--point-cloud always writes it anyway)",
+      surfels, bytes >> 20, request.memoryBudget >> 20));
+  return false;
+}
+
+// Stage "sample+shade": samples `plan.surfels` surfels, shades their direct light a chunk at a
+// time and adds them to `sorter` by Morton key. Returns the shaded surfels when `keepCloud` (for
+// the point cloud), else none.
+absl::StatusOr<std::vector<Surfel>> sampleAndShade(const Scene& scene, const ShotDesc& shot,
+                                                   const FrameBakeRequest& request,
+                                                   const SurfelSamplingOptions& sampling,
+                                                   uint64_t planned, bool keepCloud,
+                                                   ExternalSurfelSorter& sorter,
+                                                   FrameBakeReport* report) {
+  const MortonCube cube(scene.bounds());
+  std::vector<Surfel> chunk, cloud;
+  chunk.reserve(kChunkSurfels);
+  uint64_t shadedSoFar = 0;
+  SurfelShadingOptions shading;
+  shading.lightSamples = request.lightSamples;
+  shading.seed = shot.render.seed;
+  shading.frame = request.frame;
+  auto flush = [&]() -> absl::Status {
+    const SurfelShadingStats s = shadeSurfelsDirect(scene, chunk, shadedSoFar, shading);
+    report->shading.surfels += s.surfels;
+    report->shading.emissive += s.emissive;
+    report->shading.discardedSamples += s.discardedSamples;
+    report->shading.nonFiniteSurfels += s.nonFiniteSurfels;
+    if (keepCloud) cloud.insert(cloud.end(), chunk.begin(), chunk.end());
+    for (Surfel& surfel : chunk) {
+      // The tree carries the light that gathers are for: reflected light. Emitters are lights
+      // that renderers and bounces sample directly, so an emissive surfel sends nothing from
+      // the tree (it still occludes); the point cloud keeps its emission.
+      if (surfel.materialClass == MaterialClass::kEmissive) {
+        surfel.radiance = surfel.backRadiance = Rgb(0.0f);
+      }
+      PBGI_RETURN_IF_ERROR(sorter.add(mortonKey(surfel.position, cube), surfel));
+    }
+    shadedSoFar += chunk.size();
+    chunk.clear();
+    if (request.progress) request.progress("sample and shade surfels", shadedSoFar, planned);
+    return absl::OkStatus();
+  };
+  absl::Status sampled = sampleSurfels(
+      scene, sampling,
+      [&](const Surfel& s) -> absl::Status {
+        chunk.push_back(s);
+        return chunk.size() == kChunkSurfels ? flush() : absl::OkStatus();
+      },
+      &report->sampling);
+  if (sampled.ok() && !chunk.empty()) sampled = flush();
+  if (!sampled.ok()) return sampled;
+  return cloud;
+}
+
+// What the tree's header says of the bake.
+std::vector<std::pair<std::string, std::string>> bakeInfo(const ShotDesc& shot,
+                                                          const FrameBakeRequest& request,
+                                                          const SurfelSamplingStats& sampling) {
+  return {
+      {"shot", shot.path},
+      {"frame", std::to_string(request.frame)},
+      {"seed", std::to_string(shot.render.seed)},
+      {"points", std::to_string(sampling.surfels)},
+      {"surfel_radius", fmt::format("{:g}", sampling.radius)},
+      {"light_samples", std::to_string(request.lightSamples)},
+      {"bounces", std::to_string(request.bounces)},
+      {"bounce_spacing", std::to_string(request.bounceSpacing)},
+      {"pbgi_version", request.pbgiVersion},
+  };
+}
+
+struct DirectTree {
+  TreeWriteResult tree;
+  Rgb reflectedPower{0.0f};  // what the reflecting surfels send of the direct light
+};
+
+// Stage "merge+build": merges the sorter's runs into the direct light's tree at `path` (the
+// sorter merges lazily, as the build pulls surfels) and, when `sorted` is given, spills the
+// sorted surfels there for the bounces.
+absl::StatusOr<DirectTree> buildDirectTree(ExternalSurfelSorter& sorter, const std::string& path,
+                                           const TreeFileWriteOptions& options,
+                                           const FrameBakeRequest& request, uint64_t surfels,
+                                           SpillFile* sorted) {
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
+                        TreeFileWriter::create(path, options));
+  SortedSurfel next;
+  uint8_t record[kSurfelRecordBytes];
+  uint64_t built = 0;
+  double power[3] = {0.0, 0.0, 0.0};
+  constexpr const char* kStage = "merge the sorted runs and build the tree";
+  while (true) {
+    PBGI_ASSIGN_OR_RETURN(const bool more, sorter.next(&next));
+    if (!more) break;
+    PBGI_RETURN_IF_ERROR(writer->add(next));
+    if (sorted != nullptr) {
+      encodeSurfelRecord(next, record);
+      PBGI_RETURN_IF_ERROR(sorted->write(record));
+      if (reflectsLight(next.surfel)) {
+        const Rgb both = next.surfel.radiance + next.surfel.backRadiance;
+        for (int c = 0; c < 3; ++c) power[c] += next.surfel.area() * both[c];
+      }
+    }
+    if (request.progress && (++built & 0xffff) == 0) request.progress(kStage, built, surfels);
+  }
+  if (request.progress) request.progress(kStage, built, surfels);
+  PBGI_ASSIGN_OR_RETURN(const TreeWriteResult tree, writer->finish());
+  return DirectTree{
+      .tree = tree,
+      .reflectedPower = Rgb(static_cast<float>(power[0]), static_cast<float>(power[1]),
+                            static_cast<float>(power[2]))};
+}
+
+// What the bounces leave for the final tree: the last two bounces' irradiance per surfel.
+struct BouncedLight {
+  std::vector<SpillFile> irradiance;  // the last bounce's last
+  SpillFile& last() { return irradiance.back(); }
+  SpillFile* beforeLast() { return irradiance.size() == 2 ? &irradiance[0] : nullptr; }
+};
+
+// Stages "bounce k": bounce k gathers from tree k - 1 (the light bounce k - 1 added; the direct
+// light's for k = 1) and writes tree k of the light it adds, except the last, which only
+// gathers (core/bake/multi_bounce.h). `treePath(k)` names tree k; each is removed once read.
+absl::StatusOr<BouncedLight> bounceLight(const Scene& scene, const ShotDesc& shot,
+                                         const FrameBakeRequest& request, SpillFile& sorted,
+                                         const std::function<std::string(int)>& treePath,
+                                         const TreeFileWriteOptions& treeOptions,
+                                         const GlossyBakers& glossy, StageClock& clock,
+                                         FrameBakeReport* report) {
+  BouncedLight light;
+  for (int bounce = 1; bounce <= request.bounces; ++bounce) {
+    PBGI_ASSIGN_OR_RETURN(SpillFile spill,
+                          SpillFile::create(request.tempDir, "pbgi-bake-irradiance"));
+    if (light.irradiance.size() == 2) light.irradiance.erase(light.irradiance.begin());
+    light.irradiance.push_back(std::move(spill));
+    const bool last = bounce == request.bounces;
+    const std::string to = treePath(bounce);
+    Rgb power(0.0f);
+    auto lit = bakeBounce(treePath(bounce - 1), last ? nullptr : &to,
+                          {.sorted = &sorted,
+                           .previous = light.beforeLast(),
+                           .next = &light.irradiance.back(),
+                           .scene = &scene,
+                           .cut = bounceCutOptions(request.bounceCut, bounce),
+                           .seed = shot.render.seed,
+                           .frame = request.frame,
+                           .bounce = bounce,
+                           .surfels = report->sampling.surfels},
+                          treeOptions, glossy.any() ? &glossy.reflector : nullptr, request, report,
+                          &power);
+    std::error_code removeError;
+    std::filesystem::remove(treePath(bounce - 1), removeError);
+    if (!lit.ok()) return lit.status();
+    report->bouncePower.push_back(power);
+    if (!last) report->tree = *lit;
+    clock.lap(fmt::format("bounce {}", bounce));
+  }
+  return light;
+}
+
+// Writes the final tree at `path`: the direct light and every bounce's, with the estimated tail
+// (`tail`; zero for none), through `options` (which may add glossy leaves' wavelets).
+absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& path,
+                                               const TreeFileWriteOptions& options,
+                                               SpillFile& sorted, BouncedLight& light,
+                                               const Rgb& tail, uint64_t surfels) {
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
+                        TreeFileWriter::create(path, options));
+  PBGI_RETURN_IF_ERROR(finalLight(sorted, light.last(), light.beforeLast(), tail, surfels,
+                                  [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
+  return writer->finish();
+}
+
+// Stage "glossy indirect": glossy surfels reflect the indirect light too, that of the final tree
+// at `path` (every bounce's light, diffuse surfels' and what glossy ones reflected of each
+// bounce), gathered at each glossy leaf; the final tree is written again with it, their direct
+// light and mirrors' and glass's specular chains. `stem` names the temporary copy.
+absl::StatusOr<TreeWriteResult> addGlossyIndirect(
+    const Scene& scene, const std::string& path, const std::string& stem,
+    TreeFileWriteOptions options, const GlossyBakers& glossy, const FrameBakeRequest& request,
+    SpillFile& sorted, BouncedLight& light, const Rgb& tail, uint64_t surfels) {
+  const std::string lit = stem + ".glossy.tmp.pbgi";
+  std::error_code renameError;
+  std::filesystem::rename(path, lit, renameError);
+  if (renameError) {
+    return absl::InternalError(
+        fmt::format("cannot rename {} to {}: {}", path, lit, renameError.message()));
+  }
+  absl::StatusOr<TreeWriteResult> written = [&]() -> absl::StatusOr<TreeWriteResult> {
+    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFile> from, TreeFile::open(lit));
+    PageCache cache(
+        *from, {.budgetBytes = request.memoryBudget / 4, .policy = PageCachePolicy::kLeastRecent});
+    GlossyLeafBaker indirect(scene, glossy.options);
+    indirect.setIncoming(&cache);
+    options.tree.wavelets.leaf = [&indirect](std::span<Surfel> s, uint64_t key) {
+      return indirect(s, key);
+    };
+    return writeFinalTree(path, options, sorted, light, tail, surfels);
+  }();
+  std::error_code removeError;
+  std::filesystem::remove(lit, removeError);
+  return written;
+}
+
+// Stage "point cloud": the shaded surfels as an OpenVDB point cloud at `path`.
+absl::Status writePointCloud(const std::string& path, const std::vector<Surfel>& cloud,
+                             const ShotDesc& shot, const FrameBakeRequest& request) {
+  SurfelVdbOptions vdb;
+  vdb.metadata.shot = shot.name;
+  vdb.metadata.frame = request.frame;
+  vdb.metadata.seed = shot.render.seed;
+  vdb.metadata.pbgiVersion = request.pbgiVersion;
+  return writeSurfelVdb(path, cloud, vdb);
+}
+
+// The bake's stages in order, in the calling thread's arena: load, sample+shade, sort,
+// merge+build, each bounce, the final tree (and its glossy indirect light), the point cloud.
+absl::StatusOr<FrameBakeReport> runBake(const ShotDesc& shot, const FrameBakeRequest& request,
+                                        const Scene* loadedScene,
+                                        const ExternalSortOptions& sortOptions,
+                                        const TreeFileWriteOptions& baseTreeOptions) {
+  FrameBakeReport report;
+  StageClock clock(&report.stages);
+  std::optional<FrameScene> loaded;
+  if (loadedScene == nullptr) {
+    PBGI_ASSIGN_OR_RETURN(FrameScene frameScene, loadFrameScene(shot, request.frame));
+    report.warnings = frameScene.warnings;
+    loaded = std::move(frameScene);
+    loadedScene = loaded->scene.get();
+    // The importer's and the BVH build's temporaries are freed by now but glibc keeps much of
+    // them mapped, and how much depends on heap layout; give them back so that what stays
+    // resident is the scene itself, the same from run to run.
+    ::malloc_trim(0);
+  }
+  const Scene& scene = *loadedScene;
+  clock.lap("load");
+  const GlossyBakers glossy(scene, shot, request);
+  if (glossy.any()) {
+    TreeWriteOptions withWavelets = baseTreeOptions.tree;
+    withWavelets.wavelets.leaf = [](std::span<Surfel>, uint64_t) { return WaveletRadiance(); };
+    PBGI_RETURN_IF_ERROR(TreeWriter::validateOptions(withWavelets));
+  }
+  SurfelSamplingOptions sampling;
+  sampling.targetCount = request.points > 0 ? request.points : kDefaultBakePoints;
+  sampling.seed = shot.render.seed;
+  sampling.frame = request.frame;
+  SurfelSamplingStats plan;
+  PBGI_RETURN_IF_ERROR(planSurfels(scene, sampling, &plan));
+
+  const std::string stem = framePathStem(shot, request).string();
+  report.treePath = stem + ".pbgi";
+  const std::filesystem::path folder = std::filesystem::path(report.treePath).parent_path();
+  std::error_code ec;
+  std::filesystem::create_directories(folder, ec);
+  if (ec) {
+    return absl::PermissionDeniedError(
+        fmt::format("cannot create {}: {}", folder.string(), ec.message()));
+  }
+  const bool keepCloud = keepPointCloud(request, plan.surfels, &report.warnings);
+
+  ExternalSurfelSorter sorter(sortOptions);
+  PBGI_ASSIGN_OR_RETURN(
+      const std::vector<Surfel> cloud,
+      sampleAndShade(scene, shot, request, sampling, plan.surfels, keepCloud, sorter, &report));
+  clock.lap("sample+shade");
+  PBGI_RETURN_IF_ERROR(sorter.finish());
+  clock.lap("sort");
+
+  TreeFileWriteOptions treeOptions = baseTreeOptions;
+  treeOptions.sceneBounds = scene.bounds();
+  treeOptions.sceneHash = bakeHash(shot, request);
+  treeOptions.bakeInfo = bakeInfo(shot, request, report.sampling);
+  TreeFileWriteOptions glossyTreeOptions = treeOptions;
+  if (glossy.any()) {
+    glossyTreeOptions.tree.wavelets.leaf = [&glossy](std::span<Surfel> s, uint64_t key) {
+      return glossy.direct(s, key);
+    };
+  }
+  // Without bounces the sorted stream goes straight into the output tree. With K bounces it
+  // goes to tree 0 and to a spill (direct light only), and the bounces make the output from
+  // them.
+  std::optional<SpillFile> sorted;
+  if (request.bounces > 0) {
+    PBGI_ASSIGN_OR_RETURN(SpillFile spill, SpillFile::create(request.tempDir, "pbgi-bake-sorted"));
+    sorted.emplace(std::move(spill));
+  }
+  const auto treePath = [&](int bounce) {
+    return bounce == request.bounces ? report.treePath
+                                     : fmt::format("{}.bounce{}.tmp.pbgi", stem, bounce);
+  };
+  PBGI_ASSIGN_OR_RETURN(const DirectTree direct,
+                        buildDirectTree(sorter, treePath(0), glossyTreeOptions, request,
+                                        report.sampling.surfels, sorted ? &*sorted : nullptr));
+  report.sort = sorter.stats();
+  report.tree = direct.tree;
+  clock.lap("merge+build");
+
+  report.bouncePower.push_back(direct.reflectedPower);
+  if (request.bounces > 0) {
+    PBGI_ASSIGN_OR_RETURN(BouncedLight light, bounceLight(scene, shot, request, *sorted, treePath,
+                                                          treeOptions, glossy, clock, &report));
+    const auto power = [&](int k) {
+      const Rgb& p = report.bouncePower[static_cast<size_t>(k)];
+      return std::array<double, 3>{p.x, p.y, p.z};
+    };
+    report.tail = request.bounceTail
+                      ? tailFactor(power(request.bounces), power(request.bounces - 1))
+                      : Rgb(0.0f);
+    const uint64_t surfels = report.sampling.surfels;
+    // Written first without wavelets when glossy surfels then gather from it.
+    PBGI_ASSIGN_OR_RETURN(
+        report.tree, writeFinalTree(report.treePath, glossy.any() ? treeOptions : glossyTreeOptions,
+                                    *sorted, light, report.tail, surfels));
+    clock.lap("final tree");
+    if (glossy.any()) {
+      PBGI_ASSIGN_OR_RETURN(
+          report.tree, addGlossyIndirect(scene, report.treePath, stem, treeOptions, glossy, request,
+                                         *sorted, light, report.tail, surfels));
+      clock.lap("glossy indirect");
+    }
+  }
+  report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
+
+  if (keepCloud) {
+    report.pointCloudPath = stem + ".vdb";
+    PBGI_RETURN_IF_ERROR(writePointCloud(report.pointCloudPath, cloud, shot, request));
+    clock.lap("point cloud");
+  }
+  report.wallSeconds = clock.totalSeconds();
+  return report;
+}
+
+}  // namespace
+
+absl::StatusOr<FrameBakeReport> bakeShotFrame(const ShotDesc& shot, const FrameBakeRequest& request,
+                                              const Scene* loadedScene) {
+  PBGI_RETURN_IF_ERROR(checkShotFrame(shot, request.frame));
+  PBGI_RETURN_IF_ERROR(validateBakeRequest(request));
+  PBGI_ASSIGN_OR_RETURN(const ExternalSortOptions sortOptions, bakeSortOptions(request));
   TreeFileWriteOptions treeOptions;
   treeOptions.tree = request.tree;
   treeOptions.tree.seed = shot.render.seed;
   treeOptions.tree.tempDir = request.tempDir;
-  if (auto s = TreeWriter::validateOptions(treeOptions.tree); !s.ok()) return s;
-
-  std::optional<tbb::task_arena> arena;
-  if (request.threads > 0) arena.emplace(request.threads);
-  absl::StatusOr<FrameBakeReport> result;
-  auto work = [&] {
-    FrameBakeReport report;
-    StageClock clock(&report.stages);
-    std::optional<FrameScene> loaded;
-    if (loadedScene == nullptr) {
-      auto frameScene = loadFrameScene(shot, request.frame);
-      if (!frameScene.ok()) return result = frameScene.status(), void();
-      report.warnings = frameScene->warnings;
-      loaded = std::move(*frameScene);
-      loadedScene = loaded->scene.get();
-      // The importer's and the BVH build's temporaries are freed by now but glibc keeps much
-      // of them mapped, and how much depends on heap layout; give them back so that what
-      // stays resident is the scene itself, the same from run to run.
-      ::malloc_trim(0);
-    }
-    const Scene& scene = *loadedScene;
-    clock.lap("load");
-    // Glossy and refractive light the SH cannot hold goes into the direct-light tree and the
-    // final one as wavelets (GlossyLeafBaker); a scene without such materials bakes none.
-    GlossyBakeOptions glossyOptions;
-    glossyOptions.resolution = request.waveletResolution;
-    glossyOptions.seed = shot.render.seed;
-    glossyOptions.frame = request.frame;
-    // The direct-light tree of a bake with bounces leaves the specular chains (caustics) to the
-    // final tree: they cost most and only light what bounces after them.
-    GlossyBakeOptions firstTree = glossyOptions;
-    firstTree.specularChains = request.bounces == 0;
-    const GlossyLeafBaker glossyBaker(scene, firstTree);
-    GlossyBakeOptions reflectOnly = glossyOptions;
-    reflectOnly.directLight = false;
-    const GlossyLeafBaker bounceReflector(scene, reflectOnly);
-    if (glossyBaker.anyWavelets()) {
-      TreeWriteOptions withWavelets = treeOptions.tree;
-      withWavelets.wavelets.leaf = [](std::span<Surfel>, uint64_t) { return WaveletRadiance(); };
-      if (auto s = TreeWriter::validateOptions(withWavelets); !s.ok()) return result = s, void();
-    }
-
-    SurfelSamplingOptions sampling;
-    sampling.targetCount = request.points > 0 ? request.points : kDefaultBakePoints;
-    sampling.seed = shot.render.seed;
-    sampling.frame = request.frame;
-    SurfelSamplingStats plan;
-    if (auto s = planSurfels(scene, sampling, &plan); !s.ok()) return result = s, void();
-
-    const std::string stem = framePathStem(shot, request).string();
-    report.treePath = stem + ".pbgi";
-    std::error_code ec;
-    std::filesystem::create_directories(std::filesystem::path(report.treePath).parent_path(), ec);
-    if (ec) {
-      return result = absl::PermissionDeniedError(fmt::format(
-                 "cannot create {}: {}",
-                 std::filesystem::path(report.treePath).parent_path().string(), ec.message())),
-             void();
-    }
-    bool keepCloud = request.pointCloud == PointCloudMode::kAlways;
-    if (request.pointCloud == PointCloudMode::kAuto) {
-      keepCloud = plan.surfels * kPointCloudBytesPerPoint <= request.memoryBudget / 4;
-      if (!keepCloud) {
-        report.warnings.push_back(fmt::format(
-            "point cloud not written: OpenVDB would hold {} surfels (about {} MiB) in memory, "
-            "over a quarter of the {} MiB budget (--point-cloud always writes it anyway)",
-            plan.surfels, plan.surfels * kPointCloudBytesPerPoint >> 20,
-            request.memoryBudget >> 20));
-      }
-    }
-
-    // Sample, shade and sort, a chunk at a time.
-    ExternalSurfelSorter sorter(sortOptions);
-    const MortonCube cube(scene.bounds());
-    std::vector<Surfel> chunk, cloud;
-    chunk.reserve(kChunkSurfels);
-    uint64_t shadedSoFar = 0;
-    SurfelShadingOptions shading;
-    shading.lightSamples = request.lightSamples;
-    shading.seed = shot.render.seed;
-    shading.frame = request.frame;
-    auto flush = [&]() -> absl::Status {
-      const SurfelShadingStats s = shadeSurfelsDirect(scene, chunk, shadedSoFar, shading);
-      report.shading.surfels += s.surfels;
-      report.shading.emissive += s.emissive;
-      report.shading.discardedSamples += s.discardedSamples;
-      report.shading.nonFiniteSurfels += s.nonFiniteSurfels;
-      if (keepCloud) cloud.insert(cloud.end(), chunk.begin(), chunk.end());
-      for (Surfel& surfel : chunk) {
-        // The tree carries the light that gathers are for: reflected light. Emitters are
-        // lights that renderers and bounces sample directly, so an emissive surfel sends
-        // nothing from the tree (it still occludes); the point cloud keeps its emission.
-        if (surfel.materialClass == MaterialClass::kEmissive) {
-          surfel.radiance = surfel.backRadiance = Rgb(0.0f);
-        }
-        if (auto st = sorter.add(mortonKey(surfel.position, cube), surfel); !st.ok()) return st;
-      }
-      shadedSoFar += chunk.size();
-      chunk.clear();
-      if (request.progress) request.progress("sample and shade surfels", shadedSoFar, plan.surfels);
-      return absl::OkStatus();
-    };
-    absl::Status sampled = sampleSurfels(
-        scene, sampling,
-        [&](const Surfel& s) -> absl::Status {
-          chunk.push_back(s);
-          return chunk.size() == kChunkSurfels ? flush() : absl::OkStatus();
-        },
-        &report.sampling);
-    if (sampled.ok() && !chunk.empty()) sampled = flush();
-    if (!sampled.ok()) return result = sampled, void();
-    clock.lap("sample+shade");
-
-    if (auto s = sorter.finish(); !s.ok()) return result = s, void();
-    clock.lap("sort");
-
-    treeOptions.sceneBounds = scene.bounds();
-    treeOptions.sceneHash = bakeHash(shot, request);
-    treeOptions.bakeInfo = {
-        {"shot", shot.path},
-        {"frame", std::to_string(request.frame)},
-        {"seed", std::to_string(shot.render.seed)},
-        {"points", std::to_string(report.sampling.surfels)},
-        {"surfel_radius", fmt::format("{:g}", report.sampling.radius)},
-        {"light_samples", std::to_string(request.lightSamples)},
-        {"bounces", std::to_string(request.bounces)},
-        {"bounce_spacing", std::to_string(request.bounceSpacing)},
-        {"pbgi_version", request.pbgiVersion},
-    };
-    // Without bounces the sorted stream goes straight into the output tree. With K bounces it
-    // goes to tree 0 and to a spill (direct light only), and the bounces below make the
-    // output from them.
-    std::optional<SpillFile> sorted;
-    if (request.bounces > 0) {
-      auto spill = SpillFile::create(request.tempDir, "pbgi-bake-sorted");
-      if (!spill.ok()) return result = spill.status(), void();
-      sorted.emplace(std::move(*spill));
-    }
-    auto bounceTreePath = [&](int bounce) {
-      return bounce == request.bounces ? report.treePath
-                                       : fmt::format("{}.bounce{}.tmp.pbgi", stem, bounce);
-    };
-    TreeFileWriteOptions glossyTreeOptions = treeOptions;
-    if (glossyBaker.anyWavelets()) {
-      glossyTreeOptions.tree.wavelets.leaf = [&glossyBaker](std::span<Surfel> s, uint64_t key) {
-        return glossyBaker(s, key);
-      };
-    }
-    auto writer = TreeFileWriter::create(bounceTreePath(0), glossyTreeOptions);
-    if (!writer.ok()) return result = writer.status(), void();
-    SortedSurfel next;
-    uint8_t record[kSurfelRecordBytes];
-    uint64_t built = 0;
-    double directPower[3] = {0.0, 0.0, 0.0};  // what the reflecting surfels send of direct light
-    while (true) {
-      auto more = sorter.next(&next);
-      if (!more.ok()) return result = more.status(), void();
-      if (!*more) break;
-      if (auto s = (*writer)->add(next); !s.ok()) return result = s, void();
-      if (sorted) {
-        encodeSurfelRecord(next, record);
-        if (auto s = sorted->write(record); !s.ok()) return result = s, void();
-        if (reflectsLight(next.surfel)) {
-          const Rgb both = next.surfel.radiance + next.surfel.backRadiance;
-          for (int c = 0; c < 3; ++c) directPower[c] += next.surfel.area() * both[c];
-        }
-      }
-      if (request.progress && (++built & 0xffff) == 0) {
-        request.progress("merge the sorted runs and build the tree", built, report.sampling.surfels);
-      }
-    }
-    if (request.progress) {
-      request.progress("merge the sorted runs and build the tree", built, report.sampling.surfels);
-    }
-    report.sort = sorter.stats();
-    auto tree = (*writer)->finish();
-    if (!tree.ok()) return result = tree.status(), void();
-    report.tree = *tree;
-    // The sorter merges its runs lazily, as the build pulls surfels: both are in this stage.
-    clock.lap("merge+build");
-
-    // Bounce k gathers from tree k - 1 (the light bounce k - 1 added; the direct light's for
-    // k = 1) and writes tree k of the light it adds, except the last, which only gathers: the
-    // final tree (direct light and every bounce's, with the estimated tail or without one) is
-    // written after it (core/bake/multi_bounce.h).
-    report.bouncePower.push_back(Rgb(static_cast<float>(directPower[0]),
-                                     static_cast<float>(directPower[1]),
-                                     static_cast<float>(directPower[2])));
-    std::vector<SpillFile> irradiance;  // the last two bounces' irradiance per surfel
-    for (int bounce = 1; bounce <= request.bounces; ++bounce) {
-      auto spill = SpillFile::create(request.tempDir, "pbgi-bake-irradiance");
-      if (!spill.ok()) return result = spill.status(), void();
-      if (irradiance.size() == 2) irradiance.erase(irradiance.begin());
-      irradiance.push_back(std::move(*spill));
-      const bool last = bounce == request.bounces;
-      const std::string to = bounceTreePath(bounce);
-      Rgb power(0.0f);
-      auto lit = bakeBounce(bounceTreePath(bounce - 1), last ? nullptr : &to,
-                            {.sorted = &*sorted,
-                             .previous = irradiance.size() == 2 ? &irradiance[0] : nullptr,
-                             .next = &irradiance.back(),
-                             .scene = &scene,
-                             .cut = bounceCutOptions(request.bounceCut, bounce),
-                             .seed = shot.render.seed,
-                             .frame = request.frame,
-                             .bounce = bounce,
-                             .surfels = report.sampling.surfels},
-                            treeOptions, glossyBaker.anyWavelets() ? &bounceReflector : nullptr,
-                            request, &report, &power);
-      std::error_code removeError;
-      std::filesystem::remove(bounceTreePath(bounce - 1), removeError);
-      if (!lit.ok()) return result = lit.status(), void();
-      report.bouncePower.push_back(power);
-      if (!last) report.tree = *lit;
-      clock.lap(fmt::format("bounce {}", bounce));
-    }
-    if (request.bounces > 0) {
-      const auto power = [&](int k) {
-        const Rgb& p = report.bouncePower[static_cast<size_t>(k)];
-        return std::array<double, 3>{p.x, p.y, p.z};
-      };
-      report.tail = request.bounceTail
-                        ? tailFactor(power(request.bounces), power(request.bounces - 1))
-                        : Rgb(0.0f);
-      auto writeFinal = [&](const TreeFileWriteOptions& options) -> absl::StatusOr<TreeWriteResult> {
-        PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
-                              TreeFileWriter::create(report.treePath, options));
-        PBGI_RETURN_IF_ERROR(finalLight(
-            *sorted, irradiance.back(), irradiance.size() == 2 ? &irradiance[0] : nullptr,
-            report.tail, report.sampling.surfels,
-            [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
-        return writer->finish();
-      };
-      // Written first without wavelets: the light the glossy surfels then gather (below).
-      auto final = writeFinal(glossyBaker.anyWavelets() ? treeOptions : glossyTreeOptions);
-      if (!final.ok()) return result = final.status(), void();
-      clock.lap("final tree");
-      if (glossyBaker.anyWavelets()) {
-        // Glossy surfels reflect the indirect light too: that of the tree just written (every
-        // bounce's light, diffuse surfels' and what glossy ones reflected of each bounce),
-        // gathered at each glossy leaf; the final tree is written again with it, their direct
-        // light and mirrors' and glass's specular chains.
-        final = [&]() -> absl::StatusOr<TreeWriteResult> {
-          const std::string lit = stem + ".glossy.tmp.pbgi";
-          std::error_code renameError;
-          std::filesystem::rename(report.treePath, lit, renameError);
-          if (renameError) {
-            return absl::InternalError(fmt::format("cannot rename {} to {}: {}", report.treePath,
-                                                   lit, renameError.message()));
-          }
-          absl::StatusOr<TreeWriteResult> written = [&]() -> absl::StatusOr<TreeWriteResult> {
-            PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFile> from, TreeFile::open(lit));
-            PageCache cache(*from, {.budgetBytes = request.memoryBudget / 4,
-                                    .policy = PageCachePolicy::kLeastRecent});
-            GlossyLeafBaker indirect(scene, glossyOptions);
-            indirect.setIncoming(&cache);
-            TreeFileWriteOptions options = treeOptions;
-            options.tree.wavelets.leaf = [&indirect](std::span<Surfel> s, uint64_t key) {
-              return indirect(s, key);
-            };
-            return writeFinal(options);
-          }();
-          std::error_code removeError;
-          std::filesystem::remove(lit, removeError);
-          return written;
-        }();
-        if (!final.ok()) return result = final.status(), void();
-        clock.lap("glossy indirect");
-      }
-      report.tree = *final;
-    }
-    report.treeFileBytes = std::filesystem::file_size(report.treePath, ec);
-
-    if (keepCloud) {
-      report.pointCloudPath = stem + ".vdb";
-      SurfelVdbOptions vdb;
-      vdb.metadata.shot = shot.name;
-      vdb.metadata.frame = request.frame;
-      vdb.metadata.seed = shot.render.seed;
-      vdb.metadata.pbgiVersion = request.pbgiVersion;
-      if (auto s = writeSurfelVdb(report.pointCloudPath, cloud, vdb); !s.ok()) {
-        return result = s, void();
-      }
-      clock.lap("point cloud");
-    }
-    report.wallSeconds = clock.totalSeconds();
-    result = std::move(report);
-  };
-  if (arena) {
-    arena->execute(work);
-  } else {
-    work();
-  }
-  return result;
+  PBGI_RETURN_IF_ERROR(TreeWriter::validateOptions(treeOptions.tree));
+  const auto bake = [&] { return runBake(shot, request, loadedScene, sortOptions, treeOptions); };
+  if (request.threads <= 0) return bake();
+  tbb::task_arena arena(request.threads);
+  return arena.execute(bake);
 }
 
 }  // namespace pbgi
