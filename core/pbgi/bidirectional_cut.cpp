@@ -777,36 +777,24 @@ std::string CutOptions::toString() const {
 }
 
 CutStats& CutStats::operator+=(const CutStats& o) {
-  cuts += o.cuts;
-  receivers += o.receivers;
-  receiverNodes += o.receiverNodes;
-  pairs += o.pairs;
-  clusterPairs += o.clusterPairs;
-  leafPairs += o.leafPairs;
-  surfelTerms += o.surfelTerms;
-  receiversServed += o.receiversServed;
-  refinedLight += o.refinedLight;
-  refinedReceiver += o.refinedReceiver;
-  culled += o.culled;
-  shadowRays += o.shadowRays;
-  occluded += o.occluded;
-  pageRequests += o.pageRequests;
+#define PBGI_CUT_COUNTER_ADD(member, counter, name, what) member += o.member;
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_ADD)
+#undef PBGI_CUT_COUNTER_ADD
   peakPendingPairs = std::max(peakPendingPairs, o.peakPendingPairs);
-  nearRays += o.nearRays;
-  nearHits += o.nearHits;
-  nearUnread += o.nearUnread;
   return *this;
 }
 
 std::string CutStats::toString() const {
-  return fmt::format(
-      "cuts={} receivers={} receiver_nodes={} pairs={} cluster_pairs={} leaf_pairs={} "
-      "surfel_terms={} receivers_served={} refined_light={} refined_receiver={} culled={} "
-      "shadow_rays={} occluded={} page_requests={} peak_pending_pairs={} near_rays={} "
-      "near_hits={} near_unread={}",
-      cuts, receivers, receiverNodes, pairs, clusterPairs, leafPairs, surfelTerms, receiversServed,
-      refinedLight, refinedReceiver, culled, shadowRays, occluded, pageRequests, peakPendingPairs,
-      nearRays, nearHits, nearUnread);
+  std::string text;
+  const auto add = [&text](std::string_view name, uint64_t value) {
+    if (name.starts_with("cut_")) name.remove_prefix(4);
+    text += fmt::format("{}{}={}", text.empty() ? "" : " ", name, value);
+  };
+#define PBGI_CUT_COUNTER_PRINT(member, counter, name, what) add(name, member);
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_PRINT)
+#undef PBGI_CUT_COUNTER_PRINT
+  add("peak_pending_pairs", peakPendingPairs);
+  return text;
 }
 
 struct BidirectionalCut::State {

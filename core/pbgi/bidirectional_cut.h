@@ -118,27 +118,41 @@ struct CutReceiver {
   Vec3f ng{0.0f, 0.0f, 1.0f};  // geometric normal on that side: shadow rays leave along it
 };
 
+// The cut's counters, each declared once: X(member of CutStats, the renderer's PbgiCounter, its
+// name among the render's counters, what it counts). CutStats holds them, adds them up and
+// prints them; the PBGI integrator reports them (core/render/pbgi_receiver.h).
+#define PBGI_CUT_COUNTERS(X)                                                                       \
+  X(cuts, kCuts, "cuts", "bidirectional cuts (one per block)")                                     \
+  X(receivers, kCutReceivers, "cut_receivers", "shading points in the cuts")                       \
+  X(receiverNodes, kCutReceiverNodes, "cut_receiver_nodes", "nodes of the shading-point trees")    \
+  X(pairs, kCutPairs, "cut_pairs", "light x receiver pairs looked at")                             \
+  X(clusterPairs, kCutClusterPairs, "cut_cluster_pairs",                                           \
+    "light clusters (interior nodes) evaluated against receivers")                                 \
+  X(receiversServed, kCutReceiversServed, "cut_receivers_served",                                  \
+    "evaluations times the shading points under them (the cost unshared)")                         \
+  X(leafPairs, kCutLeafPairs, "cut_leaf_pairs", "light leaves evaluated surfel by surfel")         \
+  X(surfelTerms, kCutSurfelTerms, "cut_surfel_terms", "surfels in those leaves")                   \
+  X(refinedLight, kCutRefinedLight, "cut_refined_light", "pairs refined on the light side")        \
+  X(refinedReceiver, kCutRefinedReceiver, "cut_refined_receiver",                                  \
+    "pairs refined on the receiver side")                                                          \
+  X(culled, kCutCulled, "cut_culled",                                                              \
+    "pairs below every receiver's horizon, or of the receiver's own surfel")                       \
+  X(shadowRays, kCutShadowRays, "cut_shadow_rays", "visibility rays between clusters and surfels") \
+  X(occluded, kCutOccluded, "cut_occluded", "of the visibility rays, blocked")                     \
+  X(pageRequests, kCutPageRequests, "cut_page_requests", "tree pages the cuts asked for")          \
+  X(nearRays, kCutNearRays, "cut_near_rays", "near-field rays traced")                             \
+  X(nearHits, kCutNearHits, "cut_near_hits", "of those, that met a surface within the near field") \
+  X(nearUnread, kCutNearUnread, "cut_near_unread",                                                 \
+    "of those, where no surfel was read (they take the others' mean)")
+
 struct CutStats {
-  uint64_t cuts = 0;
-  uint64_t receivers = 0;
-  uint64_t receiverNodes = 0;
-  uint64_t pairs = 0;            // pairs looked at
-  uint64_t clusterPairs = 0;     // a light cluster (an interior node) evaluated
-  uint64_t leafPairs = 0;        // a light leaf evaluated, surfel by surfel
-  uint64_t surfelTerms = 0;      // surfels in those leaves
-  uint64_t receiversServed = 0;  // evaluations times the receivers under them: the cost unshared
-  uint64_t refinedLight = 0;
-  uint64_t refinedReceiver = 0;
-  uint64_t culled = 0;           // below every receiver's horizon, or the receiver's own surfel
-  uint64_t shadowRays = 0;
-  uint64_t occluded = 0;
-  uint64_t pageRequests = 0;     // pages asked of the source
-  uint64_t peakPendingPairs = 0;
-  uint64_t nearRays = 0;    // near-field rays traced
-  uint64_t nearHits = 0;    // that met a surface within the near field
-  uint64_t nearUnread = 0;  // of those, where no surfel was read (they take the others' mean)
+#define PBGI_CUT_COUNTER_MEMBER(member, counter, name, what) uint64_t member = 0;
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_MEMBER)
+#undef PBGI_CUT_COUNTER_MEMBER
+  uint64_t peakPendingPairs = 0;  // the most pairs any cut held waiting on pages: a maximum
 
   CutStats& operator+=(const CutStats& o);
+  // "cuts=... receivers=... peak_pending_pairs=...": the counters' names without "cut_".
   std::string toString() const;
 };
 

@@ -169,10 +169,12 @@ std::string describePbgi(const RenderSettings& r) {
   return fmt::format("bidirectional {} block={}", s.cut.toString(), s.blockSize);
 }
 
-const std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
+constexpr std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"black_receivers", "samples whose first hit reflects nothing: no gather"},
     {"path_traced_receivers", "mirrors and glass: path traced"},
-    {"gathers", "gathers: diffuse receivers (per-pixel microbuffers, or the cut's shading points) and glossy microbuffers"},
+    {"gathers",
+     "gathers: diffuse receivers (per-pixel microbuffers, or the cut's shading points) and glossy "
+     "microbuffers"},
     {"gather_reuses", "samples that took an earlier gather of their pixel"},
     {"glossy_gathers", "of the gathers, into a glossy receiver's warped microbuffer"},
     {"nodes_visited", "microbuffer traversals: nodes visited"},
@@ -186,22 +188,15 @@ const std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"pages_touched", "pages the microbuffer traversals asked for"},
     {"faces_skipped", "microbuffer faces below the horizon"},
     {"pixels_skipped", "microbuffer pixels below the horizon"},
-    {"cuts", "bidirectional cuts (one per block)"},
-    {"cut_receivers", "shading points in the cuts"},
-    {"cut_receiver_nodes", "nodes of the shading-point trees"},
-    {"cut_pairs", "light x receiver pairs looked at"},
-    {"cut_cluster_pairs", "light clusters evaluated against receivers"},
-    {"cut_receivers_served", "evaluations times the shading points under them (the cost unshared)"},
-    {"cut_leaf_pairs", "light leaves evaluated surfel by surfel"},
-    {"cut_surfel_terms", "surfels in those leaves"},
-    {"cut_refined_light", "pairs refined on the light side"},
-    {"cut_refined_receiver", "pairs refined on the receiver side"},
-    {"cut_culled", "pairs below every receiver's horizon"},
-    {"cut_shadow_rays", "visibility rays between clusters and surfels"},
-    {"cut_occluded", "of the visibility rays, blocked"},
-    {"cut_page_requests", "tree pages the cuts asked for"},
-    {"sky_rays", "rays towards the environment from records (one per cube-map cell above each)"},
+#define PBGI_CUT_COUNTER_SPEC(member, counter, name, what) {name, what},
+    PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_SPEC)
+#undef PBGI_CUT_COUNTER_SPEC
+        {"sky_rays",
+         "rays towards the environment from records (one per cube-map cell above each)"},
 }};
+// One spec per PbgiCounter, in its order: a counter left out here would leave the last unnamed.
+static_assert(std::ranges::none_of(kPbgiCounters,
+                                   [](const CounterSpec& c) { return c.name.empty(); }));
 
 const std::vector<IntegratorInfo>& registry() {
   static const std::vector<IntegratorInfo> list = {

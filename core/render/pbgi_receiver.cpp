@@ -27,20 +27,9 @@ void addGatherStats(const GatherStats& s, RenderCounters* c) {
 }
 
 void addCutStats(const CutStats& s, RenderCounters* c) {
-  (*c)[kCuts] += s.cuts;
-  (*c)[kCutReceivers] += s.receivers;
-  (*c)[kCutReceiverNodes] += s.receiverNodes;
-  (*c)[kCutPairs] += s.pairs;
-  (*c)[kCutClusterPairs] += s.clusterPairs;
-  (*c)[kCutReceiversServed] += s.receiversServed;
-  (*c)[kCutLeafPairs] += s.leafPairs;
-  (*c)[kCutSurfelTerms] += s.surfelTerms;
-  (*c)[kCutRefinedLight] += s.refinedLight;
-  (*c)[kCutRefinedReceiver] += s.refinedReceiver;
-  (*c)[kCutCulled] += s.culled;
-  (*c)[kCutShadowRays] += s.shadowRays;
-  (*c)[kCutOccluded] += s.occluded;
-  (*c)[kCutPageRequests] += s.pageRequests;
+#define PBGI_CUT_COUNTER_ADD(member, counter, name, what) (*c)[counter] += s.member;
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_ADD)
+#undef PBGI_CUT_COUNTER_ADD
 }
 
 Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,

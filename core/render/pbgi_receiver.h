@@ -48,20 +48,9 @@ enum PbgiCounter : size_t {
   kPagesTouched,
   kFacesSkipped,
   kPixelsSkipped,
-  kCuts,                 // bidirectional: one per block
-  kCutReceivers,
-  kCutReceiverNodes,
-  kCutPairs,
-  kCutClusterPairs,
-  kCutReceiversServed,
-  kCutLeafPairs,
-  kCutSurfelTerms,
-  kCutRefinedLight,
-  kCutRefinedReceiver,
-  kCutCulled,
-  kCutShadowRays,
-  kCutOccluded,
-  kCutPageRequests,
+#define PBGI_CUT_COUNTER_ENUM(member, counter, name, what) counter,
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_ENUM)  // the bidirectional cut's (bidirectional_cut.h)
+#undef PBGI_CUT_COUNTER_ENUM
   kSkyRays,
   kPbgiCounterCount
 };
