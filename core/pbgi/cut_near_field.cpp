@@ -1,0 +1,81 @@
+// The cut's near field: rays from each receiver, read where they hit from the surfels there.
+#include "core/pbgi/cut_internal.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/sampling/low_discrepancy.h"
+#include "core/sampling/sampling.h"
+
+namespace pbgi::cut_internal {
+
+namespace {
+
+using gather_internal::meanSurfelRadius;
+
+}  // namespace
+
+// The tree's mean surfel radius, from its root node in `page`.
+absl::StatusOr<float> rootSurfelRadius(const TreePage& page, NodeRef root) {
+  absl::StatusOr<const TreeNode*> node = nodeAt(page, root);
+  if (!node.ok()) return node.status();
+  return meanSurfelRadius((*node)->attributes);
+}
+
+// The squared gap between a box and another box around `center` (half-size `halfExtent`).
+float boxGap2(const Bounds3f& b, const Vec3f& center, const Vec3f& halfExtent) {
+  const Vec3f c = b.center(), h = b.diagonal() * 0.5f;
+  float g2 = 0.0f;
+  for (int a = 0; a < 3; ++a)
+    g2 += sqr(std::max(0.0f, std::abs(c[a] - center[a]) - h[a] - halfExtent[a]));
+  return g2;
+}
+
+// Each receiver's near-field rays, `rays` of them cosine-weighted about its normal and as long
+// as `radius`, and the hits (on surfaces that are not lights'). A ray below the receiver's
+// geometric surface sees nothing.
+void traceNearField(const Scene& scene, std::span<const CutReceiver> receivers, int rays,
+                    float radius, std::vector<NearHit>* hits, CutStats* stats) {
+  for (uint32_t r = 0; r < receivers.size(); ++r) {
+    const CutReceiver& rec = receivers[r];
+    const uint64_t seed = hashPoint(rec.p, rec.n);
+    const Frame frame(rec.n);
+    for (int i = 0; i < rays; ++i) {
+      const Vec3f dir =
+          frame.toWorld(sampleCosineHemisphere(owenSobol2D(static_cast<uint32_t>(i), seed)));
+      if (!(dot(dir, rec.ng) > 0.0f)) continue;
+      Ray ray = scene.spawnRay(rec.p, rec.ng, dir);
+      ray.tMax = radius;
+      ++stats->nearRays;
+      SurfaceHit h;
+      if (!scene.intersect(ray, &h) || h.material == kNoMaterial) continue;
+      ++stats->nearHits;
+      hits->push_back({.x = h.p, .n = h.ng, .w = dir, .receiver = r});
+    }
+  }
+}
+
+// Adds each hit's radiance, pi / rays of it (a cosine-weighted estimate), to its receiver. A hit
+// where no surfel was read (a corner the reading radius does not fit, a sliver of geometry the
+// surfels missed) takes the mean of its receiver's other hits, or nothing when it has none.
+// Hits come grouped by receiver (traceNearField).
+void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, CutStats* stats) {
+  const float scale = kPi / static_cast<float>(rays);
+  for (size_t first = 0, end = 0; first < hits.size(); first = end) {
+    const uint32_t r = hits[first].receiver;
+    Rgb sum(0.0f);
+    uint32_t read = 0;
+    for (end = first; end < hits.size() && hits[end].receiver == r; ++end) {
+      if (!(hits[end].weight > 0.0f)) continue;
+      sum += hits[end].sum / hits[end].weight;
+      ++read;
+    }
+    const uint32_t unread = static_cast<uint32_t>(end - first) - read;
+    stats->nearUnread += unread;
+    if (read > 0) {
+      out[r] += sum * (scale * (1.0f + static_cast<float>(unread) / static_cast<float>(read)));
+    }
+  }
+}
+
+}  // namespace pbgi::cut_internal

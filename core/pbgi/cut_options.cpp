@@ -1,0 +1,93 @@
+// The cut's options, presets and counters.
+#include <algorithm>
+#include <string_view>
+
+#include <fmt/format.h>
+
+#include "core/math/vec.h"
+#include "core/pbgi/bidirectional_cut.h"
+
+namespace pbgi {
+
+absl::Status CutOptions::validate() const {
+  auto check = [](const char* name, float v, float hi) -> absl::Status {
+    if (!(v >= 0.0f && v <= hi)) {
+      return absl::InvalidArgumentError(
+          fmt::format("cut options: {} must be in [0, {}], got {}", name, hi, v));
+    }
+    return absl::OkStatus();
+  };
+  if (auto s = check("lightSolidAngle", lightSolidAngle, 4.0f * kPi); !s.ok()) return s;
+  if (auto s = check("lightBound", lightBound, 4.0f * kPi); !s.ok()) return s;
+  if (auto s = check("receiverBound", receiverBound, 4.0f * kPi); !s.ok()) return s;
+  if (auto s = check("normalAngle", normalAngle, kPi); !s.ok()) return s;
+  if (auto s = check("selfSkipRadius", selfSkipRadius, 100.0f); !s.ok()) return s;
+  if (nearRays < 0 || nearRays > kMaxNearRays) {
+    return absl::InvalidArgumentError(
+        fmt::format("cut options: nearRays must be in [0, {}], got {}", kMaxNearRays, nearRays));
+  }
+  if (receiverLeafSize < 1 || receiverLeafSize > 64) {
+    return absl::InvalidArgumentError(
+        fmt::format("cut options: receiverLeafSize must be in [1, 64], got {}", receiverLeafSize));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
+  CutOptions o;
+  if (name == "draft") {
+    o.lightSolidAngle = 0.03f;
+    o.lightBound = 0.3f;
+    o.receiverBound = 0.05f;
+    o.normalAngle = radians(45.0f);
+    o.nearRays = 16;
+  } else if (name == "default") {
+    o.lightSolidAngle = 0.02f;
+    o.lightBound = 0.2f;
+    o.receiverBound = 0.03f;
+    o.normalAngle = radians(30.0f);
+    o.nearRays = 32;
+  } else if (name == "high") {
+    o.lightSolidAngle = 0.005f;
+    o.lightBound = 0.05f;
+    o.receiverBound = 0.01f;
+    o.normalAngle = radians(20.0f);
+    o.nearRays = 64;
+  } else {
+    return absl::InvalidArgumentError(
+        fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
+  }
+  return o;
+}
+
+// (nearRays only where there are some: a bake's hash holds its bounces' cut.)
+std::string CutOptions::toString() const {
+  return fmt::format(
+      "cut(lightSolidAngle={:g} lightBound={:g} receiverBound={:g} normalAngle={:g} "
+      "receiverLeafSize={} selfSkipRadius={:g}{}{})",
+      lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius,
+      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "", coneDescent ? " coneDescent" : "");
+}
+
+CutStats& CutStats::operator+=(const CutStats& o) {
+#define PBGI_CUT_COUNTER_ADD(member, counter, name, what) member += o.member;
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_ADD)
+#undef PBGI_CUT_COUNTER_ADD
+  peakPendingPairs = std::max(peakPendingPairs, o.peakPendingPairs);
+  return *this;
+}
+
+std::string CutStats::toString() const {
+  std::string text;
+  const auto add = [&text](std::string_view name, uint64_t value) {
+    if (name.starts_with("cut_")) name.remove_prefix(4);
+    text += fmt::format("{}{}={}", text.empty() ? "" : " ", name, value);
+  };
+#define PBGI_CUT_COUNTER_PRINT(member, counter, name, what) add(name, member);
+  PBGI_CUT_COUNTERS(PBGI_CUT_COUNTER_PRINT)
+#undef PBGI_CUT_COUNTER_PRINT
+  add("peak_pending_pairs", peakPendingPairs);
+  return text;
+}
+
+}  // namespace pbgi
