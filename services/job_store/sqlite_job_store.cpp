@@ -6,25 +6,13 @@
 // each inside a savepoint of one transaction (one fsync for all of them instead of one each).
 // A call still returns only after its changes are durable; a call that fails rolls back to its
 // savepoint, undoing only itself; a commit that fails fails every call of its batch.
-#include <condition_variable>
-#include <functional>
-#include <limits>
-#include <mutex>
-#include <optional>
-#include <type_traits>
-#include <vector>
-#include <string_view>
-#include <unordered_map>
-#include <utility>
-
 #include <absl/strings/ascii.h>
 #include <fmt/format.h>
 
-#include "services/job_store/job_store.h"
-#include "services/job_store/sqlite_query.h"
+#include "services/job_store/sqlite_job_store.h"
 
 namespace pbgi::farm {
-namespace {
+namespace sqlite_store {
 
 // Bumped with every schema change: a file written by a newer coordinator is refused rather
 // than misread.
@@ -124,120 +112,6 @@ CREATE TABLE job_worker_failures (
   PRIMARY KEY (job, worker)
 );
 )sql";
-
-// A result column: NULL is how SQLite stored a NaN.
-double realOrNan(const Query& q, int column) {
-  return q.isNull(column) ? std::numeric_limits<double>::quiet_NaN() : q.real(column);
-}
-
-// Reads a row selected with PBGI_TASK_COLUMNS.
-TaskInfo readTask(const Query& q) {
-  TaskInfo task;
-  task.id = q.int64(0);
-  task.ref.job = q.int64(1);
-  task.ref.kind = static_cast<TaskKind>(q.integer(2));
-  task.ref.frame = q.integer(3);
-  task.ref.tile = q.integer(4);
-  task.state = static_cast<TaskState>(q.integer(5));
-  task.attempt = q.integer(6);
-  task.failures = q.integer(7);
-  task.worker = q.text(8);
-  task.lastError = q.text(9);
-  task.progress = q.real(10);
-  return task;
-}
-
-enum class Access { kRead, kWrite };
-
-class SqliteJobStore final : public JobStore {
- public:
-  SqliteJobStore(std::string path, const RetryPolicy& policy, DatabasePtr db)
-      : path_(std::move(path)), policy_(policy), db_(std::move(db)) {}
-
-  absl::Status initialize();
-
-  absl::StatusOr<int64_t> submit(const JobSpec& spec, Seconds now) override;
-  absl::StatusOr<JobInfo> job(int64_t job) override;
-  absl::StatusOr<std::vector<JobInfo>> jobs() override;
-  absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
-  absl::StatusOr<TaskInfo> task(int64_t task) override;
-  absl::Status registerWorker(const WorkerInfo& worker) override;
-  absl::StatusOr<std::vector<WorkerInfo>> workers() override;
-  absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
-                                             Seconds leaseSeconds,
-                                             std::span<const HeldFrame> held) override;
-  absl::Status heartbeat(int64_t task, int attempt, double progress, Seconds now,
-                         Seconds leaseSeconds) override;
-  absl::StatusOr<TaskRef> complete(int64_t task, int attempt, Seconds now,
-                                   const std::string& log) override;
-  absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
-                    const std::string& log) override;
-  absl::StatusOr<int> expireLeases(Seconds now) override;
-  absl::Status cancel(int64_t job) override;
-  absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
-                     Seconds now) override;
-  absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
-  absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
-                                                std::optional<int> tile) override;
-  absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker, Seconds now,
-                                                       Seconds leaseSeconds) override;
-  absl::Status heartbeatAudit(int64_t audit, int attempt, Seconds now,
-                              Seconds leaseSeconds) override;
-  absl::Status completeAudit(int64_t audit, int attempt, const AuditResult& result,
-                             Seconds now) override;
-  absl::Status failAudit(int64_t audit, int attempt, const std::string& error,
-                         Seconds now) override;
-  absl::StatusOr<std::vector<AuditInfo>> audits(int64_t job) override;
-
- private:
-  absl::Status addEvent(const TaskInfo& task, int attempt, const std::string& worker,
-                        TaskEventKind event, std::string_view text, Seconds now);
-  absl::Status exec(const char* sql);
-  Query query(const char* sql);
-  template <typename Body>
-  auto transaction(Access access, Body&& body) -> decltype(body());
-
-  // One write call waiting for its group commit.
-  struct GroupedCall {
-    std::function<absl::Status()> run;  // the call's body; its status
-    absl::Status committed;             // how its batch's commit went (ok: durable)
-    bool done = false;
-  };
-  // Queues the call and returns once a batch holding it committed (or failed).
-  absl::Status commitGrouped(GroupedCall* call);
-  // Runs a batch in one transaction, each call in a savepoint, and commits it.
-  void runBatch(std::span<GroupedCall* const> batch);
-
-  absl::StatusOr<JobState> jobState(int64_t job);
-  absl::StatusOr<JobInfo> readJob(const Query& q);
-  absl::Status addTaskSummary(JobInfo& info);
-  absl::StatusOr<PerTaskState<int>> countTasksByState(int64_t job);
-  absl::StatusOr<TaskInfo> loadTask(int64_t task);
-  absl::StatusOr<TaskInfo> currentLease(int64_t task, int attempt);
-  absl::Status touchWorker(const std::string& worker, Seconds now);
-  absl::Status promoteBlocked(int64_t job, std::optional<int> frame,
-                              std::optional<TaskKind> completed = std::nullopt);
-  absl::Status killDependents(const TaskInfo& dead);
-  absl::Status recordFailure(const TaskInfo& task, const std::string& error, Seconds now,
-                             TaskEventKind event, std::string_view log);
-  absl::Status settleJob(int64_t job);
-  absl::StatusOr<AuditInfo> readAudit(const Query& q) const;
-  absl::StatusOr<AuditInfo> loadAudit(int64_t audit);
-  absl::StatusOr<AuditInfo> currentAuditLease(int64_t audit, int attempt);
-  absl::Status recordAuditFailure(const AuditInfo& audit, const std::string& error, Seconds now);
-
-  const std::string path_;
-  const RetryPolicy policy_;
-  std::mutex mutex_;  // the connection
-  std::mutex groupMutex_;  // the queue below
-  std::condition_variable groupDone_;
-  std::vector<GroupedCall*> pending_;
-  bool committing_ = false;  // a batch is being committed (its leader holds mutex_)
-  DatabasePtr db_;
-  // Prepared once per SQL text; declared after db_ so that they are finalized before it closes.
-  std::unordered_map<std::string, StatementPtr> statements_;
-};
-
 absl::Status SqliteJobStore::exec(const char* sql) {
   char* message = nullptr;
   const int rc = sqlite3_exec(db_.get(), sql, nullptr, nullptr, &message);
@@ -264,36 +138,6 @@ Query SqliteJobStore::query(const char* sql) {
   }
   return Query(db_.get(), it->second.get(), absl::OkStatus(), path_);
 }
-
-template <typename Body>
-auto SqliteJobStore::transaction(Access access, Body&& body) -> decltype(body()) {
-  using Result = decltype(body());
-  if (access == Access::kRead) {
-    // Readers stay deferred so that status queries never hold up a lease.
-    std::lock_guard lock(mutex_);
-    PBGI_RETURN_IF_ERROR(exec("BEGIN"));
-    Result result = body();
-    absl::Status committed = result.ok() ? exec("COMMIT") : absl::OkStatus();
-    if (result.ok() && committed.ok()) return result;
-    if (sqlite3_get_autocommit(db_.get()) == 0) (void)exec("ROLLBACK");
-    if (!committed.ok()) return committed;
-    return result;
-  }
-  std::optional<Result> result;
-  GroupedCall call;
-  call.run = [&]() -> absl::Status {
-    result.emplace(body());
-    if constexpr (std::is_same_v<Result, absl::Status>) {
-      return *result;
-    } else {
-      return result->status();
-    }
-  };
-  const absl::Status committed = commitGrouped(&call);
-  if (!committed.ok()) return committed;
-  return std::move(*result);
-}
-
 absl::Status SqliteJobStore::commitGrouped(GroupedCall* call) {
   std::unique_lock lock(groupMutex_);
   pending_.push_back(call);
@@ -338,9 +182,9 @@ void SqliteJobStore::runBatch(std::span<GroupedCall* const> batch) {
       // SQLite rolled the whole transaction back (a full disk, an I/O error): the calls
       // before this one in it are lost with it; this one returns its own error.
       for (GroupedCall* lost : open) {
-        lost->committed = absl::AbortedError(fmt::format(
-            "job store {}: rolled back with another call of its group commit: {}", path_,
-            ran.ToString()));
+        lost->committed = absl::AbortedError(
+            fmt::format("job store {}: rolled back with another call of its group commit: {}",
+                        path_, ran.ToString()));
       }
       open.clear();
       if (ran.ok()) call->committed = absl::InternalError("job store: transaction lost");
@@ -506,14 +350,16 @@ absl::Status SqliteJobStore::promoteBlocked(int64_t job, std::optional<int> fram
     // The unfinished states listed, not `state != 3`: with `!=` the probe for an unfinished
     // tile walks the frame's tiles in tile order through every done one (thousands, on every
     // tile's completion); with the list it is one probe of tasks_by_job_state per state.
-    Query q = frame ? query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
-                            "frame = ?2 AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 "
-                            "FROM tasks d WHERE d.job = tasks.job AND d.frame = tasks.frame AND "
-                            "d.kind = ?4 AND d.state IN (0, 1, 2, 4, 5)))")
-                    : query("UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
-                            "kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d "
-                            "WHERE d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 "
-                            "AND d.state IN (0, 1, 2, 4, 5)))");
+    Query q = frame ? query(
+                          "UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
+                          "frame = ?2 AND kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 "
+                          "FROM tasks d WHERE d.job = tasks.job AND d.frame = tasks.frame AND "
+                          "d.kind = ?4 AND d.state IN (0, 1, 2, 4, 5)))")
+                    : query(
+                          "UPDATE tasks SET state = 1 WHERE job = ?1 AND state = 0 AND "
+                          "kind = ?3 AND (?4 IS NULL OR NOT EXISTS (SELECT 1 FROM tasks d "
+                          "WHERE d.job = tasks.job AND d.frame = tasks.frame AND d.kind = ?4 "
+                          "AND d.state IN (0, 1, 2, 4, 5)))");
     q.bind(1, job).bind(3, d.kind).bind(4, d.waitsOn);
     if (frame) q.bind(2, *frame);
     PBGI_RETURN_IF_ERROR(q.run());
@@ -578,8 +424,7 @@ absl::Status SqliteJobStore::settleJob(int64_t job) {
     Query q = query("SELECT 1 FROM tasks WHERE job = ?1 AND state = ?2 LIMIT 1");
     q.bind(1, job).bind(2, static_cast<int>(s));
     PBGI_ASSIGN_OR_RETURN(present[static_cast<size_t>(s)], q.step());
-    if (present[static_cast<size_t>(s)] &&
-        (s == TaskState::kReady || s == TaskState::kLeased)) {
+    if (present[static_cast<size_t>(s)] && (s == TaskState::kReady || s == TaskState::kLeased)) {
       break;
     }
   }
@@ -722,391 +567,7 @@ absl::StatusOr<std::vector<WorkerInfo>> SqliteJobStore::workers() {
   });
 }
 
-absl::StatusOr<std::optional<Lease>> SqliteJobStore::lease(const std::string& worker, Seconds now,
-                                                           Seconds leaseSeconds,
-                                                           std::span<const HeldFrame> held) {
-  if (worker.empty()) return absl::InvalidArgumentError("a lease needs a worker id");
-  return transaction(Access::kWrite, [&]() -> absl::StatusOr<std::optional<Lease>> {
-    Lease lease;
-    // The active jobs in lease order, then each one's first ready task (an index walk each),
-    // rather than one sort of every ready task of every job per lease.
-    std::vector<int64_t> order;
-    {
-      Query jobs = query(
-          "SELECT j.id FROM jobs j WHERE j.state = 0 AND NOT EXISTS (SELECT 1 FROM "
-          "job_worker_failures f WHERE f.job = j.id AND f.worker = ?1 AND f.failures >= ?2) "
-          "ORDER BY j.priority DESC, j.submitted, j.id");
-      jobs.bind(1, worker).bind(2, blocklistThreshold(policy_));
-      for (;;) {
-        PBGI_ASSIGN_OR_RETURN(const bool row, jobs.step());
-        if (!row) break;
-        order.push_back(jobs.int64(0));
-      }
-    }
-    // The first ready task of `job`, of `frame` only when one is given.
-    auto pickFrom = [&](int64_t job, std::optional<int> frame) -> absl::StatusOr<bool> {
-      Query pick = query(
-          frame ? "SELECT id, job, kind, frame, tile, attempt FROM tasks INDEXED BY "
-                  "tasks_by_job_state WHERE job = ?1 AND state = 1 AND frame = ?3 AND "
-                  "not_before <= ?2 ORDER BY kind, tile LIMIT 1"
-                : "SELECT id, job, kind, frame, tile, attempt FROM tasks INDEXED BY "
-                  "tasks_by_job_state WHERE job = ?1 AND state = 1 AND not_before <= ?2 ORDER "
-                  "BY frame, kind, tile LIMIT 1");
-      pick.bind(1, job).bind(2, now);
-      if (frame) pick.bind(3, *frame);
-      PBGI_ASSIGN_OR_RETURN(const bool row, pick.step());
-      if (!row) return false;
-      lease.task = pick.int64(0);
-      lease.ref.job = pick.int64(1);
-      lease.ref.kind = static_cast<TaskKind>(pick.integer(2));
-      lease.ref.frame = pick.integer(3);
-      lease.ref.tile = pick.integer(4);
-      lease.attempt = pick.integer(5) + 1;
-      lease.expires = now + leaseSeconds;
-      return true;
-    };
-    PBGI_ASSIGN_OR_RETURN(const bool found, pickInLeaseOrder(order, held, pickFrom));
-    if (!found) return std::optional<Lease>();
-    {
-      Query take = query(
-          "UPDATE tasks SET state = 2, attempt = ?2, worker = ?3, expires = ?4, progress = 0 "
-          "WHERE id = ?1");
-      take.bind(1, lease.task).bind(2, lease.attempt).bind(3, worker).bind(4, lease.expires);
-      PBGI_RETURN_IF_ERROR(take.run());
-    }
-    PBGI_RETURN_IF_ERROR(touchWorker(worker, now));
-    TaskInfo leased;
-    leased.id = lease.task;
-    leased.ref = lease.ref;
-    PBGI_RETURN_IF_ERROR(addEvent(leased, lease.attempt, worker, TaskEventKind::kLeased, "", now));
-    return std::optional<Lease>(lease);
-  });
-}
-
-absl::Status SqliteJobStore::heartbeat(int64_t task, int attempt, double progress, Seconds now,
-                                       Seconds leaseSeconds) {
-  progress = clampProgress(progress);
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    Query q = query("UPDATE tasks SET expires = ?2, progress = ?3 WHERE id = ?1");
-    q.bind(1, task).bind(2, now + leaseSeconds).bind(3, progress);
-    PBGI_RETURN_IF_ERROR(q.run());
-    return touchWorker(info.worker, now);
-  });
-}
-
-absl::StatusOr<TaskRef> SqliteJobStore::complete(int64_t task, int attempt, Seconds now,
-                                                 const std::string& log) {
-  return transaction(Access::kWrite, [&]() -> absl::StatusOr<TaskRef> {
-    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    PBGI_RETURN_IF_ERROR(addEvent(info, attempt, info.worker, TaskEventKind::kDone, log, now));
-    {
-      Query q = query("UPDATE tasks SET state = 3, progress = 1, expires = NULL WHERE id = ?1");
-      q.bind(1, task);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    PBGI_RETURN_IF_ERROR(promoteBlocked(info.ref.job, info.ref.frame, info.ref.kind));
-    PBGI_RETURN_IF_ERROR(touchWorker(info.worker, now));
-    PBGI_RETURN_IF_ERROR(settleJob(info.ref.job));
-    return info.ref;
-  });
-}
-
-absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& error,
-                                  Seconds now, const std::string& log) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const TaskInfo info, currentLease(task, attempt));
-    return recordFailure(info, error, now, TaskEventKind::kFailed, log);
-  });
-}
-
-absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
-  return transaction(Access::kWrite, [&]() -> absl::StatusOr<int> {
-    // Collected first: recordFailure() runs statements of its own on the same table.
-    std::vector<int64_t> expired;
-    {
-      Query q = query("SELECT id FROM tasks WHERE state = 2 AND expires <= ?1 ORDER BY id");
-      q.bind(1, now);
-      for (;;) {
-        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-        if (!row) break;
-        expired.push_back(q.int64(0));
-      }
-    }
-    for (int64_t id : expired) {
-      PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
-      PBGI_RETURN_IF_ERROR(
-          recordFailure(info, leaseExpiredError(info.worker), now, TaskEventKind::kExpired, ""));
-    }
-    std::vector<AuditInfo> expiredAudits;
-    {
-      Query q = query("SELECT " PBGI_AUDIT_COLUMNS
-                      " FROM audits WHERE state = 1 AND expires <= ?1 ORDER BY id");
-      q.bind(1, now);
-      for (;;) {
-        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-        if (!row) break;
-        PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(q));
-        expiredAudits.push_back(std::move(info));
-      }
-    }
-    for (const AuditInfo& info : expiredAudits) {
-      PBGI_RETURN_IF_ERROR(recordAuditFailure(info, leaseExpiredError(info.worker), now));
-    }
-    return static_cast<int>(expired.size() + expiredAudits.size());
-  });
-}
-
-absl::Status SqliteJobStore::cancel(int64_t job) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const JobState state, jobState(job));
-    if (state == JobState::kDone) {
-      return absl::FailedPreconditionError(
-          fmt::format("job {}: done; there is nothing left to cancel", job));
-    }
-    // Dead tasks stay dead: their errors are the record of why the job failed, and retry
-    // revives dead and cancelled tasks alike.
-    {
-      Query q =
-          query("UPDATE tasks SET state = 5, expires = NULL WHERE job = ?1 AND state IN (0, 1, 2)");
-      q.bind(1, job);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    {
-      Query q =
-          query("UPDATE audits SET state = 4, expires = NULL WHERE job = ?1 AND state IN (0, 1)");
-      q.bind(1, job);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    Query q = query("UPDATE jobs SET state = 3 WHERE id = ?1");
-    q.bind(1, job);
-    return q.run();
-  });
-}
-
-absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
-                                   Seconds now) {
-  if (tile && !frame) {
-    return absl::InvalidArgumentError(
-        fmt::format("job {}: retrying tile {} needs its frame", job, *tile));
-  }
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_RETURN_IF_ERROR(jobState(job).status());
-    // A tile is retried with its frame's bake and assemble when those are dead or cancelled
-    // too: the tile cannot run without the one, and its result is lost without the other.
-    // Attempts keep counting, so a worker from before the retry still holds a stale attempt.
-    {
-      Query q = query(
-          "UPDATE tasks SET state = 0, failures = 0, last_error = '', progress = 0, "
-          "not_before = 0, expires = NULL WHERE job = ?1 AND state IN (4, 5) "
-          "AND (?2 IS NULL OR frame = ?2) AND (?3 IS NULL OR kind != 1 OR tile = ?3)");
-      q.bind(1, job).bind(2, frame).bind(3, tile);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    {
-      // An audit covers its whole frame: a tile's retry revives its frame's audit.
-      Query q = query(
-          "UPDATE audits SET state = 0, failures = 0, last_error = '', not_before = 0, "
-          "expires = NULL WHERE job = ?1 AND state IN (3, 4) AND (?2 IS NULL OR frame = ?2)");
-      q.bind(1, job).bind(2, frame);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    {
-      Query q = query("UPDATE jobs SET state = 0 WHERE id = ?1");
-      q.bind(1, job);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    PBGI_RETURN_IF_ERROR(promoteBlocked(job, frame));
-    // What was revived may still wait on a task left dead (another tile of the frame, say).
-    std::vector<TaskInfo> dead;
-    {
-      Query q = query("SELECT " PBGI_TASK_COLUMNS
-                      " FROM tasks WHERE job = ?1 AND (?2 IS NULL OR frame = ?2) AND state = 4 "
-                      "AND kind != 2 ORDER BY frame, kind, tile");
-      q.bind(1, job).bind(2, frame);
-      for (;;) {
-        PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-        if (!row) break;
-        dead.push_back(readTask(q));
-      }
-    }
-    for (const TaskInfo& task : dead) PBGI_RETURN_IF_ERROR(killDependents(task));
-    return settleJob(job);
-  });
-}
-
-absl::StatusOr<bool> SqliteJobStore::blocklisted(int64_t job, const std::string& worker) {
-  return transaction(Access::kRead, [&]() -> absl::StatusOr<bool> {
-    PBGI_RETURN_IF_ERROR(jobState(job).status());
-    Query q = query("SELECT failures FROM job_worker_failures WHERE job = ?1 AND worker = ?2");
-    q.bind(1, job).bind(2, worker);
-    PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-    return row && q.int64(0) >= blocklistThreshold(policy_);
-  });
-}
-
-absl::StatusOr<std::vector<TaskEvent>> SqliteJobStore::events(int64_t job,
-                                                              std::optional<int> frame,
-                                                              std::optional<int> tile) {
-  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<TaskEvent>> {
-    PBGI_RETURN_IF_ERROR(jobState(job).status());
-    Query q = query(
-        "SELECT e.time, e.task, t.kind, t.frame, t.tile, e.attempt, e.worker, e.event, e.text "
-        "FROM task_events e JOIN tasks t ON t.id = e.task WHERE e.job = ?1 "
-        "AND (?2 IS NULL OR t.frame = ?2) AND (?3 IS NULL OR t.tile = ?3) ORDER BY e.id");
-    q.bind(1, job).bind(2, frame).bind(3, tile);
-    std::vector<TaskEvent> out;
-    for (;;) {
-      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-      if (!row) return out;
-      TaskEvent e;
-      e.time = q.real(0);
-      e.task = q.int64(1);
-      e.ref.job = job;
-      e.ref.kind = static_cast<TaskKind>(q.integer(2));
-      e.ref.frame = q.integer(3);
-      e.ref.tile = q.integer(4);
-      e.attempt = q.integer(5);
-      e.worker = q.text(6);
-      e.event = q.text(7);
-      e.text = q.text(8);
-      out.push_back(std::move(e));
-    }
-  });
-}
-
-absl::StatusOr<AuditInfo> SqliteJobStore::readAudit(const Query& q) const {
-  AuditInfo info;
-  info.id = q.int64(0);
-  info.job = q.int64(1);
-  info.spec.frame = q.integer(2);
-  PBGI_ASSIGN_OR_RETURN(info.spec.tiles,
-                        parseFrames(q.text(3), fmt::format("{}: audit {} tiles", path_, info.id)));
-  info.spec.spp = q.integer(4);
-  info.spec.threshold = q.real(5);
-  info.state = static_cast<AuditState>(q.integer(6));
-  info.attempt = q.integer(7);
-  info.failures = q.integer(8);
-  info.worker = q.text(9);
-  info.lastError = q.text(10);
-  if (info.state == AuditState::kDone) {
-    info.result = AuditResult{realOrNan(q, 11), realOrNan(q, 12), realOrNan(q, 13)};
-  }
-  return info;
-}
-
-absl::StatusOr<AuditInfo> SqliteJobStore::loadAudit(int64_t audit) {
-  Query q = query("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE id = ?1");
-  q.bind(1, audit);
-  PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-  if (!row) return absl::NotFoundError(fmt::format("audit {}: no such audit", audit));
-  return readAudit(q);
-}
-
-absl::StatusOr<AuditInfo> SqliteJobStore::currentAuditLease(int64_t audit, int attempt) {
-  PBGI_ASSIGN_OR_RETURN(AuditInfo info, loadAudit(audit));
-  PBGI_RETURN_IF_ERROR(checkCurrentLease(info, attempt));
-  return info;
-}
-
-// Unlike a task's failure, nothing else moves: not the job, not the worker's blocklist.
-absl::Status SqliteJobStore::recordAuditFailure(const AuditInfo& audit, const std::string& error,
-                                                Seconds now) {
-  const FailureOutcome outcome = failureOutcome(policy_, audit.failures, now);
-  Query q = query(
-      "UPDATE audits SET state = ?2, failures = ?3, last_error = ?4, not_before = ?5, "
-      "expires = NULL WHERE id = ?1");
-  q.bind(1, audit.id)
-      .bind(2, auditStateAfter(outcome))
-      .bind(3, outcome.failures)
-      .bind(4, error)
-      .bind(5, outcome.notBefore);
-  return q.run();
-}
-
-absl::StatusOr<std::optional<AuditLease>> SqliteJobStore::leaseAudit(const std::string& worker,
-                                                                     Seconds now,
-                                                                     Seconds leaseSeconds) {
-  if (worker.empty()) return absl::InvalidArgumentError("an audit's lease needs a worker id");
-  return transaction(Access::kWrite, [&]() -> absl::StatusOr<std::optional<AuditLease>> {
-    AuditInfo picked;
-    {
-      // One sort of the ready audits: a job has at most one a frame, and this runs only for a
-      // worker that found no task.
-      Query q = query(
-          "SELECT " PBGI_AUDIT_COLUMNS
-          " FROM audits WHERE id = (SELECT a.id FROM audits a "
-          "JOIN jobs j ON j.id = a.job WHERE a.state = 0 AND a.not_before <= ?1 AND j.state != 3 "
-          "AND EXISTS (SELECT 1 FROM tasks t WHERE t.job = a.job AND t.frame = a.frame AND "
-          "t.kind = 2 AND t.state = 3) "
-          "ORDER BY j.priority DESC, j.submitted, j.id, a.frame LIMIT 1)");
-      q.bind(1, now);
-      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-      if (!row) return std::optional<AuditLease>();
-      PBGI_ASSIGN_OR_RETURN(picked, readAudit(q));
-    }
-    AuditLease lease{picked.id, picked.attempt + 1, picked.job, picked.spec, now + leaseSeconds};
-    {
-      Query take = query(
-          "UPDATE audits SET state = 1, attempt = ?2, worker = ?3, expires = ?4 WHERE id = ?1");
-      take.bind(1, lease.audit).bind(2, lease.attempt).bind(3, worker).bind(4, lease.expires);
-      PBGI_RETURN_IF_ERROR(take.run());
-    }
-    PBGI_RETURN_IF_ERROR(touchWorker(worker, now));
-    return std::optional<AuditLease>(std::move(lease));
-  });
-}
-
-absl::Status SqliteJobStore::heartbeatAudit(int64_t audit, int attempt, Seconds now,
-                                            Seconds leaseSeconds) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
-    Query q = query("UPDATE audits SET expires = ?2 WHERE id = ?1");
-    q.bind(1, audit).bind(2, now + leaseSeconds);
-    PBGI_RETURN_IF_ERROR(q.run());
-    return touchWorker(info.worker, now);
-  });
-}
-
-absl::Status SqliteJobStore::completeAudit(int64_t audit, int attempt, const AuditResult& result,
-                                           Seconds now) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
-    {
-      Query q = query(
-          "UPDATE audits SET state = 2, expires = NULL, rel_mse = ?2, bias = ?3, seconds = ?4 "
-          "WHERE id = ?1");
-      q.bind(1, audit).bind(2, result.relMse).bind(3, result.bias).bind(4, result.seconds);
-      PBGI_RETURN_IF_ERROR(q.run());
-    }
-    return touchWorker(info.worker, now);
-  });
-}
-
-absl::Status SqliteJobStore::failAudit(int64_t audit, int attempt, const std::string& error,
-                                       Seconds now) {
-  return transaction(Access::kWrite, [&]() -> absl::Status {
-    PBGI_ASSIGN_OR_RETURN(const AuditInfo info, currentAuditLease(audit, attempt));
-    return recordAuditFailure(info, error, now);
-  });
-}
-
-absl::StatusOr<std::vector<AuditInfo>> SqliteJobStore::audits(int64_t job) {
-  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<AuditInfo>> {
-    PBGI_RETURN_IF_ERROR(jobState(job).status());
-    Query q = query("SELECT " PBGI_AUDIT_COLUMNS " FROM audits WHERE job = ?1 ORDER BY frame");
-    q.bind(1, job);
-    std::vector<AuditInfo> out;
-    for (;;) {
-      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
-      if (!row) return out;
-      PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(q));
-      out.push_back(std::move(info));
-    }
-  });
-}
-
-}  // namespace
+}  // namespace sqlite_store
 
 absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& path,
                                                              const RetryPolicy& policy) {
@@ -1121,7 +582,7 @@ absl::StatusOr<std::unique_ptr<JobStore>> openSqliteJobStore(const std::string& 
     return sqliteStatus(rc, raw != nullptr ? sqlite3_errmsg(raw) : sqlite3_errstr(rc), path,
                         "opening the job store");
   }
-  auto store = std::make_unique<SqliteJobStore>(path, policy, std::move(db));
+  auto store = std::make_unique<sqlite_store::SqliteJobStore>(path, policy, std::move(db));
   PBGI_RETURN_IF_ERROR(store->initialize());
   return std::unique_ptr<JobStore>(std::move(store));
 }
