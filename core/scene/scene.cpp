@@ -6,6 +6,7 @@
 
 #include "core/util/check.h"
 #include "core/util/log.h"
+#include "core/util/status.h"
 
 namespace pbgi {
 
@@ -228,6 +229,183 @@ void SceneBuilder::addLight(std::unique_ptr<Light> light) {
   lights_.push_back({LightDesc{}, nullptr, std::move(light)});
 }
 
+namespace {
+
+void attachGeometry(RTCScene scene, std::vector<GeometryInfo>& geometries, RTCGeometry geom,
+                    GeometryInfo info) {
+  rtcCommitGeometry(geom);
+  const uint32_t id = rtcAttachGeometry(scene, geom);
+  rtcReleaseGeometry(geom);
+  if (geometries.size() <= id) geometries.resize(id + 1);
+  geometries[id] = info;
+}
+
+}  // namespace
+
+absl::Status SceneBuilder::buildMesh(Scene& scene, MeshData& mesh) {
+  Scene::Impl& impl = *scene.impl_;
+  const auto attach = [&](RTCGeometry geom, GeometryInfo info) {
+    attachGeometry(impl.scene, impl.geometries, geom, info);
+  };
+  cleanMesh(mesh);
+  for (uint32_t m : mesh.materials) {
+    if (m >= scene.materials_.size()) {
+      return absl::InvalidArgumentError(
+          fmt::format("mesh '{}': material index {} out of range (have {})", mesh.name, m,
+                      scene.materials_.size()));
+    }
+  }
+  if (mesh.triangleCount() == 0) return absl::OkStatus();
+  // The bounds of what renders: a vertex only dropped triangles used (one of a triangle
+  // too large to represent, at 1e30) would set every ray offset and cube from the scene's
+  // size.
+  for (const uint32_t i : mesh.indices) scene.bounds_.extend(mesh.positions[i]);
+  const uint32_t meshIndex = static_cast<uint32_t>(impl.meshes.size());
+  // Emissive triangles are lights too.
+  std::vector<int> triLights;
+  for (size_t t = 0; t < mesh.triangleCount(); ++t) {
+    const Material& mat = scene.materials_[mesh.materials[t]];
+    if (isBlack(mat.radiance) || !isFinite(mat.radiance)) continue;
+    if (triLights.empty()) triLights.assign(mesh.triangleCount(), -1);
+    const Vec3f& p0 = mesh.positions[mesh.indices[3 * t]];
+    const Vec3f& p1 = mesh.positions[mesh.indices[3 * t + 1]];
+    const Vec3f& p2 = mesh.positions[mesh.indices[3 * t + 2]];
+    triLights[t] = static_cast<int>(scene.lights_.size());
+    scene.lights_.push_back(makeTriangleLight(p0, p1, p2, mat.radiance));
+    ++scene.stats_.emissiveTriangles;
+  }
+
+  RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                               RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                                               mesh.positions.size()));
+  for (size_t i = 0; i < mesh.positions.size(); ++i) {
+    const Vec3f& p = mesh.positions[i];
+    vertices[3 * i] = p.x;
+    vertices[3 * i + 1] = p.y;
+    vertices[3 * i + 2] = p.z;
+  }
+  auto* indices = static_cast<uint32_t*>(
+      rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                              3 * sizeof(uint32_t), mesh.triangleCount()));
+  std::copy(mesh.indices.begin(), mesh.indices.end(), indices);
+  GeometryInfo info;
+  info.kind = GeometryInfo::Kind::kMesh;
+  info.mesh = meshIndex;
+  attach(geom, info);
+
+  impl.triangleBase.push_back(scene.stats_.triangles);
+  scene.stats_.triangles += mesh.triangleCount();
+  ++scene.stats_.meshes;
+  impl.meshes.push_back(std::move(mesh));
+  impl.triangleLights.push_back(std::move(triLights));
+  return absl::OkStatus();
+}
+
+absl::Status SceneBuilder::buildLight(Scene& scene, PendingLight& pending) {
+  Scene::Impl& impl = *scene.impl_;
+  const auto attach = [&](RTCGeometry geom, GeometryInfo info) {
+    attachGeometry(impl.scene, impl.geometries, geom, info);
+  };
+  if (pending.custom) {
+    scene.lights_.push_back(std::move(pending.custom));
+    return absl::OkStatus();
+  }
+  const LightDesc& d = pending.desc;
+  const int lightIndex = static_cast<int>(scene.lights_.size());
+  switch (d.type) {
+    case LightType::kQuad: {
+      scene.lights_.push_back(makeQuadLight(d.corner, d.edgeU, d.edgeV, d.radiance));
+      RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_TRIANGLE);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+          geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), 4));
+      const Vec3f corners[4] = {d.corner, d.corner + d.edgeU, d.corner + d.edgeU + d.edgeV,
+                                d.corner + d.edgeV};
+      for (int i = 0; i < 4; ++i) {
+        v[3 * i] = corners[i].x;
+        v[3 * i + 1] = corners[i].y;
+        v[3 * i + 2] = corners[i].z;
+        scene.bounds_.extend(corners[i]);
+      }
+      auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
+          geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), 2));
+      const uint32_t tris[6] = {0, 1, 2, 0, 2, 3};
+      std::copy(tris, tris + 6, idx);
+      GeometryInfo info;
+      info.kind = GeometryInfo::Kind::kQuadLight;
+      info.light = lightIndex;
+      info.normal = normalize(cross(d.edgeU, d.edgeV));
+      attach(geom, info);
+      break;
+    }
+    case LightType::kSphere: {
+      scene.lights_.push_back(makeSphereLight(d.center, d.radius, d.radiance));
+      RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+          geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
+      v[0] = d.center.x;
+      v[1] = d.center.y;
+      v[2] = d.center.z;
+      v[3] = d.radius;
+      scene.bounds_.extend(d.center - Vec3f(d.radius));
+      scene.bounds_.extend(d.center + Vec3f(d.radius));
+      GeometryInfo info;
+      info.kind = GeometryInfo::Kind::kSphereLight;
+      info.light = lightIndex;
+      info.center = d.center;
+      attach(geom, info);
+      break;
+    }
+    case LightType::kPoint:
+      scene.lights_.push_back(makePointLight(d.position, d.intensity));
+      break;
+    case LightType::kSpot:
+      scene.lights_.push_back(makeSpotLight(d.position, d.direction, d.coneDeg, d.intensity));
+      break;
+    case LightType::kDirectional:
+      scene.lights_.push_back(makeDirectionalLight(d.direction, d.irradiance));
+      break;
+    case LightType::kEnvironment:
+      if (!pending.environment) {
+        return absl::InvalidArgumentError(
+            fmt::format("{}: environment light without an image", d.where.toString()));
+      }
+      scene.lights_.push_back(
+          makeEnvironmentLight(std::move(pending.environment), d.scale, d.rotateDeg));
+      break;
+  }
+  return absl::OkStatus();
+}
+
+void SceneBuilder::prepareLightSampling(Scene& scene) {
+  if (scene.bounds_.empty()) scene.bounds_.extend(Vec3f(0.0f));
+  std::vector<float> powers;
+  for (size_t i = 0; i < scene.lights_.size(); ++i) {
+    Light* light = scene.lights_[i].get();
+    light->preprocess(scene.bounds_);
+    if (light->isInfinite()) scene.infiniteLights_.push_back(static_cast<int>(i));
+    const float p = light->power();
+    powers.push_back(std::isfinite(p) ? std::max(p, 0.0f) : 0.0f);
+  }
+  if (!powers.empty()) scene.lightDistribution_ = Distribution1D(powers);
+  std::vector<float> withoutSky = powers;
+  for (size_t i = 0; i < withoutSky.size(); ++i) {
+    if (isSkyLight(*scene.lights_[i])) withoutSky[i] = 0.0f;
+    scene.anyLightButSky_ = scene.anyLightButSky_ || withoutSky[i] > 0.0f;
+  }
+  if (scene.anyLightButSky_) scene.lightDistributionWithoutSky_ = Distribution1D(withoutSky);
+  for (const bool skyLeftOut : {false, true}) {
+    std::vector<int> deltas;
+    bool onlyDeltas = true;
+    for (size_t i = 0; i < scene.lights_.size() && onlyDeltas; ++i) {
+      if (!(scene.lightProbability(static_cast<int>(i), skyLeftOut) > 0.0f)) continue;
+      onlyDeltas = scene.lights_[i]->isDelta();
+      deltas.push_back(static_cast<int>(i));
+    }
+    if (onlyDeltas) scene.deltaLightsOnly_[skyLeftOut ? 1 : 0] = std::move(deltas);
+  }
+}
+
 absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
   std::unique_ptr<Scene> scene(new Scene());
   scene->impl_ = std::make_unique<Scene::Impl>();
@@ -236,180 +414,24 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
 
   impl.device = rtcNewDevice("threads=0");
   if (!impl.device) {
-    return absl::InternalError(
-        fmt::format("cannot create an Embree device (error {})", static_cast<int>(rtcGetDeviceError(nullptr))));
+    return absl::InternalError(fmt::format("cannot create an Embree device (error {})",
+                                           static_cast<int>(rtcGetDeviceError(nullptr))));
   }
   rtcSetDeviceErrorFunction(impl.device, embreeError, nullptr);
   impl.scene = rtcNewScene(impl.device);
   rtcSetSceneFlags(impl.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(impl.scene, RTC_BUILD_QUALITY_HIGH);
-
-  auto attach = [&](RTCGeometry geom, GeometryInfo info) {
-    rtcCommitGeometry(geom);
-    const uint32_t id = rtcAttachGeometry(impl.scene, geom);
-    rtcReleaseGeometry(geom);
-    if (impl.geometries.size() <= id) impl.geometries.resize(id + 1);
-    impl.geometries[id] = info;
-  };
-
-  for (MeshData& mesh : meshes_) {
-    cleanMesh(mesh);
-    for (uint32_t m : mesh.materials) {
-      if (m >= scene->materials_.size()) {
-        return absl::InvalidArgumentError(fmt::format(
-            "mesh '{}': material index {} out of range (have {})", mesh.name, m,
-            scene->materials_.size()));
-      }
-    }
-    if (mesh.triangleCount() == 0) continue;
-    // The bounds of what renders: a vertex only dropped triangles used (one of a triangle
-    // too large to represent, at 1e30) would set every ray offset and cube from the scene's
-    // size.
-    for (const uint32_t i : mesh.indices) scene->bounds_.extend(mesh.positions[i]);
-    const uint32_t meshIndex = static_cast<uint32_t>(impl.meshes.size());
-    // Emissive triangles are lights too.
-    std::vector<int> triLights;
-    for (size_t t = 0; t < mesh.triangleCount(); ++t) {
-      const Material& mat = scene->materials_[mesh.materials[t]];
-      if (isBlack(mat.radiance) || !isFinite(mat.radiance)) continue;
-      if (triLights.empty()) triLights.assign(mesh.triangleCount(), -1);
-      const Vec3f& p0 = mesh.positions[mesh.indices[3 * t]];
-      const Vec3f& p1 = mesh.positions[mesh.indices[3 * t + 1]];
-      const Vec3f& p2 = mesh.positions[mesh.indices[3 * t + 2]];
-      triLights[t] = static_cast<int>(scene->lights_.size());
-      scene->lights_.push_back(makeTriangleLight(p0, p1, p2, mat.radiance));
-      ++scene->stats_.emissiveTriangles;
-    }
-
-    RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
-        geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
-        mesh.positions.size()));
-    for (size_t i = 0; i < mesh.positions.size(); ++i) {
-      const Vec3f& p = mesh.positions[i];
-      vertices[3 * i] = p.x;
-      vertices[3 * i + 1] = p.y;
-      vertices[3 * i + 2] = p.z;
-    }
-    auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
-        geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t),
-        mesh.triangleCount()));
-    std::copy(mesh.indices.begin(), mesh.indices.end(), indices);
-    GeometryInfo info;
-    info.kind = GeometryInfo::Kind::kMesh;
-    info.mesh = meshIndex;
-    attach(geom, info);
-
-    impl.triangleBase.push_back(scene->stats_.triangles);
-    scene->stats_.triangles += mesh.triangleCount();
-    ++scene->stats_.meshes;
-    impl.meshes.push_back(std::move(mesh));
-    impl.triangleLights.push_back(std::move(triLights));
-  }
-
-  for (PendingLight& pending : lights_) {
-    if (pending.custom) {
-      scene->lights_.push_back(std::move(pending.custom));
-      continue;
-    }
-    const LightDesc& d = pending.desc;
-    const int lightIndex = static_cast<int>(scene->lights_.size());
-    switch (d.type) {
-      case LightType::kQuad: {
-        scene->lights_.push_back(makeQuadLight(d.corner, d.edgeU, d.edgeV, d.radiance));
-        RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), 4));
-        const Vec3f corners[4] = {d.corner, d.corner + d.edgeU, d.corner + d.edgeU + d.edgeV,
-                                  d.corner + d.edgeV};
-        for (int i = 0; i < 4; ++i) {
-          v[3 * i] = corners[i].x;
-          v[3 * i + 1] = corners[i].y;
-          v[3 * i + 2] = corners[i].z;
-          scene->bounds_.extend(corners[i]);
-        }
-        auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), 2));
-        const uint32_t tris[6] = {0, 1, 2, 0, 2, 3};
-        std::copy(tris, tris + 6, idx);
-        GeometryInfo info;
-        info.kind = GeometryInfo::Kind::kQuadLight;
-        info.light = lightIndex;
-        info.normal = normalize(cross(d.edgeU, d.edgeV));
-        attach(geom, info);
-        break;
-      }
-      case LightType::kSphere: {
-        scene->lights_.push_back(makeSphereLight(d.center, d.radius, d.radiance));
-        RTCGeometry geom = rtcNewGeometry(impl.device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
-        auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
-        v[0] = d.center.x;
-        v[1] = d.center.y;
-        v[2] = d.center.z;
-        v[3] = d.radius;
-        scene->bounds_.extend(d.center - Vec3f(d.radius));
-        scene->bounds_.extend(d.center + Vec3f(d.radius));
-        GeometryInfo info;
-        info.kind = GeometryInfo::Kind::kSphereLight;
-        info.light = lightIndex;
-        info.center = d.center;
-        attach(geom, info);
-        break;
-      }
-      case LightType::kPoint:
-        scene->lights_.push_back(makePointLight(d.position, d.intensity));
-        break;
-      case LightType::kSpot:
-        scene->lights_.push_back(makeSpotLight(d.position, d.direction, d.coneDeg, d.intensity));
-        break;
-      case LightType::kDirectional:
-        scene->lights_.push_back(makeDirectionalLight(d.direction, d.irradiance));
-        break;
-      case LightType::kEnvironment:
-        if (!pending.environment) {
-          return absl::InvalidArgumentError(
-              fmt::format("{}: environment light without an image", d.where.toString()));
-        }
-        scene->lights_.push_back(
-            makeEnvironmentLight(std::move(pending.environment), d.scale, d.rotateDeg));
-        break;
-    }
-  }
+  for (MeshData& mesh : meshes_) PBGI_RETURN_IF_ERROR(buildMesh(*scene, mesh));
+  for (PendingLight& pending : lights_) PBGI_RETURN_IF_ERROR(buildLight(*scene, pending));
   lights_.clear();
 
   rtcCommitScene(impl.scene);
   const RTCError err = rtcGetDeviceError(impl.device);
   if (err != RTC_ERROR_NONE) {
-    return absl::InternalError(fmt::format("Embree scene build failed (error {})", static_cast<int>(err)));
+    return absl::InternalError(
+        fmt::format("Embree scene build failed (error {})", static_cast<int>(err)));
   }
-
-  if (scene->bounds_.empty()) scene->bounds_.extend(Vec3f(0.0f));
-  std::vector<float> powers;
-  for (size_t i = 0; i < scene->lights_.size(); ++i) {
-    Light* light = scene->lights_[i].get();
-    light->preprocess(scene->bounds_);
-    if (light->isInfinite()) scene->infiniteLights_.push_back(static_cast<int>(i));
-    const float p = light->power();
-    powers.push_back(std::isfinite(p) ? std::max(p, 0.0f) : 0.0f);
-  }
-  if (!powers.empty()) scene->lightDistribution_ = Distribution1D(powers);
-  std::vector<float> withoutSky = powers;
-  for (size_t i = 0; i < withoutSky.size(); ++i) {
-    if (isSkyLight(*scene->lights_[i])) withoutSky[i] = 0.0f;
-    scene->anyLightButSky_ = scene->anyLightButSky_ || withoutSky[i] > 0.0f;
-  }
-  if (scene->anyLightButSky_) scene->lightDistributionWithoutSky_ = Distribution1D(withoutSky);
-  for (const bool skyLeftOut : {false, true}) {
-    std::vector<int> deltas;
-    bool onlyDeltas = true;
-    for (size_t i = 0; i < scene->lights_.size() && onlyDeltas; ++i) {
-      if (!(scene->lightProbability(static_cast<int>(i), skyLeftOut) > 0.0f)) continue;
-      onlyDeltas = scene->lights_[i]->isDelta();
-      deltas.push_back(static_cast<int>(i));
-    }
-    if (onlyDeltas) scene->deltaLightsOnly_[skyLeftOut ? 1 : 0] = std::move(deltas);
-  }
+  prepareLightSampling(*scene);
   scene->stats_.lights = scene->lights_.size();
   return scene;
 }

@@ -131,6 +131,12 @@ class SceneBuilder {
     std::unique_ptr<Light> custom;
   };
   std::vector<PendingLight> lights_;
+
+  // build()'s steps: each mesh's triangles (and its emissive triangles' lights), each light
+  // (with the surface of a quad or sphere light), then what sampling the lights needs.
+  absl::Status buildMesh(Scene& scene, MeshData& mesh);
+  absl::Status buildLight(Scene& scene, PendingLight& pending);
+  static void prepareLightSampling(Scene& scene);
 };
 
 }  // namespace pbgi
