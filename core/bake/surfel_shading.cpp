@@ -246,7 +246,11 @@ Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame
 
 }  // namespace
 
-WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t leafKey) const {
+// A leaf's glossy and transmissive surfels as its bake goes: each with its BSDF and direct light
+// (glossy), mirrors and glass apart (smooth); the indirect light arriving at the leaf, a
+// microbuffer on each side of the glossy surfels' mean normal; and per material, what it
+// reflects towards every texel of the cube.
+struct GlossyLeafBaker::Leaf {
   struct Glossy {
     Surfel* surfel;
     uint32_t material;
@@ -256,6 +260,26 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     Rgb front{0.0f}, back{0.0f};  // cosine-weighted sums of outgoing radiance per side
   };
   std::vector<Glossy> glossy, smooth;
+  const Microbuffer* sides[2] = {nullptr, nullptr};
+  Vec3f mean{0.0f}, centre{0.0f};
+  std::shared_ptr<const MicrobufferTables> cube;
+  std::vector<std::pair<uint32_t, std::vector<Rgb>>> reflected;  // by material, per texel
+
+  Rgb incomingRadiance(const Vec3f& wi) const {
+    const Microbuffer* buffer = sides[dot(wi, mean) > 0.0f ? 0 : 1];
+    if (buffer == nullptr) return Rgb(0.0f);
+    const int k = buffer->pixelIndex(wi);
+    return buffer->covered(k) ? buffer->radiance(k) : Rgb(0.0f);
+  }
+  bool reflects(uint32_t material) const {
+    return std::any_of(reflected.begin(), reflected.end(),
+                       [&](const auto& r) { return r.first == material; });
+  }
+};
+
+GlossyLeafBaker::Leaf GlossyLeafBaker::collectGlossy(std::span<Surfel> surfels,
+                                                     uint64_t leafKey) const {
+  Leaf leaf;
   const float invSamples = 1.0f / static_cast<float>(options_.lightSamples);
   for (size_t j = 0; j < surfels.size(); ++j) {
     Surfel& s = surfels[j];
@@ -266,104 +290,93 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     const uint32_t id = materialOfTriangle(*scene_, bases_, s.triangle);
     if (!needs_[id]) continue;
     const Material& material = scene_->material(id);
-    Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
+    Leaf::Glossy g{&s, id, Frame(s.normal), Bsdf(material, s.albedo), {}};
     if (g.bsdf.isDelta()) {
-      // Mirrors and glass: their light is traced back through them, below.
-      if (options_.directLight && options_.specularChains) smooth.push_back(std::move(g));
+      // Mirrors and glass: their light is traced back through them (traceSpecularChains).
+      if (options_.directLight && options_.specularChains) leaf.smooth.push_back(std::move(g));
       continue;
     }
     if (options_.directLight) {
       Rng rng = Rng::forKeys(options_.seed, options_.frame, leafKey * 256 + j, kGlossyLeafDomain);
       sampleArrivals(*scene_, s, g.frame, options_.lightSamples, invSamples, rng, &g.arrivals);
     }
-    if (!g.arrivals.empty() || incoming_ != nullptr) glossy.push_back(std::move(g));
+    if (!g.arrivals.empty() || incoming_ != nullptr) leaf.glossy.push_back(std::move(g));
   }
-  if (glossy.empty() && smooth.empty()) return WaveletRadiance();
+  return leaf;
+}
 
-  // The indirect light arriving at the leaf, a microbuffer on each side of its mean normal.
+void GlossyLeafBaker::gatherIncoming(Leaf& leaf) const {
   thread_local std::optional<std::array<Gatherer, 2>> gatherers;
-  const Microbuffer* sides[2] = {nullptr, nullptr};
-  Vec3f mean(0.0f), centre(0.0f);
-  if (incoming_ != nullptr && !glossy.empty()) {
-    GatherOptions gather;
-    gather.resolution = options_.incomingResolution;
-    if (!gatherers || gatherers->front().options() != gather) {
-      gatherers.emplace(std::array<Gatherer, 2>{Gatherer(gather), Gatherer(gather)});
-    }
-    float area = 0.0f;
-    for (const Glossy& g : glossy) {
-      mean += g.surfel->normal * g.surfel->area();
-      centre += g.surfel->position * g.surfel->area();
-      area += g.surfel->area();
-    }
-    centre = centre / area;
-    mean = mean.length2() > 0.0f ? normalize(mean) : glossy.front().surfel->normal;
-    GatherStats stats;
-    for (int side = 0; side < 2; ++side) {
-      const Vec3f n = side == 0 ? mean : -mean;
-      if ((*gatherers)[side].rasterize(*incoming_, centre, n, &stats).ok()) {
-        sides[side] = &(*gatherers)[side].microbuffer();
-      }
+  if (incoming_ == nullptr || leaf.glossy.empty()) return;
+  GatherOptions gather;
+  gather.resolution = options_.incomingResolution;
+  if (!gatherers || gatherers->front().options() != gather) {
+    gatherers.emplace(std::array<Gatherer, 2>{Gatherer(gather), Gatherer(gather)});
+  }
+  float area = 0.0f;
+  for (const Leaf::Glossy& g : leaf.glossy) {
+    leaf.mean += g.surfel->normal * g.surfel->area();
+    leaf.centre += g.surfel->position * g.surfel->area();
+    area += g.surfel->area();
+  }
+  leaf.centre = leaf.centre / area;
+  leaf.mean =
+      leaf.mean.length2() > 0.0f ? normalize(leaf.mean) : leaf.glossy.front().surfel->normal;
+  GatherStats stats;
+  for (int side = 0; side < 2; ++side) {
+    const Vec3f n = side == 0 ? leaf.mean : -leaf.mean;
+    if ((*gatherers)[side].rasterize(*incoming_, leaf.centre, n, &stats).ok()) {
+      leaf.sides[side] = &(*gatherers)[side].microbuffer();
     }
   }
-  auto incomingRadiance = [&](const Vec3f& wi) {
-    const Microbuffer* buffer = sides[dot(wi, mean) > 0.0f ? 0 : 1];
-    if (buffer == nullptr) return Rgb(0.0f);
-    const int k = buffer->pixelIndex(wi);
-    return buffer->covered(k) ? buffer->radiance(k) : Rgb(0.0f);
-  };
+}
 
-  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options_.resolution);
-  const size_t texels = cube->directions.size();
-  // The indirect light reflected towards every texel, once per material of the leaf, in the
-  // frame of the leaf's mean normal (its surfels' own differ little): the same BSDF samples for
-  // every direction out, so that the reflected light is a smooth function of the direction
-  // (each sample's half vector fixed), which the wavelets hold in few coefficients, where fresh
-  // samples per texel would be white noise.
-  std::vector<std::pair<uint32_t, std::vector<Rgb>>> reflected;
-  if (incoming_ != nullptr) {
-    const Frame frame(mean);
-    for (const Glossy& g : glossy) {
-      if (std::any_of(reflected.begin(), reflected.end(),
-                      [&](const auto& r) { return r.first == g.material; })) {
-        continue;
-      }
-      if (reflection_[g.material].empty()) continue;
-      const ReflectionSamples& set = reflection_[g.material][leafKey % kReflectionSets];
-      const size_t k = static_cast<size_t>(std::max(options_.indirectSamples, 1));
-      // The reflected light by texel of the material's local cube, then resampled to the
-      // world's texels (the nearest local one).
-      std::vector<Rgb> local(texels, Rgb(0.0f));
-      for (size_t t = 0; t < texels; ++t) {
-        Rgb sum(0.0f);
-        for (size_t j = t * k; j < (t + 1) * k; ++j) {
-          if (!isBlack(set.weight[j])) sum += set.weight[j] * incomingRadiance(frame.toWorld(set.wi[j]));
+// The indirect light reflected towards every texel, once per material of the leaf, in the frame
+// of the leaf's mean normal (its surfels' own differ little): the same BSDF samples for every
+// direction out, so that the reflected light is a smooth function of the direction (each
+// sample's half vector fixed), which the wavelets hold in few coefficients, where fresh samples
+// per texel would be white noise.
+void GlossyLeafBaker::reflectIncoming(Leaf& leaf, uint64_t leafKey) const {
+  if (incoming_ == nullptr) return;
+  const size_t texels = leaf.cube->directions.size();
+  const Frame frame(leaf.mean);
+  for (const Leaf::Glossy& g : leaf.glossy) {
+    if (leaf.reflects(g.material) || reflection_[g.material].empty()) continue;
+    const ReflectionSamples& set = reflection_[g.material][leafKey % kReflectionSets];
+    const size_t k = static_cast<size_t>(std::max(options_.indirectSamples, 1));
+    // The reflected light by texel of the material's local cube, then resampled to the
+    // world's texels (the nearest local one).
+    std::vector<Rgb> local(texels, Rgb(0.0f));
+    for (size_t t = 0; t < texels; ++t) {
+      Rgb sum(0.0f);
+      for (size_t j = t * k; j < (t + 1) * k; ++j) {
+        if (!isBlack(set.weight[j])) {
+          sum += set.weight[j] * leaf.incomingRadiance(frame.toWorld(set.wi[j]));
         }
-        if (isFinite(sum)) local[t] = sum;
       }
-      std::vector<Rgb> table(texels);
-      for (size_t t = 0; t < texels; ++t) {
-        table[t] = local[static_cast<size_t>(
-            cubePixelIndex(frame.toLocal(cube->directions[t]), options_.resolution))];
-      }
-      reflected.emplace_back(g.material, std::move(table));
+      if (isFinite(sum)) local[t] = sum;
     }
+    std::vector<Rgb> table(texels);
+    for (size_t t = 0; t < texels; ++t) {
+      table[t] = local[static_cast<size_t>(
+          cubePixelIndex(frame.toLocal(leaf.cube->directions[t]), options_.resolution))];
+    }
+    leaf.reflected.emplace_back(g.material, std::move(table));
   }
+}
 
-  // Mirrors and glass (delta BSDFs): the lights seen through them, each texel's direction
-  // traced back through their specular chain (up to kMaxSpecularChain surfaces, each lobe
-  // picked by the BSDF's own sampling) to the light it ends on, from the centroid of the leaf's
-  // smooth surfels, kSmoothRays jittered rays a texel. A chain that ends on a rough surface
-  // brings nothing here: that light is the tree's. This is what puts a glass sphere's caustic
-  // on the floor under it.
-  for (const Glossy& g : smooth) {
-    if (std::any_of(reflected.begin(), reflected.end(),
-                    [&](const auto& r) { return r.first == g.material; })) {
-      continue;
-    }
+// Mirrors and glass (delta BSDFs): the lights seen through them, each texel's direction traced
+// back through their specular chain (up to kMaxSpecularChain surfaces, each lobe picked by the
+// BSDF's own sampling) to the light it ends on, from the centroid of the leaf's smooth surfels,
+// kSmoothRays jittered rays a texel. A chain that ends on a rough surface brings nothing here:
+// that light is the tree's. This is what puts a glass sphere's caustic on the floor under it.
+void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
+  const size_t texels = leaf.cube->directions.size();
+  for (const Leaf::Glossy& g : leaf.smooth) {
+    if (leaf.reflects(g.material)) continue;
     Vec3f n(0.0f), p(0.0f);
     float area = 0.0f;
-    for (const Glossy& h : smooth) {
+    for (const Leaf::Glossy& h : leaf.smooth) {
       if (h.material != g.material) continue;
       n += h.surfel->normal * h.surfel->area();
       p += h.surfel->position * h.surfel->area();
@@ -379,28 +392,32 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
     for (size_t t = 0; t < texels; ++t) {
       Rgb sum(0.0f);
       for (int k = 0; k < kSmoothRays; ++k) {
-        const Vec3f d = normalize(cube->directions[t] +
-                                  Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f,
-                                        rng.uniform() - 0.5f) *
-                                      jitter);
+        const Vec3f d = normalize(
+            leaf.cube->directions[t] +
+            Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f) * jitter);
         const float uc = (static_cast<float>(k) + rng.uniform()) / kSmoothRays;
         sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng);
       }
       if (isFinite(sum)) table[t] = sum / static_cast<float>(kSmoothRays);
     }
-    reflected.emplace_back(g.material, std::move(table));
+    leaf.reflected.emplace_back(g.material, std::move(table));
   }
-  for (Glossy& g : smooth) glossy.push_back(std::move(g));
+  for (Leaf::Glossy& g : leaf.smooth) leaf.glossy.push_back(std::move(g));
+}
 
-  std::vector<Rgb> intensity(texels, Rgb(0.0f));
-  for (Glossy& g : glossy) {
+// Each surfel's outgoing radiance towards every texel (its direct light through its BSDF plus
+// what its material reflects), summed as the leaf's intensity, and each side's mean radiance.
+WaveletRadiance GlossyLeafBaker::radiate(Leaf& leaf) const {
+  const MicrobufferTables& cube = *leaf.cube;
+  std::vector<Rgb> intensity(cube.directions.size(), Rgb(0.0f));
+  for (Leaf::Glossy& g : leaf.glossy) {
     const float area = g.surfel->area();
     const std::vector<Rgb>* indirect = nullptr;
-    for (const auto& r : reflected) {
+    for (const auto& r : leaf.reflected) {
       if (r.first == g.material) indirect = &r.second;
     }
-    for (size_t t = 0; t < cube->directions.size(); ++t) {
-      const Vec3f wo = g.frame.toLocal(cube->directions[t]);
+    for (size_t t = 0; t < cube.directions.size(); ++t) {
+      const Vec3f wo = g.frame.toLocal(cube.directions[t]);
       Rgb radiance(0.0f);
       for (const Arrival& a : g.arrivals) {
         radiance += g.bsdf.f(wo, a.wiLocal) * a.value * std::abs(a.wiLocal.z);
@@ -409,13 +426,23 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
       if (!isFinite(radiance)) continue;
       const float cosine = std::abs(wo.z);
       intensity[t] += radiance * (area * cosine);
-      (wo.z > 0.0f ? g.front : g.back) += radiance * (cosine * cube->solidAngles[t]);
+      (wo.z > 0.0f ? g.front : g.back) += radiance * (cosine * cube.solidAngles[t]);
     }
     // The texels' cosine-weighted solid angles sum to pi over each side.
     g.surfel->radiance = g.front * kInvPi;
     g.surfel->backRadiance = g.back * kInvPi;
   }
   return WaveletRadiance::fromTexels(intensity, options_.resolution, 0.0f);
+}
+
+WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t leafKey) const {
+  Leaf leaf = collectGlossy(surfels, leafKey);
+  if (leaf.glossy.empty() && leaf.smooth.empty()) return WaveletRadiance();
+  gatherIncoming(leaf);
+  leaf.cube = microbufferTables(options_.resolution);
+  reflectIncoming(leaf, leafKey);
+  traceSpecularChains(leaf, leafKey);
+  return radiate(leaf);
 }
 
 WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,

@@ -130,6 +130,16 @@ class GlossyLeafBaker {
     std::vector<Rgb> weight;  // black where the sample failed
   };
   std::vector<std::vector<ReflectionSamples>> reflection_;  // by material, then set
+
+  // One leaf's bake, in steps (surfel_shading.cpp): its glossy surfels and their direct light,
+  // the indirect light arriving at it, what each material reflects of that towards every
+  // texel, the lights seen through mirrors and glass, then each surfel's outgoing radiance.
+  struct Leaf;
+  Leaf collectGlossy(std::span<Surfel> surfels, uint64_t leafKey) const;
+  void gatherIncoming(Leaf& leaf) const;
+  void reflectIncoming(Leaf& leaf, uint64_t leafKey) const;
+  void traceSpecularChains(Leaf& leaf, uint64_t leafKey) const;
+  WaveletRadiance radiate(Leaf& leaf) const;
 };
 
 }  // namespace pbgi
