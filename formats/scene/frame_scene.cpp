@@ -68,62 +68,41 @@ Material toMaterial(const MaterialDesc& d) {
 
 }  // namespace
 
-absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
-  std::vector<std::string> warnings;
-  SceneBuilder builder;
+namespace {
 
-  // Materials by name: the shot's override the files'.
-  std::map<std::string, uint32_t> materialIndex;
-  std::map<std::string, std::shared_ptr<const Texture>> textures;
-  auto texture = [&](const std::string& path) -> absl::StatusOr<std::shared_ptr<const Texture>> {
-    if (auto it = textures.find(path); it != textures.end()) return it->second;
-    auto t = loadImageTexture(path);
-    if (!t.ok()) return t.status();
-    textures[path] = *t;
-    return *t;
-  };
-  auto addMaterial = [&](const MaterialDesc& d) -> absl::StatusOr<uint32_t> {
-    Material m = toMaterial(d);
-    if (d.albedoTexture) {
-      auto t = texture(*d.albedoTexture);
-      if (!t.ok()) {
-        if (d.where.line > 0) return withContext(t.status(), d.where.toString());
-        warnings.push_back(fmt::format("material '{}': {}; using its constant albedo", d.name,
-                                       t.status().message()));
-      } else {
-        m.albedoTexture = *t;
-      }
+// A frame's scene as it is loaded: the materials by name (the shot's override the files'), the
+// textures read once each, the triangles_ of every geometry file so far (coincident_ copies go),
+// and the warnings_.
+class FrameSceneLoader {
+ public:
+  absl::Status addShotMaterials(const ShotDesc& shot) {
+    for (const MaterialDesc& d : shot.materials) {
+      PBGI_ASSIGN_OR_RETURN(const uint32_t index, addMaterial(d));
+      materialIndex_[d.name] = index;
+      shotMaterials_.insert(d.name);
     }
-    return builder.addMaterial(std::move(m));
-  };
-  std::set<std::string> shotMaterials;
-  for (const MaterialDesc& d : shot.materials) {
-    auto index = addMaterial(d);
-    if (!index.ok()) return index.status();
-    materialIndex[d.name] = *index;
-    shotMaterials.insert(d.name);
+    return absl::OkStatus();
   }
 
-  TriangleSet triangles;  // of every geometry file, transformed: coincident copies go
-  size_t coincident = 0;
-  for (const GeometryDesc& g : shot.geometry) {
+  // One geometry file's meshes at `frame`, transformed, their materials mapped to the scene's.
+  absl::Status addGeometry(const GeometryDesc& g, const ShotDesc& shot, int frame) {
     auto loaded = loadGeometry(g.file);
     if (!loaded.ok()) {
       return withContext(loaded.status(), g.where.toString());
     }
-    for (std::string& w : loaded->warnings) warnings.push_back(std::move(w));
+    for (std::string& w : loaded->warnings) warnings_.push_back(std::move(w));
     // Map the file's material indices to the scene's. What the loader could not map of a
     // material warns only where the shot does not define that material itself.
     std::vector<uint32_t> remap(loaded->materials.size());
     bool usesFileMaterials = false;
     for (size_t i = 0; i < loaded->materials.size(); ++i) {
       const MaterialDesc& fileMaterial = loaded->materials[i];
-      const bool shotDefines = shotMaterials.contains(fileMaterial.name);
+      const bool shotDefines = shotMaterials_.contains(fileMaterial.name);
       usesFileMaterials = usesFileMaterials || !shotDefines;
       if (!shotDefines) {
-        for (std::string& w : loaded->materialWarnings[i]) warnings.push_back(std::move(w));
+        for (std::string& w : loaded->materialWarnings[i]) warnings_.push_back(std::move(w));
       }
-      if (auto it = materialIndex.find(fileMaterial.name); it != materialIndex.end()) {
+      if (auto it = materialIndex_.find(fileMaterial.name); it != materialIndex_.end()) {
         remap[i] = it->second;
         continue;
       }
@@ -137,7 +116,7 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
       }
       auto index = addMaterial(fileMaterial);
       if (!index.ok()) return index.status();
-      materialIndex[fileMaterial.name] = *index;
+      materialIndex_[fileMaterial.name] = *index;
       remap[i] = *index;
     }
     const TransformParams at = transformAt(g, shot.firstFrame, frame);
@@ -164,8 +143,8 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
         }
       }
       kept += mesh.triangleCount();
-      coincident += triangles.dropCoincident(mesh);
-      builder.addMesh(std::move(mesh));
+      coincident_ += triangles_.dropCoincident(mesh);
+      builder_.addMesh(std::move(mesh));
     }
     if (kept == 0) {
       return withContext(
@@ -175,23 +154,21 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
           g.where.toString());
     }
     if (!transformDrops.empty()) {
-      warnings.push_back(fmt::format("{}: under the transform at frame {} ({}): {}", g.file, frame,
-                                     transformText(at), fmt::join(transformDrops, "; ")));
+      warnings_.push_back(fmt::format("{}: under the transform at frame {} ({}): {}", g.file, frame,
+                                      transformText(at), fmt::join(transformDrops, "; ")));
     }
     if (usesFileMaterials) {
-      for (std::string& w : loaded->libraryWarnings) warnings.push_back(std::move(w));
+      for (std::string& w : loaded->libraryWarnings) warnings_.push_back(std::move(w));
     }
+    return absl::OkStatus();
   }
 
-  if (coincident > 0) {
-    warnings.push_back(fmt::format(
-        "dropped {} triangle{} that coincide{} with another (the same three vertices): a "
-        "surface modelled twice in one place renders once",
-        coincident, coincident == 1 ? "" : "s", coincident == 1 ? "s" : ""));
-  }
-
-  for (const LightDesc& l : shot.lights) {
-    if (l.type == LightType::kEnvironment) {
+  absl::Status addLights(const ShotDesc& shot) {
+    for (const LightDesc& l : shot.lights) {
+      if (l.type != LightType::kEnvironment) {
+        builder_.addLight(l);
+        continue;
+      }
       auto image = readLatLong(l.file);
       if (!image.ok()) {
         return withContext(image.status(), l.where.toString());
@@ -208,19 +185,67 @@ absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
                 l.file, brightest, l.scale, kMaxEmission)),
             l.where.toString());
       }
-      builder.addLight(l, std::make_shared<const LatLongImage>(std::move(*image)));
-    } else {
-      builder.addLight(l);
+      builder_.addLight(l, std::make_shared<const LatLongImage>(std::move(*image)));
     }
+    return absl::OkStatus();
   }
 
-  auto scene = builder.build();
-  if (!scene.ok()) return scene.status();
-  const CameraParams params = cameraAt(shot.camera, shot.firstFrame, frame);
-  FrameScene out{std::move(*scene),
-                 Camera(params, shot.width, shot.height, shot.camera.views, shot.camera.viewSpacing),
-                 std::move(warnings)};
-  return out;
+  absl::StatusOr<FrameScene> finish(const ShotDesc& shot, int frame) {
+    if (coincident_ > 0) {
+      warnings_.push_back(fmt::format(
+          "dropped {} triangle{} that coincide{} with another (the same three vertices): a "
+          "surface modelled twice in one place renders once",
+          coincident_, coincident_ == 1 ? "" : "s", coincident_ == 1 ? "s" : ""));
+    }
+    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Scene> scene, builder_.build());
+    const CameraParams params = cameraAt(shot.camera, shot.firstFrame, frame);
+    return FrameScene{
+        std::move(scene),
+        Camera(params, shot.width, shot.height, shot.camera.views, shot.camera.viewSpacing),
+        std::move(warnings_)};
+  }
+
+ private:
+  absl::StatusOr<std::shared_ptr<const Texture>> texture(const std::string& path) {
+    if (auto it = textures_.find(path); it != textures_.end()) return it->second;
+    PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Texture> t, loadImageTexture(path));
+    textures_[path] = t;
+    return t;
+  }
+
+  absl::StatusOr<uint32_t> addMaterial(const MaterialDesc& d) {
+    Material m = toMaterial(d);
+    if (d.albedoTexture) {
+      auto t = texture(*d.albedoTexture);
+      if (!t.ok()) {
+        if (d.where.line > 0) return withContext(t.status(), d.where.toString());
+        warnings_.push_back(fmt::format("material '{}': {}; using its constant albedo", d.name,
+                                        t.status().message()));
+      } else {
+        m.albedoTexture = *t;
+      }
+    }
+    return builder_.addMaterial(std::move(m));
+  }
+
+  SceneBuilder builder_;
+  std::vector<std::string> warnings_;
+  std::map<std::string, uint32_t> materialIndex_;
+  std::map<std::string, std::shared_ptr<const Texture>> textures_;
+  std::set<std::string> shotMaterials_;
+  TriangleSet triangles_;
+  size_t coincident_ = 0;
+};
+
+}  // namespace
+
+absl::StatusOr<FrameScene> loadFrameScene(const ShotDesc& shot, int frame) {
+  FrameSceneLoader loader;
+  PBGI_RETURN_IF_ERROR(loader.addShotMaterials(shot));
+  for (const GeometryDesc& g : shot.geometry)
+    PBGI_RETURN_IF_ERROR(loader.addGeometry(g, shot, frame));
+  PBGI_RETURN_IF_ERROR(loader.addLights(shot));
+  return loader.finish(shot, frame);
 }
 
 }  // namespace pbgi
