@@ -37,8 +37,15 @@ uint64_t pageFileChecksum(std::span<const uint8_t> bytes) {
 // ---------------------------------------------------------------------------------------------
 // Decoding
 
-absl::StatusOr<PageFileHeader> decodePageFileHeader(std::span<const uint8_t> bytes,
-                                                    uint64_t fileSize) {
+namespace {
+
+// The header's frame: the magic, its size and checksum, and a version this build reads.
+struct HeaderFrame {
+  uint32_t version = 0;
+  uint32_t headerSize = 0;
+};
+
+absl::StatusOr<HeaderFrame> checkHeaderFrame(std::span<const uint8_t> bytes, uint64_t fileSize) {
   if (bytes.size() > fileSize) {
     return absl::InvalidArgumentError(fmt::format(
         "header: given {} bytes of a file said to be {} bytes long", bytes.size(), fileSize));
@@ -99,8 +106,11 @@ absl::StatusOr<PageFileHeader> decodePageFileHeader(std::span<const uint8_t> byt
         fmt::format("header: a version {} header is {} bytes, this one says {} (offset {})",
                     version, kPageFileHeaderSize, headerSize, kOffHeaderSize));
   }
+  return HeaderFrame{.version = version, .headerSize = headerSize};
+}
 
-  const uint8_t* h = bytes.data();
+// The header's fields, as stored (checkHeaderFields checks them).
+PageFileHeader readHeaderFields(const uint8_t* h, uint32_t version) {
   PageFileHeader header;
   PageFileInfo& info = header.info;
   info.version = version;
@@ -121,6 +131,13 @@ absl::StatusOr<PageFileHeader> decodePageFileHeader(std::span<const uint8_t> byt
   info.leafCount = loadU64(h + kOffLeafCount);
   info.sceneHash = loadU64(h + kOffSceneHash);
 
+  return header;
+}
+
+// DataLoss naming the field when the header does not describe this file: its size, page size
+// and count, sections, root and bounds. Fills in where the directory and sections lie.
+absl::Status checkHeaderFields(PageFileHeader& header, uint32_t headerSize, uint64_t fileSize) {
+  const PageFileInfo& info = header.info;
   if (info.fileSize != fileSize) {
     if (fileSize < info.fileSize) {
       return absl::DataLossError(fmt::format(
@@ -173,6 +190,16 @@ absl::StatusOr<PageFileHeader> decodePageFileHeader(std::span<const uint8_t> byt
         fmt::format("header: scene bounds (offset {}) hold a NaN: min {}, max {}", kOffBounds,
                     info.sceneBounds.min, info.sceneBounds.max));
   }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<PageFileHeader> decodePageFileHeader(std::span<const uint8_t> bytes,
+                                                    uint64_t fileSize) {
+  PBGI_ASSIGN_OR_RETURN(const HeaderFrame frame, checkHeaderFrame(bytes, fileSize));
+  PageFileHeader header = readHeaderFields(bytes.data(), frame.version);
+  PBGI_RETURN_IF_ERROR(checkHeaderFields(header, frame.headerSize, fileSize));
   return header;
 }
 
