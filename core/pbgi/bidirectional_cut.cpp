@@ -435,6 +435,48 @@ struct BidirectionalCut::State {
     }
   }
 
+  // A pair small enough to evaluate whole (the light seen from the receivers' centre along
+  // `dir`, at squared distance d2, as `view`): the cluster's light towards every receiver,
+  // through a shadow ray descending to one of its surfels, when the centroid lies above every
+  // receiver's horizon; dropped when below all of them; else the receivers are refined.
+  absl::Status evaluateSmall(const Pair& pair, const TreePage& page, const TreeNode& node,
+                             const ReceiverView& rv, const ClusterView& view, const Vec3f& dir,
+                             float d2) {
+    const NodeAttributes& a = node.attributes;
+    // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
+    const float cosGamma = dot(rv.axis, dir);
+    const float sinGamma = safeSqrt(1.0f - cosGamma * cosGamma);
+    if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
+      ++stats.clusterPairs;
+      stats.receiversServed += served(pair.receiver);
+      const PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
+      if (isBlack(src.intensity)) return absl::OkStatus();
+      Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
+      const uint32_t origin = originOf(pair.receiver, rng);
+      // Towards one of the cluster's surfels, picked in proportion to the light it sends:
+      // the fraction of rays that arrive is then the fraction of the cluster's light that
+      // does, wherever the light sits in the cluster (a floor cluster reaching under a block
+      // has its centroid, or points of its bounds, where no light is). The descent starts
+      // from the cluster's own estimate at the ray's origin, which its corrections divide: at
+      // a single receiver, the source's, seen at the cosine and distance just measured.
+      const CutReceiver& from = receivers[origin];
+      const float estimate = rv.single ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
+                                       : nodeContribution(a, page.waveletOf(node), from.p, from.n);
+      absl::StatusOr<Descent> target =
+          descend(page, pair.light, pair.depth, estimate, 1.0f, from, opts.coneDescent, rng);
+      if (!target.ok()) return target.status();
+      resolve(*target, pair.receiver, origin, rng, src);
+      return absl::OkStatus();
+    }
+    // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
+    if (rv.single || cosGamma * rv.cosAngle + sinGamma * rv.sinAngle < 0.0f) {
+      ++stats.culled;  // dropped
+      return absl::OkStatus();
+    }
+    refineReceiver(pair, page.id);  // some receivers see it above, some below
+    return absl::OkStatus();
+  }
+
   absl::Status process(const Pair& pair, const TreePage& page) {
     ++stats.pairs;
     const ReceiverView rv = receiverView(pair.receiver);
@@ -503,41 +545,7 @@ struct BidirectionalCut::State {
     }
     const bool small =
         boundsSmall && within(solidAngle, opts.lightSolidAngle) && !reachesNear();
-    if (small) {
-      // The centroid's direction against the normals' cone: gamma + angle < 90 degrees.
-      const float cosGamma = dot(rv.axis, dir);
-      const float sinGamma = safeSqrt(1.0f - cosGamma * cosGamma);
-      if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
-        ++stats.clusterPairs;
-        stats.receiversServed += served(pair.receiver);
-        const PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
-        if (isBlack(src.intensity)) return absl::OkStatus();
-        Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-        const uint32_t origin = originOf(pair.receiver, rng);
-        // Towards one of the cluster's surfels, picked in proportion to the light it sends:
-        // the fraction of rays that arrive is then the fraction of the cluster's light that
-        // does, wherever the light sits in the cluster (a floor cluster reaching under a block
-        // has its centroid, or points of its bounds, where no light is). The descent starts
-        // from the cluster's own estimate at the ray's origin, which its corrections divide: at
-        // a single receiver, the source's, seen at the cosine and distance just measured.
-        const CutReceiver& from = receivers[origin];
-        const float estimate = rv.single
-                                   ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
-                                   : nodeContribution(a, page.waveletOf(node), from.p, from.n);
-        absl::StatusOr<Descent> target =
-            descend(page, pair.light, pair.depth, estimate, 1.0f, from, opts.coneDescent, rng);
-        if (!target.ok()) return target.status();
-        resolve(*target, pair.receiver, origin, rng, src);
-        return absl::OkStatus();
-      }
-      // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
-      if (rv.single || cosGamma * rv.cosAngle + sinGamma * rv.sinAngle < 0.0f) {
-        ++stats.culled;  // dropped
-        return absl::OkStatus();
-      }
-      refineReceiver(pair, page.id);  // some receivers see it above, some below
-      return absl::OkStatus();
-    }
+    if (small) return evaluateSmall(pair, page, node, rv, view, dir, d2);
 
     if (node.leaf()) {
       // Too big to be a cluster: its surfels one by one, for a single receiver, and for a node
