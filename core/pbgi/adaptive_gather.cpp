@@ -13,16 +13,7 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::ClusterView;
-using gather_internal::clusterDepthExtent;
-using gather_internal::clusterRadiance;
-using gather_internal::facingSide;
-using gather_internal::FacingSide;
-using gather_internal::kLayerExtentFactor;
-using gather_internal::kMaxExtentFactor;
-using gather_internal::NodeBounds;
-using gather_internal::skipSurfel;
-using gather_internal::viewCluster;
+using namespace gather_internal;
 
 constexpr int kMaxBaseResolution = 16;
 constexpr int kMaxLevel = 10;
@@ -333,47 +324,35 @@ void AdaptiveGatherer::placeDisk(const Record& disk, GatherStats* stats) {
 
 void AdaptiveGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p,
                                      GatherStats* stats) {
-  const Vec3f& n = frame_.n;
-  const float slack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
-  for (const Surfel& s : page.surfelsOf(leaf)) {
-    Vec3f v;
-    float dist2;
-    if (skipSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2)) {
-      ++stats->surfelsSkipped;
-      continue;
-    }
-    const FacingSide side = facingSide(s, v);
-    if (side.back) ++stats->surfelsBackFacing;
-    const Disk disk{s.position, side.normal, s.radius, side.radiance};
-    if (dist2 >= sqr(options_.nearFieldFactor * s.radius)) {
-      // The solid angle of the disk seen face-on times the cosine it is seen at.
-      const float distance = std::sqrt(dist2);
-      const Vec3f dir = v / distance;
-      const float facing = -dot(dir, side.normal);
-      const float sq = std::sqrt(dist2 + s.radius * s.radius);
-      const float omega = 2.0f * kPi * s.radius * s.radius * facing / (sq * (sq + distance));
-      Record r{};
-      r.surfel = 1;
-      r.dir = dir;
-      r.distance = distance;
-      r.extent = kLayerExtentFactor * s.radius;
-      r.omega = omega;
-      r.boundOmega = 0.0f;
-      r.radiance = side.radiance;
-      // Far and not much larger than the cell it is seen in: its footprint, cut into pieces as
-      // small as the cells they land in (a disk about a cell's size placed whole by its centre
-      // would leave that cell's coverage all or nothing).
-      if (omega <= kMaxFootprintCells * cells_[leafOf(dir)].solidAngle &&
-          !reachesCellBelow(dir, s.radius / distance, omega / kMaxFootprintCells)) {
-        placeDisk(r, stats);
-        ++stats->disksSplatted;
-        continue;
-      }
-    }
-    // Near, or much larger than its cell: exact, after the traversal.
-    rayCasts_.push_back(disk);
-    ++stats->nearFieldRayCasts;
-  }
+  forEachSeenSurfel(
+      page, leaf, p, frame_.n, options_.selfSkipRadius, options_.nearFieldFactor, stats,
+      [&](const SeenSurfel& seen) {
+        const Surfel& s = *seen.surfel;
+        const Disk disk{s.position, seen.side.normal, s.radius, seen.side.radiance};
+        if (!seen.near) {
+          const FarDisk far = farDisk(seen);
+          Record r{};
+          r.surfel = 1;
+          r.dir = far.dir;
+          r.distance = far.distance;
+          r.extent = kLayerExtentFactor * s.radius;
+          r.omega = far.omega;
+          r.boundOmega = 0.0f;
+          r.radiance = seen.side.radiance;
+          // Far and not much larger than the cell it is seen in: its footprint, cut into pieces as
+          // small as the cells they land in (a disk about a cell's size placed whole by its centre
+          // would leave that cell's coverage all or nothing).
+          if (far.omega <= kMaxFootprintCells * cells_[leafOf(far.dir)].solidAngle &&
+              !reachesCellBelow(far.dir, s.radius / far.distance, far.omega / kMaxFootprintCells)) {
+            placeDisk(r, stats);
+            ++stats->disksSplatted;
+            return;
+          }
+        }
+        // Near, or much larger than its cell: exact, after the traversal.
+        rayCasts_.push_back(disk);
+        ++stats->nearFieldRayCasts;
+      });
 }
 
 absl::Status AdaptiveGatherer::traverse(TreePageSource& tree,

@@ -26,15 +26,7 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::absDotExtent;
-using gather_internal::checkInterior;
-using gather_internal::checkLeaf;
-using gather_internal::clusterRadiance;
-using gather_internal::ClusterView;
-using gather_internal::facingSide;
-using gather_internal::FacingSide;
-using gather_internal::nodeAt;
-using gather_internal::viewCluster;
+using namespace gather_internal;
 
 using namespace cut_internal;
 

@@ -10,10 +10,7 @@ namespace pbgi::cut_internal {
 
 namespace {
 
-using gather_internal::clusterRadiance;
-using gather_internal::ClusterView;
-using gather_internal::FacingSide;
-using gather_internal::viewCluster;
+using namespace gather_internal;
 
 // A node's centroid seen from a receiver at p facing n: the unit direction to it, its squared
 // distance and the cosine at p; nullopt when it lies at p or behind p's horizon.

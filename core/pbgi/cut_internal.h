@@ -15,10 +15,7 @@
 
 namespace pbgi::cut_internal {
 
-using gather_internal::checkInterior;
-using gather_internal::checkLeaf;
-using gather_internal::facingSide;
-using gather_internal::nodeAt;
+using namespace gather_internal;
 
 // Shadow rays stop this fraction of their length short of their target.
 constexpr float kShortFraction = 1e-4f;

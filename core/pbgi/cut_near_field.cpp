@@ -11,7 +11,7 @@ namespace pbgi::cut_internal {
 
 namespace {
 
-using gather_internal::meanSurfelRadius;
+using namespace gather_internal;
 
 }  // namespace
 

@@ -12,8 +12,7 @@ namespace pbgi::cut_internal {
 
 namespace {
 
-using gather_internal::FacingSide;
-using gather_internal::skipSurfel;
+using namespace gather_internal;
 
 // Surfels nearer than this many radii are integrated over their disk, not taken as a point.
 constexpr float kNearDiskRadii = 4.0f;

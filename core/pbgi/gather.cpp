@@ -14,17 +14,7 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::clusterRadiance;
-using gather_internal::checkedResolution;
-using gather_internal::ClusterView;
-using gather_internal::clusterDepthExtent;
-using gather_internal::facingSide;
-using gather_internal::FacingSide;
-using gather_internal::kLayerExtentFactor;
-using gather_internal::kMaxExtentFactor;
-using gather_internal::NodeBounds;
-using gather_internal::skipSurfel;
-using gather_internal::viewCluster;
+using namespace gather_internal;
 
 absl::Status receiverError(const Vec3f& position, const Vec3f& normal) {
   return absl::InvalidArgumentError(fmt::format(
@@ -114,26 +104,19 @@ Gatherer::Gatherer(const GatherOptions& options)
 
 void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p,
                              const Vec3f& n, GatherStats* stats) {
-  const float slack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
-  for (const Surfel& s : page.surfelsOf(leaf)) {
-    Vec3f v;
-    float dist2;
-    if (skipSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2)) {
-      ++stats->surfelsSkipped;
-      continue;
-    }
-    // Two-sided: the side facing the receiver, with its own radiance.
-    const FacingSide side = facingSide(s, v);
-    if (side.back) ++stats->surfelsBackFacing;
-    if (dist2 < sqr(options_.nearFieldFactor * s.radius)) {
-      buffer_.rayCastDisk(s.position, side.normal, s.radius, side.radiance);
-      ++stats->nearFieldRayCasts;
-    } else {
-      buffer_.splatDisk(s.position, side.normal, s.radius, side.radiance,
-                        kLayerExtentFactor * s.radius);
-      ++stats->disksSplatted;
-    }
-  }
+  forEachSeenSurfel(page, leaf, p, n, options_.selfSkipRadius, options_.nearFieldFactor, stats,
+                    [&](const SeenSurfel& seen) {
+                      const Surfel& s = *seen.surfel;
+                      if (seen.near) {
+                        buffer_.rayCastDisk(s.position, seen.side.normal, s.radius,
+                                            seen.side.radiance);
+                        ++stats->nearFieldRayCasts;
+                      } else {
+                        buffer_.splatDisk(s.position, seen.side.normal, s.radius,
+                                          seen.side.radiance, kLayerExtentFactor * s.radius);
+                        ++stats->disksSplatted;
+                      }
+                    });
 }
 
 bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds,

@@ -111,6 +111,57 @@ inline FacingSide facingSide(const Surfel& s, const Vec3f& v) {
   return {-s.normal, s.backRadiance, true};
 }
 
+// A leaf's surfel as a microbuffer gather at p sees it: the side facing p, the vector to the
+// surfel and its length squared, and whether it lies within the near field (nearFieldFactor of
+// its radii), where gathers integrate its disk exactly.
+struct SeenSurfel {
+  const Surfel* surfel = nullptr;
+  FacingSide side;
+  Vec3f v;
+  float dist2 = 0.0f;
+  bool near = false;
+};
+
+// The surfel loop of every microbuffer gather: each surfel of `leaf` a receiver at p facing n
+// gathers, to `visit(const SeenSurfel&)`; those on the receiver's own surface are skipped and
+// counted, back sides counted.
+template <typename Visit>
+void forEachSeenSurfel(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
+                       float selfSkipRadius, float nearFieldFactor, GatherStats* stats,
+                       Visit&& visit) {
+  const float slack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
+  for (const Surfel& s : page.surfelsOf(leaf)) {
+    SeenSurfel seen{.surfel = &s};
+    if (skipSurfel(s, p, n, slack, selfSkipRadius, &seen.v, &seen.dist2)) {
+      ++stats->surfelsSkipped;
+      continue;
+    }
+    // Two-sided: the side facing the receiver, with its own radiance.
+    seen.side = facingSide(s, seen.v);
+    if (seen.side.back) ++stats->surfelsBackFacing;
+    seen.near = seen.dist2 < sqr(nearFieldFactor * s.radius);
+    visit(seen);
+  }
+}
+
+// A far surfel's disk from the receiver: the unit direction to it, its distance, and its solid
+// angle seen face-on times the cosine it is seen at.
+struct FarDisk {
+  Vec3f dir;
+  float distance = 0.0f;
+  float omega = 0.0f;
+};
+inline FarDisk farDisk(const SeenSurfel& seen) {
+  const float radius = seen.surfel->radius;
+  const float distance = std::sqrt(seen.dist2);
+  const Vec3f dir = seen.v / distance;
+  const float facing = -dot(dir, seen.side.normal);
+  const float sq = std::sqrt(seen.dist2 + radius * radius);
+  return {.dir = dir,
+          .distance = distance,
+          .omega = 2.0f * kPi * radius * radius * facing / (sq * (sq + distance))};
+}
+
 // The projected area of a node's front sides towards w (unit, from the node to the
 // receiver): its SH estimate held within what the normal cone allows, area * cos(angle to w)
 // between the cone's extremes. Band-2 SH overshoot a clamped cosine by 6 % face-on and ring

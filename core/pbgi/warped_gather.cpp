@@ -15,17 +15,7 @@ namespace pbgi {
 
 namespace {
 
-using gather_internal::clusterRadiance;
-using gather_internal::checkedResolution;
-using gather_internal::ClusterView;
-using gather_internal::clusterDepthExtent;
-using gather_internal::facingSide;
-using gather_internal::FacingSide;
-using gather_internal::kLayerExtentFactor;
-using gather_internal::kMaxExtentFactor;
-using gather_internal::NodeBounds;
-using gather_internal::skipSurfel;
-using gather_internal::viewCluster;
+using namespace gather_internal;
 
 constexpr int kMinResolution = 2;  // one pixel would have no corner inside the hemisphere
 // Warped corners this close to the horizon (z below it) are put on it: the cosine warp's rim
@@ -407,38 +397,27 @@ void WarpedGatherer::compose(int k, float distance, float extent, float coverage
 
 void WarpedGatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p,
                                    GatherStats* stats) {
-  const Vec3f& n = frame_.n;
-  const float slack = 1e-6f * maxAbsComponent(p);  // float rounding of coplanar positions
-  for (const Surfel& s : page.surfelsOf(leaf)) {
-    Vec3f v;
-    float dist2;
-    if (skipSurfel(s, p, n, slack, options_.selfSkipRadius, &v, &dist2)) {
-      ++stats->surfelsSkipped;
-      continue;
-    }
-    const FacingSide side = facingSide(s, v);
-    if (side.back) ++stats->surfelsBackFacing;
-    if (dist2 >= sqr(options_.nearFieldFactor * s.radius)) {
-      // The solid angle of the disk seen face-on times the cosine it is seen at.
-      const float distance = std::sqrt(dist2);
-      const Vec3f dir = v / distance;
-      const float facing = -dot(dir, side.normal);
-      const float sq = std::sqrt(dist2 + s.radius * s.radius);
-      const float omega = 2.0f * kPi * s.radius * s.radius * facing / (sq * (sq + distance));
-      const int k = pixelOfLocal(frame_.toLocal(dir));
-      if (k >= 0 && omega <= solidAngle_[k]) {
-        if (sampled_[k]) {
-          const float coverage = omega / solidAngle_[k];
-          compose(k, distance, kLayerExtentFactor * s.radius, coverage, side.radiance * coverage);
-          ++stats->disksSplatted;
+  forEachSeenSurfel(
+      page, leaf, p, frame_.n, options_.selfSkipRadius, options_.nearFieldFactor, stats,
+      [&](const SeenSurfel& seen) {
+        const Surfel& s = *seen.surfel;
+        if (!seen.near) {
+          const FarDisk far = farDisk(seen);
+          const int k = pixelOfLocal(frame_.toLocal(far.dir));
+          if (k >= 0 && far.omega <= solidAngle_[k]) {
+            if (sampled_[k]) {
+              const float coverage = far.omega / solidAngle_[k];
+              compose(k, far.distance, kLayerExtentFactor * s.radius, coverage,
+                      seen.side.radiance * coverage);
+              ++stats->disksSplatted;
+            }
+            return;
+          }
         }
-        continue;
-      }
-    }
-    // Near, larger than its pixel, or in none: exact, after the traversal.
-    rayCasts_.push_back({s.position, side.normal, s.radius, side.radiance});
-    ++stats->nearFieldRayCasts;
-  }
+        // Near, larger than its pixel, or in none: exact, after the traversal.
+        rayCasts_.push_back({s.position, seen.side.normal, s.radius, seen.side.radiance});
+        ++stats->nearFieldRayCasts;
+      });
 }
 
 absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, GatherStats* stats) {
