@@ -15,7 +15,7 @@ libboost-iostreams-dev libopencolorio-dev libtbb-dev
 libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libabsl-dev
 libsqlite3-dev libpqxx-dev postgresql-15 libassimp-dev libtomlplusplus-dev libcli11-dev
 libspdlog-dev libfmt-dev libzstd-dev libgtest-dev libgmock-dev libbenchmark-dev
-libcpp-httplib-dev libxxhash-dev slurm-wlm munge iproute2 chromium systemd
+libcpp-httplib-dev libxxhash-dev nlohmann-json3-dev slurm-wlm munge iproute2 chromium systemd
 "
 # The dashboard's browser test drives chromium with playwright-core, which npm installs from
 # tests/browser/package-lock.json. Debian's node and npm, unless a Node.js is already there (a

@@ -9,6 +9,7 @@
 #include <absl/strings/str_cat.h>
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include "formats/image/compare.h"
 #include "formats/image/image_io.h"
@@ -24,45 +25,39 @@ struct CompareOptions {
   bool json = false;
 };
 
-std::string jsonString(const std::string& s) {
-  std::string out = "\"";
-  for (const char ch : s) {
-    const auto c = static_cast<unsigned char>(ch);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += ch;
-    } else if (c < 0x20) {
-      out += fmt::format("\\u{:04x}", c);
-    } else {
-      out += ch;
-    }
-  }
-  return out + "\"";
-}
-
 // JSON has no NaN or infinity; null stands for both (PSNR of identical images, metrics of an
 // image with no finite pixel).
-std::string jsonNumber(double v) { return std::isfinite(v) ? fmt::format("{:.9g}", v) : "null"; }
+nlohmann::ordered_json number(double v) {
+  return std::isfinite(v) ? nlohmann::ordered_json(v) : nlohmann::ordered_json(nullptr);
+}
 
 std::string toJson(const CompareOptions& options, const Image& image, const ImageMetrics& m) {
   static constexpr const char* kNames[3] = {"R", "G", "B"};
-  std::string channels;
+  nlohmann::ordered_json channels = nlohmann::ordered_json::object();
   for (int c = 0; c < 3; ++c) {
     const ChannelMetrics& ch = m.channels[c];
-    absl::StrAppend(
-        &channels, c ? "," : "", "\"", kNames[c], "\":{\"mean\":", jsonNumber(ch.meanImage),
-        ",\"mean_reference\":", jsonNumber(ch.meanReference), ",\"rmse\":", jsonNumber(ch.rmse),
-        ",\"relmse\":", jsonNumber(ch.relMse), ",\"psnr\":", jsonNumber(ch.psnr), "}");
+    channels[kNames[c]] = {{"mean", number(ch.meanImage)},
+                           {"mean_reference", number(ch.meanReference)},
+                           {"rmse", number(ch.rmse)},
+                           {"relmse", number(ch.relMse)},
+                           {"psnr", number(ch.psnr)}};
   }
-  return absl::StrCat(
-      "{\"image\":", jsonString(options.image), ",\"reference\":", jsonString(options.reference),
-      ",\"width\":", image.width(), ",\"height\":", image.height(),
-      ",\"rmse\":", jsonNumber(m.rmse), ",\"relmse\":", jsonNumber(m.relMse),
-      ",\"psnr\":", jsonNumber(m.psnr), ",\"relmse_epsilon\":", jsonNumber(kRelMseEpsilon),
-      ",\"psnr_peak\":", jsonNumber(kPsnrPeak), ",\"compared_pixels\":", m.comparedPixels,
-      ",\"nonfinite_image\":", m.nonFiniteImage, ",\"nonfinite_reference\":", m.nonFiniteReference,
-      ",\"channels\":{", channels, "}",
-      options.diff.empty() ? "" : absl::StrCat(",\"diff\":", jsonString(options.diff)), "}");
+  nlohmann::ordered_json out = {{"image", options.image},
+                                {"reference", options.reference},
+                                {"width", image.width()},
+                                {"height", image.height()},
+                                {"rmse", number(m.rmse)},
+                                {"relmse", number(m.relMse)},
+                                {"psnr", number(m.psnr)},
+                                {"relmse_epsilon", number(kRelMseEpsilon)},
+                                {"psnr_peak", number(kPsnrPeak)},
+                                {"compared_pixels", m.comparedPixels},
+                                {"nonfinite_image", m.nonFiniteImage},
+                                {"nonfinite_reference", m.nonFiniteReference},
+                                {"channels", std::move(channels)}};
+  if (!options.diff.empty()) out["diff"] = options.diff;
+  // Paths that are not UTF-8 are printed with U+FFFD in place of the bytes that are not.
+  return out.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace);
 }
 
 void printTable(const CompareOptions& options, const Image& image, const ImageMetrics& m) {

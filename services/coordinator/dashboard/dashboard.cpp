@@ -12,6 +12,7 @@
 
 #include <fmt/format.h>
 #include <httplib.h>
+#include <nlohmann/json.hpp>
 
 #include "core/util/log.h"
 #include "core/util/status.h"
@@ -21,33 +22,20 @@
 
 namespace pbgi::farm {
 
-std::string jsonString(std::string_view text) {
-  std::string out = "\"";
-  out.reserve(text.size() + 2);
-  for (const char ch : text) {
-    switch (ch) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\r': out += "\\r"; break;
-      case '\t': out += "\\t"; break;
-      default:
-        if (static_cast<unsigned char>(ch) < 0x20) {
-          out += fmt::format("\\u{:04x}", static_cast<int>(ch));
-        } else {
-          out += ch;
-        }
-    }
-  }
-  return out + "\"";
-}
+namespace {
+
+// The API's JSON, in the order the fields are set. Text that is not UTF-8 (a worker's log) is
+// sent with U+FFFD in place of the bytes that are not.
+using Json = nlohmann::ordered_json;
+std::string dump(const Json& j) { return j.dump(-1, ' ', false, Json::error_handler_t::replace); }
+
+}  // namespace
+
+std::string jsonString(std::string_view text) { return dump(Json(std::string(text))); }
 
 namespace {
 
 using std::chrono::milliseconds;
-
-// A JSON number; NaN and infinities (which JSON lacks) are null.
-std::string jsonNumber(double v) { return std::isfinite(v) ? fmt::format("{}", v) : "null"; }
 
 void replyJson(httplib::Response& res, std::string body, int status = 200) {
   res.status = status;
@@ -64,7 +52,7 @@ void replyError(httplib::Response& res, const absl::Status& s) {
     case absl::StatusCode::kUnauthenticated: status = 401; break;
     default: break;
   }
-  replyJson(res, fmt::format("{{\"error\":{}}}", jsonString(std::string_view(s.message().data(), s.message().size()))), status);
+  replyJson(res, dump(Json{{"error", std::string(s.message())}}), status);
 }
 
 // An optional integer query parameter; InvalidArgument naming it when it is not one.
@@ -90,30 +78,37 @@ int totalTasks(const JobInfo& job) {
   return n;
 }
 
-std::string taskJson(const TaskInfo& t) {
-  return fmt::format(
-      "{{\"id\":{},\"kind\":\"{}\",\"frame\":{},\"tile\":{},\"state\":\"{}\",\"attempt\":{},"
-      "\"failures\":{},\"worker\":{},\"error\":{},\"progress\":{}}}",
-      t.id, toString(t.ref.kind), t.ref.frame, t.ref.tile, toString(t.state), t.attempt,
-      t.failures, jsonString(t.worker), jsonString(t.lastError), jsonNumber(t.progress));
+// A number, or null where JSON has none (NaN, infinities).
+Json number(double v) { return std::isfinite(v) ? Json(v) : Json(nullptr); }
+
+Json taskJson(const TaskInfo& t) {
+  return {{"id", t.id},
+          {"kind", toString(t.ref.kind)},
+          {"frame", t.ref.frame},
+          {"tile", t.ref.tile},
+          {"state", toString(t.state)},
+          {"attempt", t.attempt},
+          {"failures", t.failures},
+          {"worker", t.worker},
+          {"error", t.lastError},
+          {"progress", number(t.progress)}};
 }
 
-std::string auditJson(const AuditInfo& a) {
-  std::string tiles;
-  for (const int t : a.spec.tiles) tiles += fmt::format("{}{}", tiles.empty() ? "" : ",", t);
-  return fmt::format(
-      "{{\"state\":\"{}\",\"tiles\":[{}],\"spp\":{},\"threshold\":{},\"relMse\":{},"
-      "\"bias\":{},\"flagged\":{},\"worker\":{},\"error\":{}}}",
-      toString(a.state), tiles, a.spec.spp, jsonNumber(a.spec.threshold),
-      a.result ? jsonNumber(a.result->relMse) : "null",
-      a.result ? jsonNumber(a.result->bias) : "null", a.flagged(), jsonString(a.worker),
-      jsonString(a.lastError));
+Json auditJson(const AuditInfo& a) {
+  return {{"state", toString(a.state)},
+          {"tiles", a.spec.tiles},
+          {"spp", a.spec.spp},
+          {"threshold", number(a.spec.threshold)},
+          {"relMse", a.result ? number(a.result->relMse) : Json(nullptr)},
+          {"bias", a.result ? number(a.result->bias) : Json(nullptr)},
+          {"flagged", a.flagged()},
+          {"worker", a.worker},
+          {"error", a.lastError}};
 }
 
 // A job as the list shows it: state, counts, progress and the time left at the rate so far,
 // and how many of its frames' audits are done and flagged.
-std::string jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits,
-                           Seconds now) {
+Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, Seconds now) {
   int audited = 0, flagged = 0;
   for (const AuditInfo& a : audits) {
     audited += a.result.has_value();
@@ -122,39 +117,41 @@ std::string jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& aud
   const int total = totalTasks(job);
   const int done = job.tasksByState[static_cast<int>(TaskState::kDone)];
   const double progress = total > 0 ? double(done) / total : 0.0;
-  std::optional<double> eta;
+  Json eta = nullptr;
   if (job.state == JobState::kActive && done > 0 && now > job.submitted) {
-    eta = (now - job.submitted) * (total - done) / done;
+    eta = number((now - job.submitted) * (total - done) / done);
   }
-  std::string states;
+  Json states = Json::object();
   for (int s = 0; s < kTaskStateCount; ++s) {
-    if (s > 0) states += ',';
-    states += fmt::format("\"{}\":{}", toString(static_cast<TaskState>(s)), job.tasksByState[s]);
-  }
-  std::string frames;
-  for (size_t i = 0; i < job.spec.frames.size(); ++i) {
-    frames += fmt::format("{}{}", i ? "," : "", job.spec.frames[i]);
+    states[toString(static_cast<TaskState>(s))] = job.tasksByState[s];
   }
   // Every dead task of a large job would be megabytes: the first few, and how many.
-  std::string dead;
-  for (size_t i = 0; i < job.dead.size() && i < 20; ++i) {
-    dead += (i ? "," : "") + taskJson(job.dead[i]);
-  }
-  return fmt::format(
-      "{{\"id\":{},\"name\":{},\"state\":\"{}\",\"priority\":{},\"submitted\":{},\"frames\":[{}],"
-      "\"tilesPerFrame\":{},\"tasks\":{{{}}},\"total\":{},\"done\":{},\"progress\":{},\"eta\":{},"
-      "\"output\":{},\"deadCount\":{},\"dead\":[{}],\"audits\":{},\"audited\":{},"
-      "\"flagged\":{}}}",
-      job.id, jsonString(job.spec.name), toString(job.state), job.spec.priority,
-      jsonNumber(job.submitted), frames, job.spec.tileCount, states, total, done,
-      jsonNumber(progress), eta ? jsonNumber(*eta) : "null", jsonString(job.spec.outputPattern),
-      job.dead.size(), dead, audits.size(), audited, flagged);
+  Json dead = Json::array();
+  for (size_t i = 0; i < job.dead.size() && i < 20; ++i) dead.push_back(taskJson(job.dead[i]));
+  return {{"id", job.id},
+          {"name", job.spec.name},
+          {"state", toString(job.state)},
+          {"priority", job.spec.priority},
+          {"submitted", number(job.submitted)},
+          {"frames", job.spec.frames},
+          {"tilesPerFrame", job.spec.tileCount},
+          {"tasks", std::move(states)},
+          {"total", total},
+          {"done", done},
+          {"progress", number(progress)},
+          {"eta", std::move(eta)},
+          {"output", job.spec.outputPattern},
+          {"deadCount", job.dead.size()},
+          {"dead", std::move(dead)},
+          {"audits", audits.size()},
+          {"audited", audited},
+          {"flagged", flagged}};
 }
 
 // One job's frames: per frame its bake's and assemble's state and its tiles' states as one
 // string of digits (TaskState numbers, tile order), with where each tile lies in the view's
 // grid of tiles; and the tasks leased now. 4,096 tiles make about 40 kB.
-absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, Seconds now) {
+absl::StatusOr<Json> jobDetailJson(const DashboardParts& p, int64_t id, Seconds now) {
   PBGI_ASSIGN_OR_RETURN(const JobInfo info, p.store.job(id));
   PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, p.jobs.get(id));
   PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, p.store.tasks(id));
@@ -162,18 +159,17 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
   const int tileSize = p.jobs.tileSize();
   const int cols = (view->shot.width + tileSize - 1) / tileSize;
   const int rows = (view->shot.height + tileSize - 1) / tileSize;
-  std::string cells;
+  Json cells = Json::array();
   for (size_t t = 0; t < view->tiles.size(); ++t) {
     const TileRect r = view->tiles[t].empty() ? TileRect{} : view->tiles[t].front();
-    const int col = (r.x0 % std::max(view->shot.width, 1)) / tileSize;
-    const int row = (r.y0 % std::max(view->shot.height, 1)) / tileSize;
-    cells += fmt::format("{}{},{}", t ? "," : "", col, row);
+    cells.push_back((r.x0 % std::max(view->shot.width, 1)) / tileSize);
+    cells.push_back((r.y0 % std::max(view->shot.height, 1)) / tileSize);
   }
   struct Frame {
     char bake = 0, assemble = 0;
     std::string tiles;
     int done = 0;
-    std::string audit = "null";
+    Json audit = nullptr;
   };
   std::map<int, Frame> frames;
   for (const int f : info.spec.frames) {
@@ -182,7 +178,7 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
   for (const AuditInfo& a : audits) {
     if (auto it = frames.find(a.spec.frame); it != frames.end()) it->second.audit = auditJson(a);
   }
-  std::string leased;
+  Json leased = Json::array();
   for (const TaskInfo& t : tasks) {
     auto it = frames.find(t.ref.frame);
     if (it == frames.end()) continue;
@@ -197,26 +193,33 @@ absl::StatusOr<std::string> jobDetailJson(const DashboardParts& p, int64_t id, S
         }
         break;
     }
-    if (t.state == TaskState::kLeased) leased += (leased.empty() ? "" : ",") + taskJson(t);
+    if (t.state == TaskState::kLeased) leased.push_back(taskJson(t));
   }
-  std::string framesJson;
+  const auto code = [](char c) { return c ? Json(std::string(1, c)) : Json(nullptr); };
+  Json framesJson = Json::array();
   for (const auto& [f, fr] : frames) {
-    const auto code = [](char c) { return c ? fmt::format("\"{}\"", c) : std::string("null"); };
-    framesJson += fmt::format(
-        "{}{{\"frame\":{},\"bake\":{},\"assemble\":{},\"tiles\":\"{}\",\"done\":{},"
-        "\"output\":{},\"audit\":{}}}",
-        framesJson.empty() ? "" : ",", f, code(fr.bake), code(fr.assemble), fr.tiles, fr.done,
-        jsonString(JobViews::frameOutput(*view, f)), fr.audit);
+    framesJson.push_back({{"frame", f},
+                          {"bake", code(fr.bake)},
+                          {"assemble", code(fr.assemble)},
+                          {"tiles", fr.tiles},
+                          {"done", fr.done},
+                          {"output", JobViews::frameOutput(*view, f)},
+                          {"audit", fr.audit}});
   }
-  return fmt::format(
-      "{{\"job\":{},\"tileSize\":{},\"width\":{},\"height\":{},\"views\":[{},{}],\"cols\":{},"
-      "\"rows\":{},\"cells\":[{}],\"frames\":[{}],\"leased\":[{}]}}",
-      jobSummaryJson(info, audits, now), tileSize, view->shot.width, view->shot.height,
-      view->shot.camera.views.x, view->shot.camera.views.y, cols, rows, cells, framesJson, leased);
+  return Json{{"job", jobSummaryJson(info, audits, now)},
+              {"tileSize", tileSize},
+              {"width", view->shot.width},
+              {"height", view->shot.height},
+              {"views", {view->shot.camera.views.x, view->shot.camera.views.y}},
+              {"cols", cols},
+              {"rows", rows},
+              {"cells", std::move(cells)},
+              {"frames", std::move(framesJson)},
+              {"leased", std::move(leased)}};
 }
 
-absl::StatusOr<std::string> taskDetailJson(const DashboardParts& p, int64_t job,
-                                           const httplib::Request& req) {
+absl::StatusOr<Json> taskDetailJson(const DashboardParts& p, int64_t job,
+                                    const httplib::Request& req) {
   PBGI_ASSIGN_OR_RETURN(const std::optional<int> frame, intParam(req, "frame"));
   PBGI_ASSIGN_OR_RETURN(const std::optional<int> tileParam, intParam(req, "tile"));
   if (!frame) return absl::InvalidArgumentError("a task needs its frame: ?frame=F");
@@ -232,39 +235,44 @@ absl::StatusOr<std::string> taskDetailJson(const DashboardParts& p, int64_t job,
   }
   PBGI_ASSIGN_OR_RETURN(const std::vector<TaskEvent> events,
                         p.store.events(job, *frame, std::optional<int>(tile)));
-  std::string eventsJson;
+  Json eventsJson = Json::array();
   for (const TaskEvent& e : events) {
     if (e.task != it->id) continue;
-    eventsJson += fmt::format(
-        "{}{{\"time\":{},\"attempt\":{},\"worker\":{},\"event\":{},\"text\":{}}}",
-        eventsJson.empty() ? "" : ",", jsonNumber(e.time), e.attempt, jsonString(e.worker),
-        jsonString(e.event), jsonString(e.text));
+    eventsJson.push_back({{"time", number(e.time)},
+                          {"attempt", e.attempt},
+                          {"worker", e.worker},
+                          {"event", e.event},
+                          {"text", e.text}});
   }
-  return fmt::format("{{\"task\":{},\"events\":[{}]}}", taskJson(*it), eventsJson);
+  return Json{{"task", taskJson(*it)}, {"events", std::move(eventsJson)}};
 }
 
-absl::StatusOr<std::string> workersJson(const DashboardParts& p, Seconds now) {
+absl::StatusOr<Json> workersJson(const DashboardParts& p, Seconds now) {
   PBGI_ASSIGN_OR_RETURN(const std::vector<WorkerInfo> registered, p.store.workers());
   const std::map<std::string, WorkerActivity> seen = p.activity.workers();
-  std::string out;
+  Json workers = Json::array();
   for (const WorkerInfo& w : registered) {
     const auto it = seen.find(w.id);
     const WorkerActivity a = it == seen.end() ? WorkerActivity{} : it->second;
-    std::string held;
-    for (const HeldFrame& h : a.held) {
-      held += fmt::format("{}[{},{}]", held.empty() ? "" : ",", h.job, h.frame);
-    }
-    out += fmt::format(
-        "{}{{\"id\":{},\"host\":{},\"cores\":{},\"memoryBytes\":{},\"cacheBytes\":{},"
-        "\"registered\":{},\"lastHeard\":{},\"held\":[{}],\"current\":{},\"progress\":{},"
-        "\"tasksDone\":{},\"tasksFailed\":{},\"cacheHits\":{},\"cacheMisses\":{},"
-        "\"treeBytesStreamed\":{}}}",
-        out.empty() ? "" : ",", jsonString(w.id), jsonString(w.host), w.cores, w.memoryBytes,
-        w.cacheBytes, jsonNumber(w.lastSeen), jsonNumber(std::max(a.lastHeard, w.lastSeen)),
-        held, jsonString(a.current), jsonNumber(a.progress), a.tasksDone, a.tasksFailed, a.cacheHits,
-        a.cacheMisses, a.treeBytesStreamed);
+    Json held = Json::array();
+    for (const HeldFrame& h : a.held) held.push_back({h.job, h.frame});
+    workers.push_back({{"id", w.id},
+                       {"host", w.host},
+                       {"cores", w.cores},
+                       {"memoryBytes", w.memoryBytes},
+                       {"cacheBytes", w.cacheBytes},
+                       {"registered", number(w.lastSeen)},
+                       {"lastHeard", number(std::max(a.lastHeard, w.lastSeen))},
+                       {"held", std::move(held)},
+                       {"current", a.current},
+                       {"progress", number(a.progress)},
+                       {"tasksDone", a.tasksDone},
+                       {"tasksFailed", a.tasksFailed},
+                       {"cacheHits", a.cacheHits},
+                       {"cacheMisses", a.cacheMisses},
+                       {"treeBytesStreamed", a.treeBytesStreamed}});
   }
-  return fmt::format("{{\"now\":{},\"workers\":[{}]}}", jsonNumber(now), out);
+  return Json{{"now", number(now)}, {"workers", std::move(workers)}};
 }
 
 // The frame's preview: its tiles done so far (or the assembled frame).
@@ -358,24 +366,25 @@ void addDashboard(httplib::Server& http, const DashboardParts& parts) {
     auto jobs = p->store.jobs();
     if (!jobs.ok()) return replyError(res, jobs.status());
     const Seconds now = wallClock();
-    std::string list;
+    Json list = Json::array();
     for (const JobInfo& j : *jobs) {
       auto audits = p->store.audits(j.id);
       if (!audits.ok()) return replyError(res, audits.status());
-      list += (list.empty() ? "" : ",") + jobSummaryJson(j, *audits, now);
+      list.push_back(jobSummaryJson(j, *audits, now));
     }
-    replyJson(res, fmt::format("{{\"version\":{},\"now\":{},\"jobs\":[{}]}}",
-                               p->activity.version(), jsonNumber(now), list));
+    replyJson(res, dump(Json{{"version", p->activity.version()},
+                             {"now", number(now)},
+                             {"jobs", std::move(list)}}));
   });
   http.Get(R"(/api/jobs/(\d+))", [p](const httplib::Request& req, httplib::Response& res) {
     auto json = jobDetailJson(*p, pathId(req), wallClock());
     if (!json.ok()) return replyError(res, json.status());
-    replyJson(res, *std::move(json));
+    replyJson(res, dump(*json));
   });
   http.Get(R"(/api/jobs/(\d+)/task)", [p](const httplib::Request& req, httplib::Response& res) {
     auto json = taskDetailJson(*p, pathId(req), req);
     if (!json.ok()) return replyError(res, json.status());
-    replyJson(res, *std::move(json));
+    replyJson(res, dump(*json));
   });
   http.Get(R"(/api/jobs/(\d+)/frames/(-?\d+)/preview\.png)",
            [p](const httplib::Request& req, httplib::Response& res) {
@@ -390,7 +399,7 @@ void addDashboard(httplib::Server& http, const DashboardParts& parts) {
   http.Get("/api/workers", [p](const httplib::Request&, httplib::Response& res) {
     auto json = workersJson(*p, wallClock());
     if (!json.ok()) return replyError(res, json.status());
-    replyJson(res, *std::move(json));
+    replyJson(res, dump(*json));
   });
   auto streams = std::make_shared<std::atomic<int>>(0);
   http.Get("/api/events", [p, streams](const httplib::Request&, httplib::Response& res) {
