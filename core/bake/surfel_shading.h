@@ -63,7 +63,7 @@ bool needsWavelets(const Material& material, float tolerance = kShLobeTolerance)
 float shLobeError(const Material& material);
 
 // The direct light a glossy or refractive surfel sends out, in every direction, as wavelets
-// (issue 14's first stage; wavelet.h): `lightSamples` samples of the scene's lights at its
+// (wavelet.h): `lightSamples` samples of the scene's lights at its
 // centre (each lighting the side it arrives on, with its shadow ray), and the material's BSDF
 // (albedo looked up) from each towards every texel of an n x n cube map, in the frame of the
 // surfel's normal (its winding side: a dielectric's outside). Rough lobes only: a smooth

@@ -28,12 +28,12 @@
 // radiance or back power, version 2 no ghosts):
 //   u32 node count, u32 child-reference count, u32 surfel count, u32 exact count, u8 encoding (0 float,
 //   1 quantized, 2 quantized with 8-bit indices; plus 0x80 when quantized surfel radii are
-//   over their leaf's largest side, as every quantized page written since the stability
-//   suite found absolute half radii lost below 6e-5 units), 6 x f32 page bounds (min xyz, max xyz),
+//   over their leaf's largest side: absolute half-float radii lose precision below 6e-5
+//   units), 6 x f32 page bounds (min xyz, max xyz),
 //   then the node records, the child references (u32 page, u32 index each), the surfel
 //   records, and the float SH of exact nodes (area 9 x f32, power 27 x f32 each, in node
 //   order). Record sizes below.
-// Wavelet section (optional, its own version; issue 14): when the payload runs on past the
+// Wavelet section (optional, its own version): when the payload runs on past the
 //   exact SH, the rest is u32 magic 0x56574250 ("PBWV"), u16 section version (1), u32 entry
 //   count, then per node that has a wavelet vector, in node order:
 //   u32 node index (ghosts too, whose vectors keep only the faces' averages), u8 log2 of

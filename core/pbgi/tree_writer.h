@@ -26,7 +26,7 @@
 
 namespace pbgi {
 
-// Glossy light as wavelets (issue 14; Wang et al. 2015, section 3.1). `leaf` is called for
+// Glossy light as wavelets (Wang et al. 2015, section 3.1). `leaf` is called for
 // each leaf holding a glossy or transmissive surfel (by MaterialClass), with the leaf's
 // surfels (triangles as sampled) and a key unique to the leaf within the tree (its post-order
 // index, the same whatever the threads); it returns the leaf's wavelet intensity (W/sr by

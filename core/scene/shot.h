@@ -1,5 +1,5 @@
 #pragma once
-// The in-memory form of a shot file (../shared/spec/shot.md). The TOML parser that fills it
+// The in-memory form of a shot file (README, "Shot files"). The TOML parser that fills it
 // lives in formats/shot; everything here is plain data plus keyframe evaluation.
 
 #include <cstdint>

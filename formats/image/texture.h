@@ -20,8 +20,8 @@ namespace pbgi {
 //
 // evaluate(uv) is bilinear, without MIP-mapping, periodic in u and v, with v = 0 at the
 // bottom row (OBJ convention). Texels are decoded to linear before they are blended, as the
-// reference renders were made (Cycles, "bilinear in linear space":
-// ../shared/scenes/SOURCES.md): the file's "oiio:ColorSpace" says how (sRGB, linear, or a
+// reference renders were made (Cycles, "bilinear in linear space"):
+// the file's "oiio:ColorSpace" says how (sRGB, linear, or a
 // PNG gAMA power law); without one, integer formats are sRGB and float formats linear.
 // One- and two-channel images are grey (plus alpha); alpha is ignored.
 absl::StatusOr<std::shared_ptr<const Texture>> loadImageTexture(const std::string& path);

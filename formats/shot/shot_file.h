@@ -1,5 +1,5 @@
 #pragma once
-// Strict loading of shot files (../shared/spec/shot.md) with toml++. Every unknown key, wrong
+// Strict loading of shot files (README, "Shot files") with toml++. Every unknown key, wrong
 // type, out-of-range value or missing file is an InvalidArgument (or NotFound) error whose
 // message starts with "file:line:column:" and says what was expected.
 

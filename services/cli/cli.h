@@ -1,5 +1,5 @@
 #pragma once
-// The `pbgi` command line (../shared/spec/cli.md). Exit status: 0 success, 1 the work failed,
+// The `pbgi` command line (README, "Commands"). Exit status: 0 success, 1 the work failed,
 // 2 bad usage or bad input. Errors go to stderr as "pbgi: error: ...".
 
 #include <functional>

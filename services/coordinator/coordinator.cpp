@@ -539,8 +539,8 @@ absl::Status Coordinator::Impl::listen() {
   builder.SetMaxReceiveMessageSize(64 << 20);
   // gRPC's sync server keeps 1 to 2 idle polling threads by default, starts a thread for each
   // call it takes beyond them and ends it afterwards: with handlers that wait on a group commit,
-  // a thread made and unmade per call (perf: clone, mprotect, munmap). Keeping more idle ones
-  // took farm_bench's leases from 5,169-5,762 to 6,223-7,364 a second (three pairs of runs).
+  // a thread made and unmade per call (perf: clone, mprotect, munmap). More idle ones keep
+  // lease round trips from paying for a thread each (farm_bench measures them; README).
   builder.SetSyncServerOption(grpc::ServerBuilder::SyncServerOption::MIN_POLLERS, 16);
   builder.SetSyncServerOption(grpc::ServerBuilder::SyncServerOption::MAX_POLLERS, 256);
   server = builder.BuildAndStart();
