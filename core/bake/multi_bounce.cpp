@@ -62,12 +62,12 @@ absl::Status writeIrradiance(SpillFile& spill, std::span<const SurfelIrradiance>
 
 }  // namespace
 
-absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats) {
+absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats) {
   if (auto s = request.sorted->rewind(); !s.ok()) return s;
   if (request.previous != nullptr) {
     if (auto s = request.previous->rewind(); !s.ok()) return s;
   }
-  SurfelBouncer bouncer(request.cut, request.receiverSpacing);
+  BounceGatherer bouncer(request.cut, request.receiverSpacing);
   std::vector<SortedSurfel> batch;
   std::vector<Surfel> chunk;
   std::vector<SurfelIrradiance> previous, added, total;

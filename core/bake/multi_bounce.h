@@ -4,7 +4,7 @@
 // of kBounceBatchSurfels at a time.
 //
 // Bounce k gathers, for every surfel, the irradiance on its two sides from the tree of the
-// light bounce k - 1 added (the direct light's tree for the first), with a SurfelBouncer over
+// light bounce k - 1 added (the direct light's tree for the first), with a BounceGatherer over
 // groups of kBounceChunkSurfels consecutive surfels whose random numbers are keyed by (seed,
 // frame, bounce, the group's first surfel): the result does not depend on threads, budget or
 // batch size. It keeps each surfel's irradiance so far in a spill (the last bounce's plus its
@@ -54,12 +54,12 @@ struct BounceRequest {
   size_t groupsTogether = 1;       // groups whose cuts sweep the tree together
   size_t batchSurfels = kBounceBatchSurfels;  // read at a time: a multiple of the group's size
   std::function<void(uint64_t done, uint64_t total)> progress;
-  uint64_t* shutSides = nullptr;   // adds the records' sides not gathered: shut (SurfelBouncer)
+  uint64_t* shutSides = nullptr;  // adds the records' sides not gathered: shut (BounceGatherer)
 };
 
 // One bounce for every surfel. Returns the power it reflects (what its light adds). Errors:
 // the spills', the cuts' (a damaged tree, a page the source cannot give).
-absl::StatusOr<Rgb> bounceSurfels(const BounceRequest& request, CutStats* stats);
+absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats);
 
 // Every surfel of `sorted` with its direct light plus albedo / pi of E_K + (E_K - E_{K-1}) tail
 // on each side (E_K: `last`, the irradiance after the last bounce; E_{K-1}: `previous`, or

@@ -39,7 +39,7 @@ int bounceReceiverSpacing(int first, int bounce) {
   return static_cast<int>(std::min<int64_t>(kMaxBounceSpacing, spacing));
 }
 
-SurfelBouncer::SurfelBouncer(const CutOptions& options, int receiverSpacing)
+BounceGatherer::BounceGatherer(const CutOptions& options, int receiverSpacing)
     : options_(options), receiverSpacing_(receiverSpacing) {
   PBGI_CHECK_GE(receiverSpacing, 1);
 }
@@ -53,8 +53,8 @@ uint64_t cellKey(const std::array<int32_t, 3>& c) {
 
 }  // namespace
 
-void SurfelBouncer::makePatches(std::span<const Surfel> surfels, size_t first, size_t end,
-                                Patches& out) const {
+void BounceGatherer::makePatches(std::span<const Surfel> surfels, size_t first, size_t end,
+                                 Patches& out) const {
   out.recordOf.clear();
   out.cellOf.clear();
   out.inCell.clear();
@@ -114,9 +114,9 @@ void SurfelBouncer::makePatches(std::span<const Surfel> surfels, size_t first, s
   }
 }
 
-void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const Patches& patches,
-                           const Side& front, const Side& back,
-                           std::span<SurfelIrradiance> irradiance) const {
+void BounceGatherer::spread(std::span<const Surfel> surfels, size_t first, const Patches& patches,
+                            const Side& front, const Side& back,
+                            std::span<SurfelIrradiance> irradiance) const {
   const float reach = kRecordReachCells * patches.cell;
   for (size_t at = 0; at < patches.patchOf.size(); ++at) {
     const uint32_t own = patches.patchOf[at];
@@ -156,12 +156,12 @@ void SurfelBouncer::spread(std::span<const Surfel> surfels, size_t first, const 
   }
 }
 
-absl::Status SurfelBouncer::gather(TreePageSource& tree, const Scene& scene,
-                                   std::span<const Surfel> surfels, size_t groupSize,
-                                   std::span<const uint64_t> keys, size_t groupsTogether,
-                                   std::span<SurfelIrradiance> irradiance, CutStats* stats,
-                                   std::span<const SurfelIrradiance> previous,
-                                   uint64_t* shutSides) {
+absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
+                                    std::span<const Surfel> surfels, size_t groupSize,
+                                    std::span<const uint64_t> keys, size_t groupsTogether,
+                                    std::span<SurfelIrradiance> irradiance, CutStats* stats,
+                                    std::span<const SurfelIrradiance> previous,
+                                    uint64_t* shutSides) {
   PBGI_CHECK_GT(groupSize, size_t{0});
   PBGI_CHECK_EQ(irradiance.size(), surfels.size());
   PBGI_CHECK(previous.empty() || previous.size() == surfels.size());

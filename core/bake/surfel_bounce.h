@@ -81,9 +81,9 @@ inline constexpr float kPatchNormalCos = 0.95f;
 inline constexpr float kRecordReachCells = 1.5f;
 
 // Gathers for the surfels of a bake, reusing its buffers.
-class SurfelBouncer {
+class BounceGatherer {
  public:
-  explicit SurfelBouncer(const CutOptions& options, int receiverSpacing = kBounceReceiverSpacing);
+  explicit BounceGatherer(const CutOptions& options, int receiverSpacing = kBounceReceiverSpacing);
 
   // irradiance[i] = what surfels[i]'s two sides gather from `tree` (black for surfels that
   // reflect nothing). The surfels fall in groups of `groupSize` consecutive ones (the last

@@ -149,8 +149,8 @@ absl::Status validatePbgi(const RenderSettings& r) {
   return s.cut.validate();
 }
 
-TreeNeeds pbgiTreeNeeds(const RenderSettings& r) {
-  TreeNeeds t;
+TreeSettings pbgiTreeSettings(const RenderSettings& r) {
+  TreeSettings t;
   t.cacheBytes = static_cast<size_t>(r.params.intOr("cache_mb", 256)) << 20;
   // Both gathers sweep the tree's pages in step: the cut across a unit's blocks, per-pixel
   // gathers across a batch of a tile's.
@@ -209,11 +209,12 @@ const std::vector<IntegratorInfo>& registry() {
           .needsTree = false,
           .validate = [](const RenderSettings&) { return absl::OkStatus(); },
           .create = createPath,
-          .treeNeeds = nullptr,
-          .describe = [](const RenderSettings& r) {
-            return fmt::format("path(max_depth={} roulette_depth={})", r.maxDepth,
-                               r.rouletteDepth);
-          },
+          .treeSettings = nullptr,
+          .describe =
+              [](const RenderSettings& r) {
+                return fmt::format("path(max_depth={} roulette_depth={})", r.maxDepth,
+                                   r.rouletteDepth);
+              },
       },
       IntegratorInfo{
           .name = "pbgi",
@@ -227,7 +228,7 @@ const std::vector<IntegratorInfo>& registry() {
               [](const IntegratorContext& c) {
                 return makePbgiIntegrator(c.scene, *c.tree, pbgiSettings(c.settings));
               },
-          .treeNeeds = pbgiTreeNeeds,
+          .treeSettings = pbgiTreeSettings,
           .describe = describePbgi,
       },
   };

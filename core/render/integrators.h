@@ -26,7 +26,7 @@
 namespace pbgi {
 
 // What an integrator that renders from a frame's baked PBGI tree needs of it.
-struct TreeNeeds {
+struct TreeSettings {
   size_t cacheBytes = size_t{256} << 20;  // the page cache's budget
   PageCachePolicy cachePolicy = PageCachePolicy::kLeastUsed;  // what suits the traversal
   uint64_t bakePoints = 0;                 // surfels; 0: the baker's default
@@ -54,7 +54,7 @@ struct IntegratorInfo {
   // Only with settings that validate (and a tree when needsTree).
   std::function<std::unique_ptr<Integrator>(const IntegratorContext&)> create;
   // needsTree integrators: the page cache and the bake their settings ask for.
-  std::function<TreeNeeds(const RenderSettings&)> treeNeeds;
+  std::function<TreeSettings(const RenderSettings&)> treeSettings;
   // A line for logs and EXR metadata: the gather and its thresholds.
   std::function<std::string(const RenderSettings&)> describe;
 

@@ -58,7 +58,7 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
     if (tree == nullptr || i.name == shot.render.integrator) tree = &i;
   }
   PBGI_CHECK(tree != nullptr);
-  const TreeNeeds needs = tree->treeNeeds(shot.render);
+  const TreeSettings needs = tree->treeSettings(shot.render);
   FrameBakeRequest request;
   request.frame = frame;
   request.points = needs.bakePoints;
@@ -187,7 +187,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
       request.progress(fmt::format("bounce {} of {}", bounce.bounce, request.bounces), done, total);
     };
   }
-  auto reflected = bounceSurfels(bounce, &report->bounceCut);
+  auto reflected = runBounce(bounce, &report->bounceCut);
   if (!reflected.ok()) return reflected.status();
   *power = *reflected;
   const PageCacheCounters c = cache.counters();

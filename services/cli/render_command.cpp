@@ -63,7 +63,7 @@ std::string percent(uint64_t part, uint64_t whole) {
 void printTreeReport(const TreeReadReport& t) {
   std::printf("tree %s (%s)\n", t.treePath.c_str(), t.baked ? "baked now" : "reused");
   if (t.baked) std::printf("%s", formatStages(t.bakeStages).c_str());
-  std::printf("  gather: %s\n", t.gather.c_str());
+  std::printf("  gather: %s\n", t.integratorDescription.c_str());
   std::printf("  cache: budget %.1f MiB, %s\n", t.cacheBudget / 1048576.0,
               t.cache.toString().c_str());
   std::printf(

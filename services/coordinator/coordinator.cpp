@@ -22,9 +22,9 @@
 #include "services/coordinator/farm_auth.h"
 #include "services/coordinator/farm_service.h"
 #include "services/coordinator/file_service.h"
-#include "services/coordinator/job_views.h"
 #include "services/coordinator/lease_reaper.h"
 #include "services/coordinator/page_service.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/coordinator/status_report.h"
 #include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
@@ -52,7 +52,7 @@ std::optional<int> optionalTile(const auto& request) {
 // Every call that reaches one bore the farm token (farm_auth.h checks it before any handler).
 class FarmService final : public v1::Coordinator::Service {
  public:
-  FarmService(const CoordinatorOptions& options, JobStore& store, JobViews& jobs,
+  FarmService(const CoordinatorOptions& options, JobStore& store, ParsedJobCache& jobs,
               PageService& pages, CoordinatorMetrics& metrics, FarmActivity& activity)
       : options_(options),
         store_(store),
@@ -325,13 +325,13 @@ class FarmService final : public v1::Coordinator::Service {
   absl::Status planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
                           const IntegratorInfo& integrator, JobSpec* spec) const;
   grpc::Status completeAudit(const v1::CompleteTaskRequest& request);
-  void describeLease(const Lease& lease, const JobView& view, v1::LeaseTaskResponse* out) const;
-  void describeAudit(const AuditLease& audit, const JobView& view,
+  void describeLease(const Lease& lease, const ParsedJob& view, v1::LeaseTaskResponse* out) const;
+  void describeAudit(const AuditLease& audit, const ParsedJob& view,
                      v1::LeaseTaskResponse* out) const;
 
   const CoordinatorOptions& options_;
   JobStore& store_;
-  JobViews& jobs_;
+  ParsedJobCache& jobs_;
   PageService& pages_;
   CoordinatorMetrics& metrics_;
   FarmActivity& activity_;
@@ -420,7 +420,7 @@ grpc::Status FarmService::completeAudit(const v1::CompleteTaskRequest& request) 
 }
 
 // What a worker needs to audit a frame: the shot, the assembled frame, the tiles and samples.
-void FarmService::describeAudit(const AuditLease& audit, const JobView& view,
+void FarmService::describeAudit(const AuditLease& audit, const ParsedJob& view,
                                 v1::LeaseTaskResponse* response) const {
   const JobSpec& spec = view.spec;
   response->set_has_task(true);
@@ -434,7 +434,7 @@ void FarmService::describeAudit(const AuditLease& audit, const JobView& view,
   response->set_shot_text(spec.shotText);
   for (const std::string& o : splitOverrides(spec.overrides)) response->add_overrides(o);
   response->set_work_dir(jobs_.workDir(audit.job));
-  response->set_output_path(JobViews::frameOutput(view, audit.spec.frame));
+  response->set_output_path(ParsedJobCache::frameOutput(view, audit.spec.frame));
   for (const int t : audit.spec.tiles) response->add_audit_tiles(t);
   response->set_audit_spp(audit.spec.spp);
   response->set_lease_seconds(options_.leaseSeconds);
@@ -443,7 +443,7 @@ void FarmService::describeAudit(const AuditLease& audit, const JobView& view,
 }
 
 // What a worker needs to run the leased task: the shot, where its result goes, its tile.
-void FarmService::describeLease(const Lease& l, const JobView& view,
+void FarmService::describeLease(const Lease& l, const ParsedJob& view,
                                 v1::LeaseTaskResponse* response) const {
   const JobSpec& spec = view.spec;
   response->set_has_task(true);
@@ -478,7 +478,7 @@ void FarmService::describeLease(const Lease& l, const JobView& view,
       break;
     }
     case TaskKind::kAssemble:
-      response->set_output_path(JobViews::frameOutput(view, l.ref.frame));
+      response->set_output_path(ParsedJobCache::frameOutput(view, l.ref.frame));
       break;
   }
   response->set_lease_seconds(options_.leaseSeconds);
@@ -489,7 +489,7 @@ void FarmService::describeLease(const Lease& l, const JobView& view,
 }  // namespace
 
 std::unique_ptr<v1::Coordinator::Service> makeFarmService(const CoordinatorOptions& options,
-                                                          JobStore& store, JobViews& jobs,
+                                                          JobStore& store, ParsedJobCache& jobs,
                                                           PageService& pages,
                                                           CoordinatorMetrics& metrics,
                                                           FarmActivity& activity) {
@@ -501,7 +501,7 @@ struct Coordinator::Impl {
   CoordinatorOptions options;
   std::unique_ptr<JobStore> store;
   std::shared_ptr<CoordinatorMetrics> metrics;  // shared with the token check (farm_auth.h)
-  std::unique_ptr<JobViews> jobs;
+  std::unique_ptr<ParsedJobCache> jobs;
   std::unique_ptr<PageService> pages;
   FarmActivity activity;
   std::unique_ptr<FramePreviews> previews;
@@ -620,9 +620,9 @@ absl::StatusOr<std::unique_ptr<Coordinator>> Coordinator::start(const Coordinato
                                 : options.store;
   PBGI_ASSIGN_OR_RETURN(impl->store, openJobStore(store, options.retry));
   impl->metrics = std::make_shared<CoordinatorMetrics>(*impl->store);
-  impl->jobs =
-      std::make_unique<JobViews>(*impl->store, impl->options.stateDir,
-                                 options.tileSize > 0 ? options.tileSize : kDefaultFarmTileSize);
+  impl->jobs = std::make_unique<ParsedJobCache>(
+      *impl->store, impl->options.stateDir,
+      options.tileSize > 0 ? options.tileSize : kDefaultFarmTileSize);
   impl->pages = std::make_unique<PageService>(*impl->jobs, *impl->metrics);
   impl->service = std::make_unique<FarmService>(impl->options, *impl->store, *impl->jobs,
                                                 *impl->pages, *impl->metrics, impl->activity);

@@ -5,7 +5,7 @@
 //   coordinator.cpp        the RPCs (requests into store calls), start and shutdown
 //   farm_auth.h            the token check on every call, before any RPC runs
 //   farm_tls.h             TLS: the certificates, the clients' trust, handshake failures
-//   job_views.h            each job's parsed shot, kept
+//   parsed_job_cache.h     each job's parsed shot, kept
 //   status_report.h        a job's status for GetStatus and /status
 //   page_service.h         trees a page at a time for workers that cannot see the job folder
 //   lease_reaper.h         expired leases reclaimed

@@ -10,15 +10,15 @@
 #include "services/coordinator/coordinator.h"
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/farm_activity.h"
-#include "services/coordinator/job_views.h"
 #include "services/coordinator/page_service.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 
 // Every argument must outlive the service.
 std::unique_ptr<v1::Coordinator::Service> makeFarmService(const CoordinatorOptions& options,
-                                                          JobStore& store, JobViews& jobs,
+                                                          JobStore& store, ParsedJobCache& jobs,
                                                           PageService& pages,
                                                           CoordinatorMetrics& metrics,
                                                           FarmActivity& activity);

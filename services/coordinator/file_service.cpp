@@ -16,7 +16,7 @@ namespace fs = std::filesystem;
 
 absl::StatusOr<std::string> FileService::pathOf(int64_t job, v1::FileKind kind, int frame,
                                                 int tile) {
-  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, jobs_.get(job));
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const ParsedJob> view, jobs_.get(job));
   if (std::find(view->spec.frames.begin(), view->spec.frames.end(), frame) ==
       view->spec.frames.end()) {
     return absl::NotFoundError(fmt::format("job {} has no frame {}", job, frame));
@@ -33,9 +33,9 @@ absl::StatusOr<std::string> FileService::pathOf(int64_t job, v1::FileKind kind, 
     case v1::FILE_KIND_TREE:
       return jobTreePath(view->shot, workDir, frame);
     case v1::FILE_KIND_FRAME:
-      return JobViews::frameOutput(*view, frame);
+      return ParsedJobCache::frameOutput(*view, frame);
     case v1::FILE_KIND_PREVIEW:
-      return fs::path(JobViews::frameOutput(*view, frame)).replace_extension(".png").string();
+      return fs::path(ParsedJobCache::frameOutput(*view, frame)).replace_extension(".png").string();
     default:
       return absl::InvalidArgumentError(fmt::format("file kind {}: not one this coordinator "
                                                     "keeps", static_cast<int>(kind)));

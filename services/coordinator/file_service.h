@@ -10,14 +10,14 @@
 #include <absl/status/statusor.h>
 
 #include "pbgi/farm/v1/farm.pb.h"
-#include "services/coordinator/job_views.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 
 class FileService {
  public:
-  FileService(JobStore& store, JobViews& jobs) : store_(store), jobs_(jobs) {}
+  FileService(JobStore& store, ParsedJobCache& jobs) : store_(store), jobs_(jobs) {}
 
   // `next` reads the upload's next chunk (false: no more). Returns the file's path.
   absl::StatusOr<std::string> put(const std::function<bool(v1::PutFileChunk*)>& next);
@@ -30,7 +30,7 @@ class FileService {
 
  private:
   JobStore& store_;
-  JobViews& jobs_;
+  ParsedJobCache& jobs_;
 };
 
 }  // namespace pbgi::farm

@@ -9,11 +9,11 @@
 
 namespace pbgi::farm {
 
-PageService::PageService(JobViews& jobs, CoordinatorMetrics& metrics)
+PageService::PageService(ParsedJobCache& jobs, CoordinatorMetrics& metrics)
     : jobs_(jobs), metrics_(metrics) {}
 
 absl::StatusOr<std::shared_ptr<const PageFileReader>> PageService::tree(int64_t job, int frame) {
-  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, jobs_.get(job));
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const ParsedJob> view, jobs_.get(job));
   PBGI_ASSIGN_OR_RETURN(const std::string path, jobTreePath(view->shot, jobs_.workDir(job), frame));
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0) {

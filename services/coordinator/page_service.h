@@ -18,13 +18,13 @@
 #include "formats/pbgi/page_file.h"
 #include "pbgi/farm/v1/farm.pb.h"
 #include "services/coordinator/coordinator_metrics.h"
-#include "services/coordinator/job_views.h"
+#include "services/coordinator/parsed_job_cache.h"
 
 namespace pbgi::farm {
 
 class PageService {
  public:
-  PageService(JobViews& jobs, CoordinatorMetrics& metrics);
+  PageService(ParsedJobCache& jobs, CoordinatorMetrics& metrics);
 
   absl::Status openTree(const v1::OpenTreeRequest& request, v1::OpenTreeResponse* response);
   // `write` sends a chunk; false when the worker went away (the rest is not read).
@@ -45,7 +45,7 @@ class PageService {
     bool operator==(const FileKey&) const = default;
   };
 
-  JobViews& jobs_;
+  ParsedJobCache& jobs_;
   CoordinatorMetrics& metrics_;
   std::mutex mutex_;
   std::vector<std::pair<FileKey, std::shared_ptr<const PageFileReader>>> open_;  // oldest first

@@ -34,7 +34,7 @@ void fillAudit(const AuditInfo& a, v1::FrameAudit* out) {
   out->set_attempt(a.attempt);
 }
 
-absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& views,
+absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, ParsedJobCache& views,
                                                    const v1::GetStatusRequest& request) {
   std::vector<JobInfo> infos;
   if (request.job() != 0) {
@@ -62,7 +62,7 @@ absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& vi
     for (const TaskInfo& t : tasks) {
       fillTask(t, job->add_tasks());
       if (view.ok() && t.ref.kind == TaskKind::kAssemble && t.state == TaskState::kDone) {
-        job->add_outputs(JobViews::frameOutput(**view, t.ref.frame));
+        job->add_outputs(ParsedJobCache::frameOutput(**view, t.ref.frame));
       }
     }
   }

@@ -5,13 +5,13 @@
 #include <absl/status/statusor.h>
 
 #include "pbgi/farm/v1/farm.pb.h"
-#include "services/coordinator/job_views.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/job_store/job_store.h"
 
 namespace pbgi::farm {
 
 // request.job() 0: every job.
-absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, JobViews& views,
+absl::StatusOr<v1::GetStatusResponse> statusReport(JobStore& store, ParsedJobCache& views,
                                                    const v1::GetStatusRequest& request);
 
 // One task's status: its kind and state as enums and as v1's words.

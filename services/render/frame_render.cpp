@@ -136,9 +136,9 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   std::shared_ptr<TreeFile> treeFile;
   std::optional<PageCache> cache;
   if (info->needsTree) {
-    const TreeNeeds needs = info->treeNeeds(settings);
+    const TreeSettings needs = info->treeSettings(settings);
     TreeReadReport& tree = report.tree.emplace();
-    tree.gather = info->describe(settings);
+    tree.integratorDescription = info->describe(settings);
     PBGI_ASSIGN_OR_RETURN(treeFile,
                           frameTree(shot, settings, request, *frameScene->scene, &tree));
     clock.lap(tree.baked ? "bake" : "tree");
@@ -173,7 +173,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   if (!request.regions.empty()) image->setMetadata("pbgi/regions", regionsText(request.regions));
   if (report.tree) {
     image->setMetadata("pbgi/tree", report.tree->treePath);
-    image->setMetadata("pbgi/gather", report.tree->gather);
+    image->setMetadata("pbgi/gather", report.tree->integratorDescription);
   }
 
   report.exrPath = request.outPath.empty()

@@ -59,7 +59,7 @@ struct TreeReadReport {
   uint64_t pagesRead = 0;      // distinct pages the render loaded
   uint64_t pagesInFile = 0;
   uint64_t fileBytes = 0;
-  std::string gather;          // the integrator's description: its gather and thresholds
+  std::string integratorDescription;  // its gather and thresholds
 };
 
 struct FrameRenderReport {

@@ -187,7 +187,7 @@ absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, co
   run.renderSeconds = stageSeconds(report->stages, "render");
   run.bakeSeconds = stageSeconds(report->stages, "bake");
   run.counters = report->counters;
-  run.settings = report->tree ? report->tree->gather : run.integrator;
+  run.settings = report->tree ? report->tree->integratorDescription : run.integrator;
   if (tree) *tree = report->tree;
   // What was written, read back: the numbers are about the file a user gets.
   auto image = readImage(request.outPath);

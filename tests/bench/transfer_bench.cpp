@@ -8,7 +8,7 @@
 //     gathers pi times the cosine-weighted share of its hemisphere that geometry covers.
 //   --light direct: the surfels lit by the shot's lights, as a bake's first bounce sees them,
 //     against the direct light that the surfaces the rays meet reflect.
-//   --light bounce: the bake's own first bounce (SurfelBouncer) at surfels in runs along the
+//   --light bounce: the bake's own first bounce (BounceGatherer) at surfels in runs along the
 //     Morton curve, both sides, against rays; sides shut in by geometry (every ray meets dark
 //     geometry: the insides of walls) apart, as they should gather nothing.
 // Rays (--rays per receiver, cosine-weighted) measure the exact answer: the ratio is the
@@ -174,7 +174,7 @@ void printByNearest(std::span<const RayGather> rays, std::span<const Rgb> brute,
   }
 }
 
-// The bake's own first bounce (SurfelBouncer: surfel receivers, a cut per side) at random
+// The bake's own first bounce (BounceGatherer: surfel receivers, a cut per side) at random
 // diffuse surfels, against rays from the same points: the irradiance on both sides, from the
 // direct light the surfaces the rays meet reflect.
 int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& surfels,
@@ -220,7 +220,7 @@ int runBounce(const Args& args, const Scene& scene, const std::vector<Surfel>& s
     printByNearest(rays, brute, surfels.front().radius, false, isShut);
   }
   for (const char* preset : {"draft", "default", "high"}) {
-    SurfelBouncer bouncer(*cutPreset(preset), /*receiverSpacing=*/1);
+    BounceGatherer bouncer(*cutPreset(preset), /*receiverSpacing=*/1);
     std::vector<SurfelIrradiance> e(picked.size());
     const size_t groupSize = run;
     std::vector<uint64_t> keys((picked.size() + groupSize - 1) / groupSize);

@@ -53,9 +53,9 @@
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/farm_activity.h"
 #include "services/coordinator/farm_service.h"
-#include "services/coordinator/job_views.h"
 #include "services/coordinator/lease_reaper.h"
 #include "services/coordinator/page_service.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/farm/job_rules.h"
 #include "services/job_store/job_store.h"
 #include "tests/fuzz/shot_fuzz_input.h"
@@ -120,7 +120,7 @@ class FarmFuzzCoordinator {
     }
     store_ = *std::move(store);
     metrics_ = std::make_unique<farm::CoordinatorMetrics>(*store_);
-    jobs_ = std::make_unique<farm::JobViews>(*store_, options_.stateDir, options_.tileSize);
+    jobs_ = std::make_unique<farm::ParsedJobCache>(*store_, options_.stateDir, options_.tileSize);
     pages_ = std::make_unique<farm::PageService>(*jobs_, *metrics_);
     service_ = farm::makeFarmService(options_, *store_, *jobs_, *pages_, *metrics_, activity_);
   }
@@ -316,7 +316,7 @@ class FarmFuzzCoordinator {
   farm::CoordinatorOptions options_;
   std::unique_ptr<farm::JobStore> store_;
   std::unique_ptr<farm::CoordinatorMetrics> metrics_;
-  std::unique_ptr<farm::JobViews> jobs_;
+  std::unique_ptr<farm::ParsedJobCache> jobs_;
   std::unique_ptr<farm::PageService> pages_;
   farm::FarmActivity activity_;
   std::unique_ptr<v1::Coordinator::Service> service_;

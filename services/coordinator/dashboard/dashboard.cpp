@@ -153,7 +153,7 @@ Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, Se
 // grid of tiles; and the tasks leased now. 4,096 tiles make about 40 kB.
 absl::StatusOr<Json> jobDetailJson(const DashboardParts& p, int64_t id, Seconds now) {
   PBGI_ASSIGN_OR_RETURN(const JobInfo info, p.store.job(id));
-  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, p.jobs.get(id));
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const ParsedJob> view, p.jobs.get(id));
   PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, p.store.tasks(id));
   PBGI_ASSIGN_OR_RETURN(const std::vector<AuditInfo> audits, p.store.audits(id));
   const int tileSize = p.jobs.tileSize();
@@ -203,7 +203,7 @@ absl::StatusOr<Json> jobDetailJson(const DashboardParts& p, int64_t id, Seconds 
                           {"assemble", code(fr.assemble)},
                           {"tiles", fr.tiles},
                           {"done", fr.done},
-                          {"output", JobViews::frameOutput(*view, f)},
+                          {"output", ParsedJobCache::frameOutput(*view, f)},
                           {"audit", fr.audit}});
   }
   return Json{{"job", jobSummaryJson(info, audits, now)},
@@ -277,7 +277,7 @@ absl::StatusOr<Json> workersJson(const DashboardParts& p, Seconds now) {
 
 // The frame's preview: its tiles done so far (or the assembled frame).
 absl::StatusOr<std::string> framePreview(const DashboardParts& p, int64_t job, int frame) {
-  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const JobView> view, p.jobs.get(job));
+  PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const ParsedJob> view, p.jobs.get(job));
   PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, p.store.tasks(job));
   std::vector<int> done;
   bool assembled = false;

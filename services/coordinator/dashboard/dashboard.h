@@ -24,8 +24,8 @@
 
 #include "services/coordinator/dashboard/frame_previews.h"
 #include "services/coordinator/farm_activity.h"
-#include "services/coordinator/job_views.h"
 #include "services/coordinator/metrics.h"
+#include "services/coordinator/parsed_job_cache.h"
 #include "services/job_store/job_store.h"
 
 namespace httplib {
@@ -36,7 +36,7 @@ namespace pbgi::farm {
 
 struct DashboardParts {
   JobStore& store;
-  JobViews& jobs;
+  ParsedJobCache& jobs;
   FarmActivity& activity;
   FramePreviews& previews;
   metrics::Counter& refused;

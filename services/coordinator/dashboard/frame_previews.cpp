@@ -15,7 +15,7 @@ namespace pbgi::farm {
 FramePreviews::FramePreviews(std::string ocioConfig, int maxEdge, size_t keep)
     : ocioConfig_(std::move(ocioConfig)), maxEdge_(maxEdge), keep_(keep) {}
 
-FramePreviews::Canvas& FramePreviews::canvas(Key key, const JobView& view) {
+FramePreviews::Canvas& FramePreviews::canvas(Key key, const ParsedJob& view) {
   recent_.remove(key);
   recent_.push_front(key);
   while (recent_.size() > keep_) {
@@ -70,7 +70,7 @@ absl::StatusOr<std::string> FramePreviews::encode(const Canvas& c, const std::st
   return encodePreviewPng(image, what, ocioConfig_);
 }
 
-absl::StatusOr<std::string> FramePreviews::frame(int64_t job, const JobView& view,
+absl::StatusOr<std::string> FramePreviews::frame(int64_t job, const ParsedJob& view,
                                                  const std::string& workDir, int frame,
                                                  bool assembled,
                                                  const std::vector<int>& doneTiles) {
@@ -78,7 +78,7 @@ absl::StatusOr<std::string> FramePreviews::frame(int64_t job, const JobView& vie
   Canvas& c = canvas({job, frame}, view);
   const std::string what = fmt::format("job {} frame {}", job, frame);
   if (assembled && !c.assembled) {
-    const std::string path = JobViews::frameOutput(view, frame);
+    const std::string path = ParsedJobCache::frameOutput(view, frame);
     PBGI_ASSIGN_OR_RETURN(const Image image, readImage(path));
     std::fill(c.sum.begin(), c.sum.end(), 0.0f);
     std::fill(c.count.begin(), c.count.end(), 0.0f);

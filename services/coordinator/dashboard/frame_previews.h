@@ -16,7 +16,7 @@
 
 #include <absl/status/statusor.h>
 
-#include "services/coordinator/job_views.h"
+#include "services/coordinator/parsed_job_cache.h"
 
 namespace pbgi::farm {
 
@@ -27,7 +27,7 @@ class FramePreviews {
 
   // The frame's PNG: its assembled output when `assembled`, else its tiles in `doneTiles`
   // (indices into view.tiles) over black. NotFound when there is nothing to show yet.
-  absl::StatusOr<std::string> frame(int64_t job, const JobView& view, const std::string& workDir,
+  absl::StatusOr<std::string> frame(int64_t job, const ParsedJob& view, const std::string& workDir,
                                     int frame, bool assembled, const std::vector<int>& doneTiles);
   // One done tile's PNG, its rectangles stacked as in its file.
   absl::StatusOr<std::string> tile(const std::string& workDir, int frame, int tile);
@@ -44,7 +44,7 @@ class FramePreviews {
   };
   using Key = std::pair<int64_t, int>;  // job, frame
 
-  Canvas& canvas(Key key, const JobView& view);
+  Canvas& canvas(Key key, const ParsedJob& view);
   static void draw(Canvas& c, const Image& image, const FarmTile& rects);
   absl::StatusOr<std::string> encode(const Canvas& c, const std::string& what);
 

@@ -1,4 +1,4 @@
-// The bake's bounce records (SurfelBouncer with receiverSpacing > 1): a record stands for a
+// The bake's bounce records (BounceGatherer with receiverSpacing > 1): a record stands for a
 // patch of surfels on one surface, and no surfel reads light from a surface facing another way.
 
 #include <gtest/gtest.h>
@@ -51,7 +51,7 @@ class SurfelBounceRecords : public ::testing::Test {
 TEST_F(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
   const auto bounce = [&](int spacing, CutStats* stats) {
     std::vector<SurfelIrradiance> e(n);
-    SurfelBouncer bouncer(CutOptions{}, spacing);
+    BounceGatherer bouncer(CutOptions{}, spacing);
     EXPECT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, e, stats).ok());
     return e;
   };
@@ -104,7 +104,7 @@ TEST_F(SurfelBounceRecords, StandForPatchesAndNeverReadAcrossAWall) {
 // room, the sides facing into the walls or out of the rooms) are shut and not gathered again,
 // and the lit room gathers what it gathers with every side gathering.
 TEST_F(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
-  SurfelBouncer bouncer(CutOptions{});
+  BounceGatherer bouncer(CutOptions{});
   std::vector<SurfelIrradiance> first(n), open(n), shut(n);
   CutStats stats;
   ASSERT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, first, &stats).ok());

@@ -17,7 +17,7 @@
 
 namespace pbgi::farm {
 
-struct JobView {
+struct ParsedJob {
   JobSpec spec;
   ShotDesc shot;
   // The frame's farm tiles (farmTiles of the shot at the coordinator's tile size), computed
@@ -26,26 +26,26 @@ struct JobView {
   std::vector<FarmTile> tiles;
 };
 
-class JobViews {
+class ParsedJobCache {
  public:
   // `stateDir` absolute; tileSize > 0.
-  JobViews(JobStore& store, std::string stateDir, int tileSize);
+  ParsedJobCache(JobStore& store, std::string stateDir, int tileSize);
 
   // The job's view, read from the store and parsed at the first call.
-  absl::StatusOr<std::shared_ptr<const JobView>> get(int64_t job);
+  absl::StatusOr<std::shared_ptr<const ParsedJob>> get(int64_t job);
 
   int tileSize() const { return tileSize_; }
   // <state>/jobs/<job>: its bakes and tiles.
   std::string workDir(int64_t job) const;
   // The frame's EXR under the output root.
-  static std::string frameOutput(const JobView& view, int frame);
+  static std::string frameOutput(const ParsedJob& view, int frame);
 
  private:
   JobStore& store_;
   const std::string stateDir_;
   const int tileSize_;
   std::mutex mutex_;
-  std::unordered_map<int64_t, std::shared_ptr<const JobView>> views_;
+  std::unordered_map<int64_t, std::shared_ptr<const ParsedJob>> views_;
 };
 
 }  // namespace pbgi::farm
