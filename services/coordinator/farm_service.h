@@ -7,8 +7,8 @@
 #include <memory>
 
 #include "pbgi/farm/v1/farm.grpc.pb.h"
-#include "services/coordinator/coordinator.h"
 #include "services/coordinator/coordinator_metrics.h"
+#include "services/coordinator/coordinator_options.h"
 #include "services/coordinator/farm_activity.h"
 #include "services/coordinator/page_service.h"
 #include "services/coordinator/parsed_job_cache.h"
