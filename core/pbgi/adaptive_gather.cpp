@@ -448,24 +448,12 @@ absl::Status AdaptiveGatherer::refineByLight(TreePageSource& tree, const Vec3f& 
 
 void AdaptiveGatherer::rayCast(const Vec3f& p) {
   for (const Disk& d : rayCasts_) {
-    const Vec3f v = d.center - p;
-    const float distance = length(v);
-    const float planeDistance = dot(v, d.normal);  // < 0: the receiver is in front
-    // Rays that hit the disk lie in the cone around its centre holding its bounding sphere.
-    const float sinAngle = d.radius / distance;
-    const float cosAngle = sinAngle < 1.0f ? std::sqrt(1.0f - sinAngle * sinAngle) : -1.0f;
-    const Vec3f axis = v / distance;
-    const float r2 = d.radius * d.radius;
+    const DiskHitTest disk(d.center, d.normal, d.radius, p);
     for (const int32_t c : leaves_) {
       Cell& cell = cells_[c];
       if (!cell.active || isBlack(cell.weight)) continue;
-      const Vec3f& w = cell.dir;
-      if (dot(w, axis) < cosAngle) continue;
-      const float denom = dot(w, d.normal);
-      if (!(denom < 0.0f)) continue;
-      const float t = planeDistance / denom;
-      if ((w * t - v).length2() > r2) continue;
-      cell.pixel.compose(t, d.radius, 1.0f, d.radiance);
+      float t;
+      if (disk.hit(cell.dir, &t)) cell.pixel.compose(t, d.radius, 1.0f, d.radiance);
     }
   }
 }

@@ -144,6 +144,34 @@ void forEachSeenSurfel(const TreePage& page, const TreeNode& leaf, const Vec3f& 
   }
 }
 
+// A near disk (centre, normal, radius) as rays from a receiver at p meet it, for the gathers
+// that ray-cast near disks after their traversal. Rays that hit it lie in the cone around its
+// centre holding its bounding sphere (every ray, from inside the sphere).
+class DiskHitTest {
+ public:
+  DiskHitTest(const Vec3f& center, const Vec3f& normal, float radius, const Vec3f& p)
+      : v_(center - p), normal_(normal) {
+    const float distance = length(v_);
+    planeDistance_ = dot(v_, normal);  // < 0: the receiver is in front
+    const float sinAngle = radius / distance;
+    cosAngle_ = sinAngle < 1.0f ? std::sqrt(1.0f - sinAngle * sinAngle) : -1.0f;
+    axis_ = v_ / distance;
+    r2_ = radius * radius;
+  }
+  // Whether the ray from p along unit w meets the disk's front, at distance *t.
+  bool hit(const Vec3f& w, float* t) const {
+    if (dot(w, axis_) < cosAngle_) return false;
+    const float denom = dot(w, normal_);
+    if (!(denom < 0.0f)) return false;
+    *t = planeDistance_ / denom;
+    return !((w * *t - v_).length2() > r2_);
+  }
+
+ private:
+  Vec3f v_, normal_, axis_;
+  float planeDistance_ = 0.0f, cosAngle_ = 0.0f, r2_ = 0.0f;
+};
+
 // A far surfel's disk from the receiver: the unit direction to it, its distance, and its solid
 // angle seen face-on times the cosine it is seen at.
 struct FarDisk {

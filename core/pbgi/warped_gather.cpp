@@ -456,23 +456,11 @@ absl::Status WarpedGatherer::traverse(TreePageSource& tree, const Vec3f& p, Gath
 void WarpedGatherer::rayCast(const Vec3f& p) {
   const int pixels = n_ * n_;
   for (const Disk& d : rayCasts_) {
-    const Vec3f v = d.center - p;
-    const float distance = length(v);
-    const float planeDistance = dot(v, d.normal);  // < 0: the receiver is in front
-    // Rays that hit the disk lie in the cone around its centre holding its bounding sphere
-    // (every ray, from inside the sphere). Black pixels have a zero direction: never hit.
-    const float sinAngle = d.radius / distance;
-    const float cosAngle = sinAngle < 1.0f ? std::sqrt(1.0f - sinAngle * sinAngle) : -1.0f;
-    const Vec3f axis = v / distance;
-    const float r2 = d.radius * d.radius;
+    // Black pixels have a zero direction: never hit.
+    const DiskHitTest disk(d.center, d.normal, d.radius, p);
     for (int k = 0; k < pixels; ++k) {
-      const Vec3f& w = dirWorld_[k];
-      if (dot(w, axis) < cosAngle) continue;
-      const float denom = dot(w, d.normal);
-      if (!(denom < 0.0f)) continue;
-      const float t = planeDistance / denom;
-      if ((w * t - v).length2() > r2) continue;
-      compose(k, t, d.radius, 1.0f, d.radiance);
+      float t;
+      if (disk.hit(dirWorld_[k], &t)) compose(k, t, d.radius, 1.0f, d.radiance);
     }
   }
 }
