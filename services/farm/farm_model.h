@@ -29,7 +29,7 @@ enum class TaskState {
   kCancelled = 5
 };
 // How many task states there are, and a value per state indexed by TaskState.
-inline constexpr int kTaskStateCount = 6;
+inline constexpr int kTaskStateCount = static_cast<int>(TaskState::kCancelled) + 1;
 template <typename T>
 using PerTaskState = std::array<T, kTaskStateCount>;
 enum class JobState { kActive = 0, kDone = 1, kFailed = 2, kCancelled = 3 };
