@@ -31,8 +31,6 @@ std::string dump(const Json& j) { return j.dump(-1, ' ', false, Json::error_hand
 
 }  // namespace
 
-std::string jsonString(std::string_view text) { return dump(Json(std::string(text))); }
-
 namespace {
 
 using std::chrono::milliseconds;

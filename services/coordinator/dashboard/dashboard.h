@@ -49,7 +49,4 @@ struct DashboardParts {
 // Adds the page, its files and the API to `http`. The parts outlive the server.
 void addDashboard(httplib::Server& http, const DashboardParts& parts);
 
-// A JSON string literal of `text` (quotes, escapes, control characters as \u00XX).
-std::string jsonString(std::string_view text);
-
 }  // namespace pbgi::farm

@@ -4,6 +4,7 @@
 // speaks as soon as something changes.
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <httplib.h>
 
@@ -19,14 +20,6 @@ namespace pbgi::farm {
 namespace {
 
 using pbgi::testing::CoordinatorTest;
-
-TEST(JsonString, EscapesWhatJsonMust) {
-  EXPECT_EQ(jsonString("plain"), "\"plain\"");
-  EXPECT_EQ(jsonString("a \"quoted\" \\ path"), R"("a \"quoted\" \\ path")");
-  EXPECT_EQ(jsonString("line\nnext\ttab\r"), R"("line\nnext\ttab\r")");
-  EXPECT_EQ(jsonString(std::string("nul\0bell\a", 9)), R"("nul\u0000bell\u0007")");
-  EXPECT_EQ(jsonString("caf\xc3\xa9"), "\"caf\xc3\xa9\"");  // UTF-8 passes through
-}
 
 class DashboardTest : public CoordinatorTest {
  protected:
@@ -89,6 +82,22 @@ TEST_F(DashboardTest, AJobsFramesAreOneStateStringEachWithTheirTilesPlaces) {
   ASSERT_TRUE(task);
   EXPECT_EQ(task->status, 200) << task->body;
   EXPECT_NE(task->body.find("\"event\":\"leased\""), std::string::npos) << task->body;
+
+  // What a worker says comes back as JSON whatever it holds: quotes, backslashes, line breaks,
+  // control characters.
+  const std::string error = std::string("a \"quoted\" \\ path\nnext\ttab\x01 caf\xc3\xa9");
+  v1::FailTaskRequest fail;
+  fail.set_worker("w-test");
+  fail.set_task(leased->task());
+  fail.set_attempt(leased->attempt());
+  fail.set_error(error);
+  ASSERT_TRUE(client_->failTask(fail).ok());
+  task = c.Get(
+      fmt::format("/api/jobs/{}/task?frame={}&tile={}", job, leased->frame(), leased->tile()));
+  ASSERT_TRUE(task);
+  ASSERT_EQ(task->status, 200) << task->body;
+  const nlohmann::json parsed = nlohmann::json::parse(task->body);
+  EXPECT_EQ(parsed.at("task").at("error").get<std::string>(), error) << task->body;
 }
 
 TEST_F(DashboardTest, PbgiJobsAreAuditedByDefaultPathTracedOnesAreNotAndBadAuditsAreRefused) {
