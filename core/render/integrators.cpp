@@ -10,6 +10,7 @@
 #include "core/bake/surfel_bounce.h"
 #include "core/render/pbgi_integrator.h"
 #include "core/render/pbgi_receiver.h"
+#include "core/util/status.h"
 
 namespace pbgi {
 
@@ -285,15 +286,27 @@ std::vector<std::string_view> allParamKeys() {
   return keys;
 }
 
+namespace {
+
+absl::Status unknownParam(std::string_view key, const SourceLocation& where) {
+  return absl::InvalidArgumentError(
+      fmt::format("{}: unknown parameter '{}' (integrator parameters: {})", where.toString(), key,
+                  fmt::join(allParamKeys(), ", ")));
+}
+
+}  // namespace
+
 absl::Status setParamText(IntegratorParams& params, std::string_view key, std::string_view value,
                           const SourceLocation& where) {
   const ParamSpec* spec = findParam(key);
-  if (spec == nullptr) {
-    return absl::InvalidArgumentError(
-        fmt::format("{}: unknown parameter '{}' (integrator parameters: {})", where.toString(), key,
-                    fmt::join(allParamKeys(), ", ")));
-  }
+  if (spec == nullptr) return unknownParam(key, where);
   return params.setText(*spec, value, where);
+}
+
+absl::Status setParamValue(IntegratorParams& params, std::string_view key, ParamValue value) {
+  const ParamSpec* spec = findParam(key);
+  if (spec == nullptr) return unknownParam(key, value.where);
+  return params.set(*spec, std::move(value));
 }
 
 absl::Status validateRenderSettings(const RenderSettings& settings,
@@ -304,11 +317,7 @@ absl::Status validateRenderSettings(const RenderSettings& settings,
   for (const auto& [key, value] : settings.params.values()) {
     if ((*info)->param(key) != nullptr) continue;
     std::vector<std::string_view> owners;
-    if (findParam(key, &owners) == nullptr) {
-      return absl::InvalidArgumentError(
-          fmt::format("{}: unknown parameter '{}' (integrator parameters: {})",
-                      value.where.toString(), key, fmt::join(allParamKeys(), ", ")));
-    }
+    if (findParam(key, &owners) == nullptr) return unknownParam(key, value.where);
     if (unused) {
       unused->push_back(fmt::format("{}: '{}' is a parameter of {}, not of the {} integrator: "
                                     "ignored in this render",
@@ -317,6 +326,18 @@ absl::Status validateRenderSettings(const RenderSettings& settings,
     }
   }
   return (*info)->validate(settings);
+}
+
+absl::Status applyRenderOverrides(RenderSettings& settings, const RenderOverrides& overrides) {
+  if (!overrides.integrator.empty()) {
+    settings.integrator = overrides.integrator;
+    settings.integratorWhere = overrides.integratorWhere;
+  }
+  if (overrides.spp > 0) settings.spp = overrides.spp;
+  for (const auto& [key, value] : overrides.params.values()) {
+    PBGI_RETURN_IF_ERROR(setParamValue(settings.params, key, value));
+  }
+  return validateRenderSettings(settings);
 }
 
 }  // namespace pbgi

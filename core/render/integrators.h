@@ -80,12 +80,19 @@ std::vector<std::string_view> allParamKeys();
 // be declared by some integrator; `where` names the flag or override in errors.
 absl::Status setParamText(IntegratorParams& params, std::string_view key, std::string_view value,
                           const SourceLocation& where);
+// Sets a typed value (a farm job's, from its wire or its store): the key must be declared,
+// the value of its type and in its range.
+absl::Status setParamValue(IntegratorParams& params, std::string_view key, ParamValue value);
 
 // Full check of settings against the integrator they name: the integrator exists, and its
 // validate() passes. Parameters of other integrators are allowed (a PBGI shot rendered with
 // --integrator path keeps its PBGI settings); `unused` receives a warning for each.
 absl::Status validateRenderSettings(const RenderSettings& settings,
                                     std::vector<std::string>* unused = nullptr);
+
+// `overrides` applied to `settings`, then the full check above. The parameters' values were
+// checked against their declarations when they were set.
+absl::Status applyRenderOverrides(RenderSettings& settings, const RenderOverrides& overrides);
 
 // The PBGI integrator's counters (core/render/pbgi_receiver.h indexes them).
 std::span<const CounterSpec> pbgiCounterSpecs();

@@ -130,6 +130,21 @@ struct RenderSettings {
   IntegratorParams params;
 };
 
+// What a command line or a farm job changes of a shot's [render] settings. Typed: values are
+// parsed once, where they were written (a flag, a job's submission), and carried as values
+// from there, through the farm's wire and its store, to the render.
+struct RenderOverrides {
+  std::string integrator;  // empty: the shot's
+  SourceLocation integratorWhere;
+  int spp = 0;  // 0: the shot's
+  IntegratorParams params;
+
+  bool empty() const { return integrator.empty() && spp == 0 && params.empty(); }
+  bool operator==(const RenderOverrides& o) const {
+    return integrator == o.integrator && spp == o.spp && params == o.params;
+  }
+};
+
 struct ShotDesc {
   std::string path;  // the shot file, as given
   std::string dir;   // its folder; relative paths resolve against it

@@ -67,20 +67,19 @@ absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
   if (flags.auditTiles) request.set_audit_tiles(*flags.auditTiles);
   request.set_audit_spp(flags.auditSpp);
   request.set_audit_threshold(flags.auditThreshold);
-  if (!flags.integrator.empty()) request.add_overrides("integrator=" + flags.integrator);
-  if (flags.spp > 0) request.add_overrides(fmt::format("spp={}", flags.spp));
-  // Every integrator parameter the flags set, checked here as the coordinator will check it.
-  IntegratorParams params;
+  // The flags parsed once, here, and sent typed.
+  RenderOverrides overrides;
+  overrides.integrator = flags.integrator;
+  overrides.integratorWhere = {"--integrator"};
+  overrides.spp = flags.spp;
   PBGI_RETURN_IF_ERROR(integratorParamFlags(
-      flags.set, {{"gather", flags.gather}, {"quality", flags.quality}, {"cache_mb", flags.cacheMb}},
-      &params));
-  for (const auto& [key, value] : params.values()) {
-    request.add_overrides(fmt::format("{}={}", key, value.toString()));
-  }
+      flags.set,
+      {{"gather", flags.gather}, {"quality", flags.quality}, {"cache_mb", flags.cacheMb}},
+      &overrides.params));
   // The coordinator checks the same, but bad input is better caught before anything starts.
   ShotDesc overridden = shot;
-  PBGI_RETURN_IF_ERROR(farm::applyOverrides(
-      overridden, std::vector<std::string>(request.overrides().begin(), request.overrides().end())));
+  PBGI_RETURN_IF_ERROR(applyRenderOverrides(overridden.render, overrides));
+  *request.mutable_render() = farm::toWire(overrides);
   if (!flags.frames.empty()) {
     PBGI_ASSIGN_OR_RETURN(const std::vector<int> frames, parseFrameList(flags.frames));
     for (int f : frames) {

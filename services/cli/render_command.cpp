@@ -76,8 +76,9 @@ int runRender(const RenderOptions& o) {
   if (!shot.ok()) return reportError(shot.status());
   FrameRenderRequest request;
   request.frame = o.frame.value_or(shot->firstFrame);
-  request.integrator = o.integrator;
-  request.spp = o.spp;
+  request.overrides.integrator = o.integrator;
+  request.overrides.integratorWhere = {"--integrator"};
+  request.overrides.spp = o.spp;
   request.threads = o.threads;
   request.tileSize = o.tileSize;
   request.outPath = o.out;
@@ -88,7 +89,7 @@ int runRender(const RenderOptions& o) {
                                              {"max_solid_angle", o.maxSolidAngle},
                                              {"microbuffer_resolution", o.resolution},
                                              {"cache_mb", o.cacheMb}},
-                                            &request.params);
+                                            &request.overrides.params);
       !s.ok()) {
     return reportError(s);
   }

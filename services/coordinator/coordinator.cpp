@@ -339,14 +339,13 @@ class FarmService final : public v1::Coordinator::Service {
 };
 
 absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request) {
-  const std::vector<std::string> overrides(request.overrides().begin(), request.overrides().end());
-  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
-                        jobShot(request.shot_text(), request.shot_path(), overrides));
   JobSpec spec;
+  PBGI_ASSIGN_OR_RETURN(spec.overrides, submittedOverrides(request));
+  PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
+                        jobShot(request.shot_text(), request.shot_path(), spec.overrides));
   spec.name = shot.name;
   spec.shotPath = fs::absolute(request.shot_path()).lexically_normal().string();
   spec.shotText = request.shot_text();
-  spec.overrides = joinOverrides(overrides);
   spec.priority = request.priority();
   if (request.frames().empty()) {
     for (int f = shot.firstFrame; f <= shot.lastFrame; ++f) spec.frames.push_back(f);
@@ -419,6 +418,19 @@ grpc::Status FarmService::completeAudit(const v1::CompleteTaskRequest& request) 
   return grpc::Status::OK;
 }
 
+namespace {
+
+// The shot a leased task renders: its text and the job's overrides (typed, and as text for
+// workers from before the typed form).
+void describeShot(const JobSpec& spec, v1::LeaseTaskResponse* response) {
+  response->set_shot_path(spec.shotPath);
+  response->set_shot_text(spec.shotText);
+  *response->mutable_render() = toWire(spec.overrides);
+  for (const std::string& line : overrideLines(spec.overrides)) response->add_overrides(line);
+}
+
+}  // namespace
+
 // What a worker needs to audit a frame: the shot, the assembled frame, the tiles and samples.
 void FarmService::describeAudit(const AuditLease& audit, const ParsedJob& view,
                                 v1::LeaseTaskResponse* response) const {
@@ -430,9 +442,7 @@ void FarmService::describeAudit(const AuditLease& audit, const ParsedJob& view,
   response->set_job(audit.job);
   response->set_frame(audit.spec.frame);
   response->set_tile(-1);
-  response->set_shot_path(spec.shotPath);
-  response->set_shot_text(spec.shotText);
-  for (const std::string& o : splitOverrides(spec.overrides)) response->add_overrides(o);
+  describeShot(spec, response);
   response->set_work_dir(jobs_.workDir(audit.job));
   response->set_output_path(ParsedJobCache::frameOutput(view, audit.spec.frame));
   for (const int t : audit.spec.tiles) response->add_audit_tiles(t);
@@ -453,9 +463,7 @@ void FarmService::describeLease(const Lease& l, const ParsedJob& view,
   response->set_job(l.ref.job);
   response->set_frame(l.ref.frame);
   response->set_tile(l.ref.tile);
-  response->set_shot_path(spec.shotPath);
-  response->set_shot_text(spec.shotText);
-  for (const std::string& o : splitOverrides(spec.overrides)) response->add_overrides(o);
+  describeShot(spec, response);
   const std::string dir = jobs_.workDir(l.ref.job);
   response->set_work_dir(dir);
   switch (l.ref.kind) {

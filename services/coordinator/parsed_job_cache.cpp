@@ -16,8 +16,8 @@ absl::StatusOr<std::shared_ptr<const ParsedJob>> ParsedJobCache::get(int64_t job
   PBGI_ASSIGN_OR_RETURN(JobInfo info, store_.job(job));
   auto view = std::make_shared<ParsedJob>();
   view->spec = std::move(info.spec);
-  PBGI_ASSIGN_OR_RETURN(view->shot, jobShot(view->spec.shotText, view->spec.shotPath,
-                                            splitOverrides(view->spec.overrides)));
+  PBGI_ASSIGN_OR_RETURN(view->shot,
+                        jobShot(view->spec.shotText, view->spec.shotPath, view->spec.overrides));
   view->tiles = farmTiles(view->shot, tileSize_);
   std::lock_guard lock(mutex_);
   return views_.emplace(job, std::move(view)).first->second;

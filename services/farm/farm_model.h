@@ -17,6 +17,8 @@
 
 #include <absl/status/statusor.h>
 
+#include "core/scene/shot.h"
+
 namespace pbgi::farm {
 
 enum class TaskKind { kBake = 0, kTile = 1, kAssemble = 2 };
@@ -56,7 +58,7 @@ struct JobSpec {
   std::string name;               // the shot's name
   std::string shotPath;           // absolute path of the shot file, as the workers will read it
   std::string shotText;           // the shot file's bytes at submission (the job renders these)
-  std::string overrides;          // "key=value" lines (integrator, spp, ...), applied by workers
+  RenderOverrides overrides;      // of the shot's [render] settings, applied by workers
   std::string outputPattern;      // absolute; '#' runs are the frame number
   int priority = 0;               // higher first
   std::vector<int> frames;        // in order

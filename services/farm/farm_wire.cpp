@@ -2,6 +2,14 @@
 
 #include <utility>
 
+#include <absl/strings/str_split.h>
+#include <fmt/format.h>
+#include <google/protobuf/util/json_util.h>
+
+#include "core/render/integrators.h"
+#include "core/util/status.h"
+#include "services/farm/job_rules.h"
+
 namespace pbgi::farm {
 
 namespace {
@@ -160,6 +168,81 @@ void setState(JobState state, const PerTaskState<int>& tasksByState, v1::JobStat
     c->set_state(wire);
     c->set_count(count);
   }
+}
+
+v1::RenderOverrides toWire(const RenderOverrides& overrides) {
+  v1::RenderOverrides out;
+  out.set_integrator(overrides.integrator);
+  out.set_spp(overrides.spp);
+  for (const auto& [key, param] : overrides.params.values()) {
+    v1::ParamValue& value = (*out.mutable_params())[key];
+    if (const auto* i = std::get_if<int64_t>(&param.value)) {
+      value.set_int_value(*i);
+    } else if (const auto* d = std::get_if<double>(&param.value)) {
+      value.set_float_value(*d);
+    } else {
+      value.set_choice(std::get<std::string>(param.value));
+    }
+  }
+  return out;
+}
+
+absl::StatusOr<RenderOverrides> fromWire(const v1::RenderOverrides& overrides) {
+  RenderOverrides out;
+  out.integrator = overrides.integrator();
+  out.integratorWhere = {"job override integrator"};
+  if (overrides.spp() < 0 || overrides.spp() > kMaxOverrideSpp) {
+    return absl::InvalidArgumentError(
+        fmt::format("job override spp {}: expected a whole number in [1, {}] (or 0: the shot's)",
+                    overrides.spp(), kMaxOverrideSpp));
+  }
+  out.spp = overrides.spp();
+  for (const auto& [key, value] : overrides.params()) {
+    ParamValue param{.where = {fmt::format("job override {}", key)}};
+    switch (value.value_case()) {
+      case v1::ParamValue::kIntValue:
+        param.value = value.int_value();
+        break;
+      case v1::ParamValue::kFloatValue:
+        param.value = value.float_value();
+        break;
+      case v1::ParamValue::kChoice:
+        param.value = value.choice();
+        break;
+      default:
+        return absl::InvalidArgumentError(fmt::format(
+            "job override {}: no value (expected an integer, a number or a name)", key));
+    }
+    PBGI_RETURN_IF_ERROR(setParamValue(out.params, key, std::move(param)));
+  }
+  return out;
+}
+
+absl::StatusOr<RenderOverrides> submittedOverrides(const v1::SubmitJobRequest& request) {
+  if (request.has_render()) return fromWire(request.render());
+  return parseOverrideLines(
+      std::vector<std::string>(request.overrides().begin(), request.overrides().end()));
+}
+
+std::string toStoreText(const RenderOverrides& overrides) {
+  std::string json;
+  (void)google::protobuf::util::MessageToJsonString(toWire(overrides), &json);
+  return json;
+}
+
+absl::StatusOr<RenderOverrides> fromStoreText(std::string_view text) {
+  if (text.starts_with('{')) {
+    v1::RenderOverrides wire;
+    const auto parsed = google::protobuf::util::JsonStringToMessage(
+        google::protobuf::StringPiece(text.data(), text.size()), &wire);
+    if (!parsed.ok()) {
+      return absl::DataLossError(
+          fmt::format("stored overrides {}: {}", text, std::string(parsed.message())));
+    }
+    return fromWire(wire);
+  }
+  return parseOverrideLines(
+      absl::StrSplit(absl::string_view(text.data(), text.size()), '\n', absl::SkipEmpty()));
 }
 
 }  // namespace pbgi::farm

@@ -7,7 +7,11 @@
 #include <array>
 #include <optional>
 #include <string>
+#include <string_view>
 
+#include <absl/status/statusor.h>
+
+#include "core/scene/shot.h"
 #include "pbgi/farm/v1/farm.pb.h"
 #include "services/farm/farm_model.h"
 
@@ -53,5 +57,17 @@ void setKind(TaskKind kind, v1::LogEntry* out);
 void setEvent(TaskEventKind kind, v1::LogEntry* out);
 void setKindAndState(TaskKind kind, TaskState state, v1::TaskStatus* out);
 void setState(JobState state, const PerTaskState<int>& tasksByState, v1::JobStatus* out);
+
+// A job's overrides on the wire and back. Values keep their types; fromWire checks each
+// against its declaration (a declared key, its type, its range), as a value from a flag was.
+v1::RenderOverrides toWire(const RenderOverrides& overrides);
+absl::StatusOr<RenderOverrides> fromWire(const v1::RenderOverrides& overrides);
+// A submission's overrides: `render`, or a client's from before it, its "key=value" lines.
+absl::StatusOr<RenderOverrides> submittedOverrides(const v1::SubmitJobRequest& request);
+
+// A job's overrides as the job stores keep them: the wire message in protobuf's JSON. Reading
+// also takes a store's from before they were typed ("key=value" lines).
+std::string toStoreText(const RenderOverrides& overrides);
+absl::StatusOr<RenderOverrides> fromStoreText(std::string_view text);
 
 }  // namespace pbgi::farm

@@ -6,7 +6,6 @@
 #include <numeric>
 
 #include <absl/strings/numbers.h>
-#include <absl/strings/str_split.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <xxhash.h>
@@ -39,39 +38,27 @@ absl::StatusOr<std::string> jobTreePath(const ShotDesc& shot, const std::string&
   return bakeTreePath(shot, bake);
 }
 
-namespace {
-
-template <typename T>
-absl::StatusOr<T> overrideNumber(const std::string& key, const std::string& value, T lo, T hi) {
-  T parsed{};
-  if (!absl::SimpleAtoi(value, &parsed) || parsed < lo || parsed > hi) {
-    return absl::InvalidArgumentError(fmt::format(
-        "override {}={}: expected a whole number in [{}, {}]", key, value, lo, hi));
-  }
-  return parsed;
-}
-
-}  // namespace
-
-absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides) {
-  RenderSettings& r = shot.render;
-  for (const std::string& line : overrides) {
+absl::StatusOr<RenderOverrides> parseOverrideLines(const std::vector<std::string>& lines) {
+  RenderOverrides overrides;
+  for (const std::string& line : lines) {
     const size_t eq = line.find('=');
     if (eq == std::string::npos) {
-      return absl::InvalidArgumentError(
-          fmt::format("override '{}': expected key=value", line));
+      return absl::InvalidArgumentError(fmt::format("override '{}': expected key=value", line));
     }
     const std::string key = line.substr(0, eq);
     const std::string value = line.substr(eq + 1);
     const SourceLocation where{fmt::format("override {}", line)};
     if (key == "integrator") {
-      PBGI_RETURN_IF_ERROR(findIntegrator(value, where).status());
-      r.integrator = value;
-      r.integratorWhere = where;
+      overrides.integrator = value;
+      overrides.integratorWhere = where;
     } else if (key == "spp") {
-      PBGI_ASSIGN_OR_RETURN(r.spp, overrideNumber<int>(key, value, 1, 1 << 20));
+      if (!absl::SimpleAtoi(value, &overrides.spp) || overrides.spp < 1 ||
+          overrides.spp > kMaxOverrideSpp) {
+        return absl::InvalidArgumentError(
+            fmt::format("override {}: expected a whole number in [1, {}]", line, kMaxOverrideSpp));
+      }
     } else if (findParam(key) != nullptr) {
-      PBGI_RETURN_IF_ERROR(setParamText(r.params, key, value, where));
+      PBGI_RETURN_IF_ERROR(setParamText(overrides.params, key, value, where));
     } else {
       return absl::InvalidArgumentError(fmt::format(
           "override '{}': unknown key '{}' (expected integrator, spp or an integrator parameter: "
@@ -79,24 +66,23 @@ absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& over
           line, key, fmt::join(allParamKeys(), ", ")));
     }
   }
-  // The integrator's own checks, now that every value is known.
-  return validateRenderSettings(r);
+  return overrides;
 }
 
-std::string joinOverrides(const std::vector<std::string>& overrides) {
-  std::string lines;
-  for (const std::string& o : overrides) lines += o + "\n";
+std::vector<std::string> overrideLines(const RenderOverrides& overrides) {
+  std::vector<std::string> lines;
+  if (!overrides.integrator.empty()) lines.push_back("integrator=" + overrides.integrator);
+  if (overrides.spp > 0) lines.push_back(fmt::format("spp={}", overrides.spp));
+  for (const auto& [key, value] : overrides.params.values()) {
+    lines.push_back(fmt::format("{}={}", key, value.toString()));
+  }
   return lines;
 }
 
-std::vector<std::string> splitOverrides(std::string_view lines) {
-  return absl::StrSplit(absl::string_view(lines.data(), lines.size()), '\n', absl::SkipEmpty());
-}
-
 absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
-                                 const std::vector<std::string>& overrides) {
+                                 const RenderOverrides& overrides) {
   PBGI_ASSIGN_OR_RETURN(ShotDesc shot, parseShot(shotText, shotPath));
-  PBGI_RETURN_IF_ERROR(applyOverrides(shot, overrides));
+  PBGI_RETURN_IF_ERROR(applyRenderOverrides(shot.render, overrides));
   return shot;
 }
 

@@ -31,19 +31,21 @@ std::string farmTilePath(const std::string& workDir, int frame, int tile);
 absl::StatusOr<std::string> jobTreePath(const ShotDesc& shot, const std::string& workDir,
                                         int frame);
 
-// The overrides a job may carry, "key=value", on the shot's [render] settings: integrator,
-// spp, and any integrator parameter the registry declares (quality, gather, cache_mb,
-// bake_points, ...). InvalidArgument names the override and what was expected; the
-// integrator's own checks run on the result.
-absl::Status applyOverrides(ShotDesc& shot, const std::vector<std::string>& overrides);
-// One override per line, as the job store keeps them, and back.
-std::string joinOverrides(const std::vector<std::string>& overrides);
-std::vector<std::string> splitOverrides(std::string_view lines);
+// The most samples per pixel a job may ask for.
+inline constexpr int kMaxOverrideSpp = 1 << 20;
+
+// A job's overrides from "key=value" text (a client or a job store from before they were
+// typed): integrator, spp, and any integrator parameter the registry declares (quality,
+// gather, cache_mb, bake_points, ...), each parsed and checked against its declaration.
+// InvalidArgument names the line and what was expected.
+absl::StatusOr<RenderOverrides> parseOverrideLines(const std::vector<std::string>& lines);
+// And back, for readers from before the typed form: "integrator=pbgi", "spp=16", "gather=...".
+std::vector<std::string> overrideLines(const RenderOverrides& overrides);
 
 // The shot a job renders: the submitted text, parsed as the file at `shotPath`, with the
-// job's overrides applied.
+// job's overrides applied and the result checked by its integrator.
 absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
-                                 const std::vector<std::string>& overrides);
+                                 const RenderOverrides& overrides);
 
 // The accuracy audit's defaults: tiles per frame (for integrators other than the path tracer;
 // a path-traced job is its own reference), the path tracer's samples per pixel on them, and

@@ -16,6 +16,7 @@
 #include <fmt/ranges.h>
 
 #include "core/util/status.h"
+#include "services/farm/farm_wire.h"
 
 namespace pbgi::farm {
 
@@ -157,6 +158,17 @@ std::string waitsOnDeadError(const TaskRef& dead, std::string_view error) {
 
 std::string formatFrames(std::span<const int> frames) {
   return fmt::format("{}", fmt::join(frames, " "));
+}
+
+absl::Status readStoredJobText(std::string_view overrides, std::string_view frames,
+                               std::string_view where, JobSpec* spec) {
+  absl::StatusOr<RenderOverrides> read = fromStoreText(overrides);
+  if (!read.ok()) {
+    return absl::DataLossError(fmt::format("{}: overrides: {}", where, read.status().message()));
+  }
+  spec->overrides = *std::move(read);
+  PBGI_ASSIGN_OR_RETURN(spec->frames, parseFrames(frames, where));
+  return absl::OkStatus();
 }
 
 absl::StatusOr<std::vector<int>> parseFrames(std::string_view text, std::string_view where) {

@@ -201,6 +201,34 @@ std::string formatFrames(std::span<const int> frames);
 // DataLoss, naming `where`, when the text is not a list of numbers.
 absl::StatusOr<std::vector<int>> parseFrames(std::string_view text, std::string_view where);
 
+// A job's text columns as both stores keep them: the overrides (farm_wire.h's toStoreText)
+// and the frames, read into `spec`. DataLoss, naming `where`, for text they cannot be read
+// from.
+absl::Status readStoredJobText(std::string_view overrides, std::string_view frames,
+                               std::string_view where, JobSpec* spec);
+
+// A jobs row (PBGI_JOB_COLUMNS, in order), read the same way by both stores through their
+// row's text(i), bytes(i), int64(i), integer(i), real(i) and boolean(i).
+template <typename Row>
+absl::StatusOr<JobInfo> readJobRow(const Row& row, std::string_view where) {
+  JobInfo info;
+  info.id = row.int64(0);
+  info.spec.name = row.text(1);
+  info.spec.shotPath = row.text(2);
+  info.spec.shotText = row.bytes(3);
+  info.spec.outputPattern = row.text(5);
+  info.spec.priority = row.integer(6);
+  info.spec.tileCount = row.integer(8);
+  info.spec.needsBake = row.boolean(9);
+  info.state = static_cast<JobState>(row.integer(10));
+  info.submitted = row.real(11);
+  const absl::Status text =
+      readStoredJobText(row.text(4), row.text(7),
+                        std::string(where) + ": job " + std::to_string(info.id), &info.spec);
+  if (!text.ok()) return text;
+  return info;
+}
+
 // Failures of one job on one worker that blocklist the worker; no threshold means never.
 int64_t blocklistThreshold(const RetryPolicy& policy);
 

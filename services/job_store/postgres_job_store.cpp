@@ -26,6 +26,7 @@
 #include <fmt/format.h>
 
 #include "core/util/status.h"
+#include "services/farm/farm_wire.h"
 #include "services/job_store/job_store.h"
 #include "services/job_store/postgres_query.h"
 
@@ -267,22 +268,7 @@ absl::StatusOr<JobState> PostgresJobStore::jobState(PgTx& tx, int64_t job, bool 
 }
 
 absl::StatusOr<JobInfo> PostgresJobStore::readJob(const pqxx::row& r) const {
-  JobInfo info;
-  info.id = r[0].as<int64_t>();
-  info.spec.name = r[1].as<std::string>();
-  info.spec.shotPath = r[2].as<std::string>();
-  info.spec.shotText = pgBytes(r[3]);
-  info.spec.overrides = r[4].as<std::string>();
-  info.spec.outputPattern = r[5].as<std::string>();
-  info.spec.priority = r[6].as<int>();
-  PBGI_ASSIGN_OR_RETURN(
-      info.spec.frames,
-      parseFrames(r[7].as<std::string>(), fmt::format("{}: job {}", sessions_.shownUri(), info.id)));
-  info.spec.tileCount = r[8].as<int>();
-  info.spec.needsBake = r[9].as<bool>();
-  info.state = static_cast<JobState>(r[10].as<int>());
-  info.submitted = r[11].as<double>();
-  return info;
+  return readJobRow(PgRow{r}, sessions_.shownUri());
 }
 
 absl::Status PostgresJobStore::addTaskSummary(PgTx& tx, JobInfo& info) {
@@ -424,7 +410,7 @@ absl::StatusOr<int64_t> PostgresJobStore::submit(const JobSpec& spec, Seconds no
         "INSERT INTO jobs (name, shot_path, shot_text, overrides, output_pattern, priority, "
         "frames, tile_count, needs_bake, state, submitted) "
         "VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11) RETURNING id",
-        spec.name, spec.shotPath, pqxx::binarystring(spec.shotText), spec.overrides,
+        spec.name, spec.shotPath, pqxx::binarystring(spec.shotText), toStoreText(spec.overrides),
         spec.outputPattern, spec.priority, formatFrames(spec.frames), spec.tileCount,
         spec.needsBake, number(JobState::kActive), now);
     const int64_t job = inserted[0][0].as<int64_t>();

@@ -53,6 +53,17 @@ namespace pbgi::farm {
 // A BYTEA column's bytes.
 inline std::string pgBytes(const pqxx::field& field) { return pqxx::binarystring(field).str(); }
 
+// A row read by column number, as job_store.h's row readers take it.
+struct PgRow {
+  const pqxx::row& row;
+  int64_t int64(int column) const { return row[column].as<int64_t>(); }
+  int integer(int column) const { return row[column].as<int>(); }
+  double real(int column) const { return row[column].as<double>(); }
+  bool boolean(int column) const { return row[column].as<bool>(); }
+  std::string text(int column) const { return row[column].as<std::string>(); }
+  std::string bytes(int column) const { return pgBytes(row[column]); }
+};
+
 class PgSession;
 
 // One transaction as a store method sees it. Statements are prepared once per connection;

@@ -9,6 +9,7 @@
 #include <absl/strings/ascii.h>
 #include <fmt/format.h>
 
+#include "services/farm/farm_wire.h"
 #include "services/job_store/sqlite_job_store.h"
 
 namespace pbgi::farm {
@@ -263,23 +264,7 @@ absl::StatusOr<JobState> SqliteJobStore::jobState(int64_t job) {
   return static_cast<JobState>(q.integer(0));
 }
 
-absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) {
-  JobInfo info;
-  info.id = q.int64(0);
-  info.spec.name = q.text(1);
-  info.spec.shotPath = q.text(2);
-  info.spec.shotText = q.text(3);
-  info.spec.overrides = q.text(4);
-  info.spec.outputPattern = q.text(5);
-  info.spec.priority = q.integer(6);
-  PBGI_ASSIGN_OR_RETURN(info.spec.frames,
-                        parseFrames(q.text(7), fmt::format("{}: job {}", path_, info.id)));
-  info.spec.tileCount = q.integer(8);
-  info.spec.needsBake = q.integer(9) != 0;
-  info.state = static_cast<JobState>(q.integer(10));
-  info.submitted = q.real(11);
-  return info;
-}
+absl::StatusOr<JobInfo> SqliteJobStore::readJob(const Query& q) { return readJobRow(q, path_); }
 
 // Indexed by TaskState.
 absl::StatusOr<PerTaskState<int>> SqliteJobStore::countTasksByState(int64_t job) {
@@ -446,7 +431,7 @@ absl::StatusOr<int64_t> SqliteJobStore::submit(const JobSpec& spec, Seconds now)
       q.bind(1, spec.name)
           .bind(2, spec.shotPath)
           .bindBlob(3, spec.shotText)
-          .bind(4, spec.overrides)
+          .bind(4, toStoreText(spec.overrides))
           .bind(5, spec.outputPattern)
           .bind(6, spec.priority)
           .bind(7, formatFrames(spec.frames))

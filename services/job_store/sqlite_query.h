@@ -72,6 +72,8 @@ class Query {
   bool isNull(int column) const { return sqlite3_column_type(stmt_, column) == SQLITE_NULL; }
   // Text or blob, byte for byte.
   std::string text(int column) const;
+  std::string bytes(int column) const { return text(column); }
+  bool boolean(int column) const { return integer(column) != 0; }
 
  private:
   Query& note(int rc);

@@ -13,6 +13,7 @@
 #include "core/util/status.h"
 #include "services/coordinator/coordinator.h"
 #include "services/farm/farm_client.h"
+#include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
@@ -54,8 +55,7 @@ const std::string& LocalFarm::address() const { return coordinator_->address(); 
 absl::StatusOr<int64_t> LocalFarm::findOrSubmit(const v1::SubmitJobRequest& request,
                                                 bool* resumed) {
   PBGI_ASSIGN_OR_RETURN(const std::vector<JobInfo> jobs, coordinator_->store().jobs());
-  const std::string overrides = joinOverrides(
-      std::vector<std::string>(request.overrides().begin(), request.overrides().end()));
+  PBGI_ASSIGN_OR_RETURN(const RenderOverrides overrides, submittedOverrides(request));
   for (const JobInfo& j : jobs) {
     const bool sameFrames =
         request.frames().empty() || std::equal(j.spec.frames.begin(), j.spec.frames.end(),

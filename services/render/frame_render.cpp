@@ -89,15 +89,7 @@ std::string formatCounters(const FrameRenderReport& report) {
 absl::StatusOr<RenderSettings> requestSettings(const ShotDesc& shot,
                                                const FrameRenderRequest& request) {
   RenderSettings settings = shot.render;
-  if (!request.integrator.empty()) {
-    settings.integrator = request.integrator;
-    settings.integratorWhere = {"--integrator"};
-  }
-  if (request.spp > 0) settings.spp = request.spp;
-  for (const auto& [key, value] : request.params.values()) {
-    PBGI_RETURN_IF_ERROR(settings.params.set(*findParam(key), value));
-  }
-  PBGI_RETURN_IF_ERROR(validateRenderSettings(settings));
+  PBGI_RETURN_IF_ERROR(applyRenderOverrides(settings, request.overrides));
   return settings;
 }
 

@@ -21,8 +21,9 @@ namespace pbgi {
 
 struct FrameRenderRequest {
   int frame = 0;
-  std::string integrator;  // empty: the shot's
-  int spp = 0;             // 0: the shot's
+  // What the request changes of the shot's [render] settings (flags: --integrator, --spp,
+  // --quality, --set key=value, ...).
+  RenderOverrides overrides;
   int threads = 0;         // 0: all cores
   int tileSize = 0;        // 0: the shot's
   std::string outPath;     // empty: the shot's output pattern for this frame
@@ -34,8 +35,6 @@ struct FrameRenderRequest {
   // lists them in its metadata (pbgi/regions: "x0 y0 x1 y1;...").
   std::vector<TileRect> regions;
 
-  // Overrides of the shot's integrator parameters (flags: --quality, --set key=value, ...).
-  IntegratorParams params;
   size_t cacheBytes = 0;       // page cache budget; 0: the integrator's cache_mb
   std::string treePath;        // render from this tree; empty: the frame's bake (below)
   // Or from the tree this opens (a worker's remote tree, kept across tasks); takes precedence

@@ -453,8 +453,8 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
     }
     FrameRenderRequest request;
     request.frame = task.frame();
-    request.integrator = "path";
-    request.spp = task.audit_spp();
+    request.overrides.integrator = "path";
+    request.overrides.spp = task.audit_spp();
     request.threads = options_.threads;
     request.outPath = (fs::path(task.work_dir()) / "audit" /
                        fmt::format("frame.{:04d}.tile.{:04d}.exr", task.frame(), t))
@@ -595,7 +595,7 @@ absl::Status Worker::sendResults(const ShotDesc& shot, const v1::LeaseTaskRespon
 }
 
 absl::StatusOr<TaskResult> Worker::execute(const v1::LeaseTaskResponse& leased, Heartbeat& beat) {
-  const std::vector<std::string> overrides(leased.overrides().begin(), leased.overrides().end());
+  PBGI_ASSIGN_OR_RETURN(const RenderOverrides overrides, fromWire(leased.render()));
   PBGI_ASSIGN_OR_RETURN(const ShotDesc shot,
                         jobShot(leased.shot_text(), leased.shot_path(), overrides));
   const bool copied = worksInCopy(leased);

@@ -174,11 +174,11 @@ absl::StatusOr<Image> reference(const ShotDesc& shot, int frame, const Args& arg
 absl::StatusOr<Run> measure(const ShotDesc& shot, FrameRenderRequest request, const Image& ref,
                             const std::string& outDir, Run run,
                             std::optional<TreeReadReport>* tree = nullptr) {
-  request.spp = run.spp;
-  request.integrator = run.integrator;
+  request.overrides.spp = run.spp;
+  request.overrides.integrator = run.integrator;
   if (!run.gather.empty()) {
-    testing::setParam(request.params, "gather", run.gather);
-    testing::setParam(request.params, "quality", run.quality);
+    testing::setParam(request.overrides.params, "gather", run.gather);
+    testing::setParam(request.overrides.params, "quality", run.quality);
   }
   request.preview = false;
   request.outPath = (fs::path(outDir) / fmt::format("{}.{}.exr", shot.name, run.name())).string();
@@ -301,10 +301,10 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gath
               *total / 1048576.0);
   request.treePath = treePath;
   request.regions.clear();  // the whole (scaled) frame
-  request.integrator = "pbgi";
-  testing::setParam(request.params, "gather", gather);
-  testing::setParam(request.params, "quality", "default");
-  request.spp = kCacheRunSpp;
+  request.overrides.integrator = "pbgi";
+  testing::setParam(request.overrides.params, "gather", gather);
+  testing::setParam(request.overrides.params, "quality", "default");
+  request.overrides.spp = kCacheRunSpp;
   request.preview = false;
   std::optional<Image> unlimited;
   for (const double fraction : {0.0, 0.20, 0.05}) {

@@ -37,6 +37,7 @@
 #include "formats/shot/shot_file.h"
 #include "services/coordinator/coordinator.h"
 #include "services/farm/farm_client.h"
+#include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
 #include "services/render/frame_render.h"
 #include "tests/support/farm_fixtures.h"
@@ -86,13 +87,15 @@ absl::Status remoteTile(const std::string& name, const ShotDesc& frame,
   farm::v1::SubmitJobRequest submit;
   submit.set_shot_path(frame.path);
   submit.set_shot_text(testing::slurpFile(frame.path));
-  submit.add_overrides("integrator=pbgi");
+  RenderOverrides pbgi;
+  pbgi.integrator = "pbgi";
+  *submit.mutable_render() = farm::toWire(pbgi);
   submit.set_output_dir((dir / "frames").string());
   submit.add_frames(frame.firstFrame);
   PBGI_ASSIGN_OR_RETURN(const farm::v1::SubmitJobResponse job, client.submitJob(submit));
   // The frame's bake, where the job's bake task would have written it.
   PBGI_ASSIGN_OR_RETURN(const ShotDesc jobShot,
-                        farm::jobShot(submit.shot_text(), frame.path, {"integrator=pbgi"}));
+                        farm::jobShot(submit.shot_text(), frame.path, pbgi));
   PBGI_ASSIGN_OR_RETURN(const std::string jobTree,
                         farm::jobTreePath(jobShot, farm::jobWorkDir(o.stateDir, job.job()),
                                           frame.firstFrame));
@@ -173,13 +176,13 @@ int runBench(const Args& args) {
       for (const int budget : args.budgets) {
         FrameRenderRequest r;
         r.frame = frame.firstFrame;
-        r.integrator = "pbgi";
-        r.spp = args.spp;
+        r.overrides.integrator = "pbgi";
+        r.overrides.spp = args.spp;
         r.threads = args.threads;
         r.treePath = baked->path;
         r.preview = false;
-        r.params = frame.render.params;
-        testing::setParam(r.params, "gather", gather);
+        r.overrides.params = frame.render.params;
+        testing::setParam(r.overrides.params, "gather", gather);
         r.outPath = (out / fmt::format("{}.{}.{}.cache{}.exr", name, gather, size, budget)).string();
         const double fraction = budget >= 100 ? 0.0 : budget / 100.0;
         auto run = testing::renderWithCache(frame, r, *total, fraction, &unlimited);

@@ -101,16 +101,16 @@ absl::StatusOr<Run> renderRun(const Scene& scene, const Args& args, const std::s
                                                             shot.camera.base.lookAt);
   FrameRenderRequest r;
   r.frame = shot.firstFrame;
-  r.integrator = "pbgi";
-  r.spp = spp;
+  r.overrides.integrator = "pbgi";
+  r.overrides.spp = spp;
   r.threads = args.threads;
   r.treePath = scene.tree;
   r.preview = false;
   r.outPath = (out / fmt::format("{}.{}.{}x{}.{}spp.v{}.exr", scene.name, gather, size, size, spp,
                                  views))
                   .string();
-  r.params = shot.render.params;
-  testing::setParam(r.params, "gather", gather);
+  r.overrides.params = shot.render.params;
+  testing::setParam(r.overrides.params, "gather", gather);
   // The central crop, on the grid of the cut's blocks (64) and of the reference's pixels.
   const bool cropped = views == 1 && args.crop > 0 && size > args.crop;
   TileRect crop{0, 0, size, size};
@@ -183,14 +183,14 @@ int tileCacheRuns(const Scene& scene, const Args& args, const fs::path& out, std
     for (const double fraction : {0.0, 0.05}) {
       FrameRenderRequest r;
       r.frame = shot.firstFrame;
-      r.integrator = "pbgi";
-      r.spp = 1;
+      r.overrides.integrator = "pbgi";
+      r.overrides.spp = 1;
       r.threads = args.threads;
       r.treePath = scene.tree;
       r.preview = false;
       r.regions = tile;
-      r.params = shot.render.params;
-      testing::setParam(r.params, "gather", gather);
+      r.overrides.params = shot.render.params;
+      testing::setParam(r.overrides.params, "gather", gather);
       r.outPath = (out / fmt::format("{}.{}.tile.cache{}.exr", scene.name, gather,
                                      int(fraction * 100)))
                       .string();

@@ -58,8 +58,8 @@ inline absl::StatusOr<Image> cachedPathReference(const ShotDesc& shot, int frame
   std::filesystem::create_directories(cacheDir, ec);
   FrameRenderRequest request;
   request.frame = frame;
-  request.integrator = "path";
-  request.spp = spp;
+  request.overrides.integrator = "path";
+  request.overrides.spp = spp;
   request.threads = threads;
   request.regions = regions;
   request.outPath = path;
@@ -132,7 +132,7 @@ inline absl::StatusOr<BakedTree> bakeTree(ShotDesc shot, const std::filesystem::
   shot.height = 8;
   FrameRenderRequest r;
   r.frame = shot.firstFrame;
-  r.spp = 1;
+  r.overrides.spp = 1;
   r.threads = threads;
   r.preview = false;
   r.bakeDir = bakeDir.string();

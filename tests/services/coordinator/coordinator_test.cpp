@@ -119,6 +119,32 @@ TEST_F(CoordinatorTest, ABadShotIsRefusedWithItsLineAndTheCoordinatorCarriesOn) 
   EXPECT_FALSE(job->spec.needsBake);
 }
 
+// Overrides arrive typed, are checked once at submission, and reach the worker as the
+// same typed values (and as text for workers from before them).
+TEST_F(CoordinatorTest, TypedOverridesAreCheckedAtSubmissionAndLeasedAsSent) {
+  start();
+  v1::SubmitJobRequest wrongType = shotRequest({});
+  (*wrongType.mutable_render()->mutable_params())["gather"].set_float_value(1.0);
+  const auto refused = client_->submitJob(wrongType);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument) << refused.status();
+  EXPECT_NE(refused.status().message().find("gather"), std::string::npos) << refused.status();
+
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  request.mutable_render()->set_spp(3);
+  (*request.mutable_render()->mutable_params())["gather"].set_choice("per-pixel");
+  ASSERT_TRUE(client_->submitJob(request).ok());
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("w");
+  auto leased = client_->leaseTask(lease);
+  ASSERT_TRUE(leased.ok()) << leased.status();
+  ASSERT_TRUE(leased->has_task());
+  EXPECT_EQ(leased->render().spp(), 3);
+  EXPECT_EQ(leased->render().params().at("gather").choice(), "per-pixel");
+  EXPECT_EQ(std::vector<std::string>(leased->overrides().begin(), leased->overrides().end()),
+            (std::vector<std::string>{"spp=3", "gather=per-pixel"}));
+}
+
 TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   options_.leaseSeconds = 0.4;
   options_.expiryIntervalSeconds = 0.05;

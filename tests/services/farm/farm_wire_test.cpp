@@ -1,8 +1,10 @@
 // The wire's enums against the store's, and messages from a coordinator older than the enums
-// (only the words set) read the same.
+// (only the words set) read the same. A job's overrides travel typed, and older text reads
+// the same.
 
 #include <gtest/gtest.h>
 
+#include "core/render/integrators.h"
 #include "services/farm/farm_wire.h"
 
 namespace pbgi::farm {
@@ -104,6 +106,86 @@ TEST(FarmWire, AnOlderCoordinatorsWordsAreRead) {
   }
   entry.set_event("paused");
   EXPECT_EQ(taskEventKindOf(entry), v1::TASK_EVENT_KIND_UNSPECIFIED);
+}
+
+RenderOverrides sampleOverrides() {
+  RenderOverrides o;
+  o.integrator = "pbgi";
+  o.spp = 16;
+  EXPECT_TRUE(setParamText(o.params, "gather", "per-pixel", {"test"}).ok());
+  EXPECT_TRUE(setParamText(o.params, "cache_mb", "64", {"test"}).ok());
+  EXPECT_TRUE(setParamText(o.params, "max_solid_angle", "0.125", {"test"}).ok());
+  return o;
+}
+
+TEST(FarmWire, OverridesKeepTheirTypesOnTheWireAndInTheStore) {
+  const RenderOverrides o = sampleOverrides();
+  const v1::RenderOverrides wire = toWire(o);
+  EXPECT_EQ(wire.params().at("gather").value_case(), v1::ParamValue::kChoice);
+  EXPECT_EQ(wire.params().at("cache_mb").int_value(), 64);
+  EXPECT_EQ(wire.params().at("max_solid_angle").float_value(), 0.125);
+  auto back = fromWire(wire);
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(*back, o);
+  EXPECT_EQ(std::get<int64_t>(back->params.find("cache_mb")->value), 64);
+
+  const std::string stored = toStoreText(o);
+  EXPECT_TRUE(stored.starts_with('{')) << stored;
+  auto read = fromStoreText(stored);
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(*read, o);
+  auto none = fromStoreText(toStoreText({}));
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_TRUE(none->empty());
+}
+
+TEST(FarmWire, AStoreOrClientFromBeforeTypedOverridesIsReadTheSame) {
+  auto read = fromStoreText(
+      "integrator=pbgi\nspp=16\ncache_mb=64\ngather=per-pixel\n"
+      "max_solid_angle=0.125\n");
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(*read, sampleOverrides());
+  auto empty = fromStoreText("");
+  ASSERT_TRUE(empty.ok()) << empty.status();
+  EXPECT_TRUE(empty->empty());
+
+  v1::SubmitJobRequest old;
+  old.add_overrides("integrator=pbgi");
+  old.add_overrides("spp=16");
+  auto submitted = submittedOverrides(old);
+  ASSERT_TRUE(submitted.ok()) << submitted.status();
+  EXPECT_EQ(submitted->integrator, "pbgi");
+  EXPECT_EQ(submitted->spp, 16);
+  // `render`, when set, is what counts.
+  *old.mutable_render() = toWire(sampleOverrides());
+  submitted = submittedOverrides(old);
+  ASSERT_TRUE(submitted.ok()) << submitted.status();
+  EXPECT_EQ(*submitted, sampleOverrides());
+}
+
+TEST(FarmWire, ATypedValueIsCheckedAgainstItsDeclaration) {
+  const auto refused = [](const v1::RenderOverrides& wire, std::string_view says) {
+    const auto read = fromWire(wire);
+    EXPECT_EQ(read.status().code(), absl::StatusCode::kInvalidArgument) << read.status();
+    EXPECT_NE(std::string(read.status().message()).find(says), std::string::npos) << read.status();
+  };
+  v1::RenderOverrides unknown;
+  (*unknown.mutable_params())["light_solid_angel"].set_float_value(0.1);
+  refused(unknown, "unknown parameter 'light_solid_angel'");
+  v1::RenderOverrides wrongType;
+  (*wrongType.mutable_params())["gather"].set_int_value(2);
+  refused(wrongType, "one of:");
+  v1::RenderOverrides outOfRange;
+  (*outOfRange.mutable_params())["cache_mb"].set_int_value(-5);
+  refused(outOfRange, "cache_mb");
+  v1::RenderOverrides unset;
+  (*unset.mutable_params())["quality"];
+  refused(unset, "no value");
+  v1::RenderOverrides negativeSpp;
+  negativeSpp.set_spp(-1);
+  refused(negativeSpp, "spp");
+  const auto damaged = fromStoreText("{\"params\": 3}");
+  EXPECT_EQ(damaged.status().code(), absl::StatusCode::kDataLoss) << damaged.status();
 }
 
 }  // namespace

@@ -21,6 +21,7 @@
 
 #include <fmt/format.h>
 
+#include "core/render/integrators.h"
 #include "services/job_store/job_store.h"
 #include "tests/support/postgres_cluster.h"
 #include "tests/support/test_paths.h"
@@ -44,7 +45,8 @@ JobSpec makeSpec(std::vector<int> frames, int tiles, bool bake, int priority = 0
   spec.name = "shot";
   spec.shotPath = "/shots/shot.toml";
   spec.shotText = "[camera]\nfov = 40\n";
-  spec.overrides = "spp=16\n";
+  spec.overrides.spp = 16;
+  EXPECT_TRUE(setParamText(spec.overrides.params, "gather", "per-pixel", {"test"}).ok());
   spec.outputPattern = "/renders/shot.####.exr";
   spec.priority = priority;
   spec.frames = std::move(frames);
@@ -1376,7 +1378,8 @@ TEST_F(PostgresJobStoreTest, OpenRefusesAServerItCannotReachAndASchemaFromANewer
 }
 
 // A file written before audits (schema 2), or before the event log too (schema 1): opening it
-// adds what it lacks, and its jobs, tasks and leases are as they were.
+// adds what it lacks, and its jobs (their overrides still text), tasks and leases are as they
+// were.
 TEST_F(SqliteJobStoreTest, AnOlderFileGainsTheAuditsTableWithItsJobsIntact) {
   for (const int version : {2, 1}) {
     SCOPED_TRACE(fmt::format("schema version {}", version));
@@ -1407,10 +1410,13 @@ TEST_F(SqliteJobStoreTest, AnOlderFileGainsTheAuditsTableWithItsJobsIntact) {
     exec("DROP TABLE audits");
     if (version == 1) exec("DROP TABLE task_events; DROP INDEX tasks_by_job_state");
     exec(fmt::format("PRAGMA user_version = {}", version));
+    // Overrides as text, as coordinators kept them before they were typed.
+    exec("UPDATE jobs SET overrides = 'spp=16\ngather=per-pixel\n'");
     db.reset();
 
     open();
     const JobInfo info = job(id);
+    EXPECT_EQ(info.spec.overrides, makeSpec({4, 5}, 2, true, 3).overrides);
     EXPECT_EQ(info.spec.priority, 3);
     EXPECT_EQ(info.submitted, 7);
     EXPECT_EQ(info.spec.frames, (std::vector<int>{4, 5}));

@@ -83,15 +83,15 @@ struct Bake {
 Image render(const ShotDesc& shot, const fs::path& dir, const Case& c, int spp, Bake bake) {
   FrameRenderRequest r;
   r.frame = shot.firstFrame;
-  r.integrator = c.integrator;
-  r.spp = spp;
+  r.overrides.integrator = c.integrator;
+  r.overrides.spp = spp;
   r.preview = false;
   r.outPath = (dir / (c.integrator + c.gather + ".exr")).string();
   r.bakeDir = (dir / "bake").string();
   if (!c.gather.empty()) {
-    testing::setParam(r.params, "gather", c.gather);
-    testing::setParam(r.params, "bake_points", std::to_string(bake.points));
-    testing::setParam(r.params, "bake_bounces", std::to_string(bake.bounces));
+    testing::setParam(r.overrides.params, "gather", c.gather);
+    testing::setParam(r.overrides.params, "bake_points", std::to_string(bake.points));
+    testing::setParam(r.overrides.params, "bake_bounces", std::to_string(bake.bounces));
   }
   auto report = renderShotFrame(shot, r);
   EXPECT_TRUE(report.ok()) << report.status();

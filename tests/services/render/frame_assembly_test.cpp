@@ -34,8 +34,8 @@ class FrameAssembly : public ::testing::Test {
   FrameRenderRequest request(const std::string& name) const {
     FrameRenderRequest r;
     r.frame = 1;
-    r.integrator = "path";
-    r.spp = 2;
+    r.overrides.integrator = "path";
+    r.overrides.spp = 2;
     r.preview = false;
     r.outPath = (dir_ / (name + ".exr")).string();
     return r;

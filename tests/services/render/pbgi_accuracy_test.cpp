@@ -47,8 +47,8 @@ Image render(const ShotDesc& shot, FrameRenderRequest r) {
 Image renderPath(const ShotDesc& shot, const fs::path& dir, int spp) {
   FrameRenderRequest p;
   p.frame = shot.firstFrame;
-  p.integrator = "path";
-  p.spp = spp;
+  p.overrides.integrator = "path";
+  p.overrides.spp = spp;
   p.preview = false;
   p.outPath = (dir / "path.exr").string();
   return render(shot, p);
@@ -57,15 +57,15 @@ Image renderPath(const ShotDesc& shot, const fs::path& dir, int spp) {
 Image renderPbgi(const ShotDesc& shot, const fs::path& dir, uint64_t bakePoints, int bounces) {
   FrameRenderRequest g;
   g.frame = shot.firstFrame;
-  g.integrator = "pbgi";
-  g.spp = 16;
+  g.overrides.integrator = "pbgi";
+  g.overrides.spp = 16;
   g.preview = false;
   g.outPath = (dir / "pbgi.exr").string();
   g.bakeDir = (dir / "bake").string();
-  testing::setParam(g.params, "gather", "bidirectional");
-  testing::setParam(g.params, "quality", "default");
-  testing::setParam(g.params, "bake_points", std::to_string(bakePoints));
-  testing::setParam(g.params, "bake_bounces", std::to_string(bounces));
+  testing::setParam(g.overrides.params, "gather", "bidirectional");
+  testing::setParam(g.overrides.params, "quality", "default");
+  testing::setParam(g.overrides.params, "bake_points", std::to_string(bakePoints));
+  testing::setParam(g.overrides.params, "bake_bounces", std::to_string(bounces));
   return render(shot, g);
 }
 

@@ -59,9 +59,9 @@ class PbgiRender : public ::testing::Test {
                              std::string_view gather = "per-pixel") const {
     FrameRenderRequest r;
     r.frame = 1;
-    r.integrator = "pbgi";
-    testing::setParam(r.params, "gather", gather);
-    r.spp = 4;
+    r.overrides.integrator = "pbgi";
+    testing::setParam(r.overrides.params, "gather", gather);
+    r.overrides.spp = 4;
     r.treePath = tree;
     r.preview = false;
     r.outPath = (dir_ / (name + ".exr")).string();
@@ -142,7 +142,7 @@ TEST_F(PbgiRender, BidirectionalPixelsDoNotDependOnTilesThreadsRegionsOrCache) {
   auto total = testing::decodedTreeBytes(tree);
   ASSERT_TRUE(total.ok()) << total.status();
   FrameRenderRequest r = request("a", tree, "bidirectional");
-  testing::setParam(r.params, "cut_block", "16");
+  testing::setParam(r.overrides.params, "cut_block", "16");
   r.tileSize = 8;
   r.threads = 1;
   FrameRenderReport first;
@@ -159,12 +159,12 @@ TEST_F(PbgiRender, BidirectionalPixelsDoNotDependOnTilesThreadsRegionsOrCache) {
   EXPECT_TRUE(a.pixels() == b.pixels());
   EXPECT_GT(second.tree->cache.evictions, 0u);
   // Blocks swept one at a time instead of together: more loads, the same pixels.
-  testing::setParam(r.params, "cut_blocks_together", "1");
+  testing::setParam(r.overrides.params, "cut_blocks_together", "1");
   r.outPath = (dir_ / "b1.exr").string();
   FrameRenderReport alone;
   EXPECT_TRUE(render(r, &alone).pixels() == a.pixels());
   EXPECT_GT(alone.tree->cache.misses, second.tree->cache.misses);
-  testing::setParam(r.params, "cut_blocks_together", "16");
+  testing::setParam(r.overrides.params, "cut_blocks_together", "16");
   // Regions that cut blocks in two (a farm tile of 24 against blocks of 16), assembled.
   const std::vector<FarmTile> tiles = farmTiles(shot_, 24);
   std::vector<std::string> paths;
@@ -203,8 +203,8 @@ TEST_F(PbgiRender, TheSkyAtRecordsDoesNotDependOnTilesOrThreads) {
   shot_.lights.push_back(environment);
   const std::string tree = bake(20000, 1);
   FrameRenderRequest r = request("sky-a", tree, "bidirectional");
-  testing::setParam(r.params, "cut_block", "16");
-  r.spp = 8;
+  testing::setParam(r.overrides.params, "cut_block", "16");
+  r.overrides.spp = 8;
   r.tileSize = 8;
   r.threads = 1;
   FrameRenderReport first;
@@ -218,10 +218,10 @@ TEST_F(PbgiRender, TheSkyAtRecordsDoesNotDependOnTilesOrThreads) {
   EXPECT_TRUE(a.pixels() == b.pixels());
   // Per sample instead, at the same spp: the same light, other noise (the light's own pixels
   // move the mean with the spp, so both take 64).
-  r.spp = 64;
+  r.overrides.spp = 64;
   r.outPath = (dir_ / "sky-records.exr").string();
   const Image records = render(r, nullptr);
-  testing::setParam(r.params, "sky", "samples");
+  testing::setParam(r.overrides.params, "sky", "samples");
   r.outPath = (dir_ / "sky-samples.exr").string();
   FrameRenderReport samples;
   const Image c = render(r, &samples);
@@ -239,12 +239,12 @@ TEST_F(PbgiRender, TheSkyAtRecordsDoesNotDependOnTilesOrThreads) {
 TEST_F(PbgiRender, CornellBoxIsCloseToThePathTracer) {
   const std::string tree = bake(200000, 1);
   FrameRenderRequest r = request("pbgi", tree);
-  r.spp = 64;
-  testing::setParam(r.params, "quality", "default");
+  r.overrides.spp = 64;
+  testing::setParam(r.overrides.params, "quality", "default");
   const Image pbgi = render(r);
   FrameRenderRequest p = request("path", "");
-  p.integrator = "path";
-  p.spp = 1024;
+  p.overrides.integrator = "path";
+  p.overrides.spp = 1024;
   const Image path = render(p);
   auto metrics = compareImages(pbgi, path);
   ASSERT_TRUE(metrics.ok()) << metrics.status();
@@ -304,13 +304,13 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughBothGlossyBuffers) {
   }
   const std::string tree = bake(100000, 3);
   FrameRenderRequest p = request("glossy-path", "");
-  p.integrator = "path";
-  p.spp = 512;
+  p.overrides.integrator = "path";
+  p.overrides.spp = 512;
   const Image path = render(p);
   for (const char* kind : {"adaptive", "warped"}) {
     FrameRenderRequest r = request(std::string("glossy-") + kind, tree);
-    r.spp = 32;
-    testing::setParam(r.params, "glossy_gather", kind);
+    r.overrides.spp = 32;
+    testing::setParam(r.overrides.params, "glossy_gather", kind);
     FrameRenderReport report;
     const Image pbgi = render(r, &report);
     EXPECT_GT(report.counters[kGlossyGathers], 0u);
@@ -405,8 +405,8 @@ TEST_F(PbgiRender, RecordsBetweenPixelsStayOnTheirSurfaceAndOnTheirBlock) {
   auto renderWith = [&](const std::string& name, const char* spacing, int tileSize, int threads,
                         FrameRenderReport* report) {
     FrameRenderRequest r = request(name, tree, "bidirectional");
-    testing::setParam(r.params, "record_spacing", spacing);
-    testing::setParam(r.params, "cut_block", "32");
+    testing::setParam(r.overrides.params, "record_spacing", spacing);
+    testing::setParam(r.overrides.params, "cut_block", "32");
     r.tileSize = tileSize;
     r.threads = threads;
     return render(r, report);
@@ -465,11 +465,11 @@ TEST_F(PbgiRender, GlassShowsTheWallBehindItAsThePathTracerDoes) {
   const std::string tree = bake(50000, 1);
   ASSERT_FALSE(tree.empty());
   FrameRenderRequest p = request("glass", tree, "bidirectional");
-  p.spp = 64;
+  p.overrides.spp = 64;
   const Image pbgiImage = render(p);
   FrameRenderRequest path = request("glass-path", "");
-  path.integrator = "path";
-  path.spp = 64;
+  path.overrides.integrator = "path";
+  path.overrides.spp = 64;
   const Image pathImage = render(path);
   ASSERT_EQ(pbgiImage.width(), pathImage.width());
   // The sphere's pixels: the glass's albedo AOV is white; the walls' and floor's are grey.
@@ -572,15 +572,15 @@ TEST_F(PbgiRender, ARoomLitOffItsCeilingHasNoPatchesOrSteps) {
   const std::string tree = bake(50000, 3);
   ASSERT_FALSE(tree.empty());
   FrameRenderRequest p = request("uplit-pbgi", tree, "bidirectional");
-  p.spp = 16;
+  p.overrides.spp = 16;
   const Image pbgiImage = render(p);
   std::vector<double> path[2];
   Interior interior;
   for (int seed = 0; seed < 2; ++seed) {
     shot_.render.seed = static_cast<uint64_t>(seed);
     FrameRenderRequest r = request(fmt::format("uplit-path{}", seed), "");
-    r.integrator = "path";
-    r.spp = 1024;
+    r.overrides.integrator = "path";
+    r.overrides.spp = 1024;
     const Image image = render(r);
     ASSERT_EQ(image.width(), pbgiImage.width());
     if (seed == 0) interior = planeInteriors(image);

@@ -32,8 +32,8 @@ void expectMeansMatchCycles(const std::filesystem::path& shotPath,
   const auto dir = testing::makeTempDir("reference");
   FrameRenderRequest request;
   request.frame = shot->firstFrame;
-  request.integrator = "path";
-  request.spp = spp;
+  request.overrides.integrator = "path";
+  request.overrides.spp = spp;
   request.outPath = (dir / "render.exr").string();
   request.preview = false;
   auto report = renderShotFrame(*shot, request);
