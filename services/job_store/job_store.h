@@ -207,8 +207,52 @@ absl::StatusOr<std::vector<int>> parseFrames(std::string_view text, std::string_
 absl::Status readStoredJobText(std::string_view overrides, std::string_view frames,
                                std::string_view where, JobSpec* spec);
 
-// A jobs row (PBGI_JOB_COLUMNS, in order), read the same way by both stores through their
-// row's text(i), bytes(i), int64(i), integer(i), real(i) and boolean(i).
+// The rows of both stores, read the same way through their row's text(i), bytes(i),
+// int64(i), integer(i), real(i), realOrNan(i) (NULL as NaN) and boolean(i).
+//
+// A tasks row (PBGI_TASK_COLUMNS, in order).
+template <typename Row>
+TaskInfo readTaskRow(const Row& row) {
+  TaskInfo task;
+  task.id = row.int64(0);
+  task.ref.job = row.int64(1);
+  task.ref.kind = static_cast<TaskKind>(row.integer(2));
+  task.ref.frame = row.integer(3);
+  task.ref.tile = row.integer(4);
+  task.state = static_cast<TaskState>(row.integer(5));
+  task.attempt = row.integer(6);
+  task.failures = row.integer(7);
+  task.worker = row.text(8);
+  task.lastError = row.bytes(9);
+  task.progress = row.real(10);
+  return task;
+}
+
+// An audits row (PBGI_AUDIT_COLUMNS, in order). The result's columns are NULL until done.
+template <typename Row>
+absl::StatusOr<AuditInfo> readAuditRow(const Row& row, std::string_view where) {
+  AuditInfo info;
+  info.id = row.int64(0);
+  info.job = row.int64(1);
+  info.spec.frame = row.integer(2);
+  absl::StatusOr<std::vector<int>> tiles = parseFrames(
+      row.text(3), std::string(where) + ": audit " + std::to_string(info.id) + " tiles");
+  if (!tiles.ok()) return tiles.status();
+  info.spec.tiles = *std::move(tiles);
+  info.spec.spp = row.integer(4);
+  info.spec.threshold = row.real(5);
+  info.state = static_cast<AuditState>(row.integer(6));
+  info.attempt = row.integer(7);
+  info.failures = row.integer(8);
+  info.worker = row.text(9);
+  info.lastError = row.bytes(10);
+  if (info.state == AuditState::kDone) {
+    info.result = AuditResult{row.realOrNan(11), row.realOrNan(12), row.realOrNan(13)};
+  }
+  return info;
+}
+
+// A jobs row (PBGI_JOB_COLUMNS, in order).
 template <typename Row>
 absl::StatusOr<JobInfo> readJobRow(const Row& row, std::string_view where) {
   JobInfo info;

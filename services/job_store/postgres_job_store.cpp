@@ -144,26 +144,7 @@ int number(JobState state) { return static_cast<int>(state); }
 int number(AuditState state) { return static_cast<int>(state); }
 
 // Reads a row selected with PBGI_TASK_COLUMNS.
-TaskInfo readTask(const pqxx::row& r) {
-  TaskInfo task;
-  task.id = r[0].as<int64_t>();
-  task.ref.job = r[1].as<int64_t>();
-  task.ref.kind = static_cast<TaskKind>(r[2].as<int>());
-  task.ref.frame = r[3].as<int>();
-  task.ref.tile = r[4].as<int>();
-  task.state = static_cast<TaskState>(r[5].as<int>());
-  task.attempt = r[6].as<int>();
-  task.failures = r[7].as<int>();
-  task.worker = r[8].as<std::string>();
-  task.lastError = pgBytes(r[9]);
-  task.progress = r[10].as<double>();
-  return task;
-}
-
-// A result column: NULL only if a row was written otherwise than by completeAudit().
-double doubleOrNan(const pqxx::field& field) {
-  return field.is_null() ? std::numeric_limits<double>::quiet_NaN() : field.as<double>();
-}
+TaskInfo readTask(const pqxx::row& r) { return readTaskRow(PgRow{r}); }
 
 class PostgresJobStore final : public JobStore {
  public:
@@ -745,24 +726,7 @@ absl::StatusOr<std::vector<TaskEvent>> PostgresJobStore::events(int64_t job,
 }
 
 absl::StatusOr<AuditInfo> PostgresJobStore::readAudit(const pqxx::row& r) const {
-  AuditInfo info;
-  info.id = r[0].as<int64_t>();
-  info.job = r[1].as<int64_t>();
-  info.spec.frame = r[2].as<int>();
-  PBGI_ASSIGN_OR_RETURN(info.spec.tiles, parseFrames(r[3].as<std::string>(),
-                                                     fmt::format("{}: audit {} tiles",
-                                                                 sessions_.shownUri(), info.id)));
-  info.spec.spp = r[4].as<int>();
-  info.spec.threshold = r[5].as<double>();
-  info.state = static_cast<AuditState>(r[6].as<int>());
-  info.attempt = r[7].as<int>();
-  info.failures = r[8].as<int>();
-  info.worker = r[9].as<std::string>();
-  info.lastError = pgBytes(r[10]);
-  if (info.state == AuditState::kDone) {
-    info.result = AuditResult{doubleOrNan(r[11]), doubleOrNan(r[12]), doubleOrNan(r[13])};
-  }
-  return info;
+  return readAuditRow(PgRow{r}, sessions_.shownUri());
 }
 
 absl::StatusOr<AuditInfo> PostgresJobStore::loadAudit(PgTx& tx, int64_t audit, bool lock) {

@@ -5,6 +5,7 @@
 // statement. libpqxx's exceptions stop here; callers see absl::Status.
 #include <condition_variable>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -62,6 +63,10 @@ struct PgRow {
   bool boolean(int column) const { return row[column].as<bool>(); }
   std::string text(int column) const { return row[column].as<std::string>(); }
   std::string bytes(int column) const { return pgBytes(row[column]); }
+  // A result column: NULL only if a row was written otherwise than by completeAudit().
+  double realOrNan(int column) const {
+    return row[column].is_null() ? std::numeric_limits<double>::quiet_NaN() : real(column);
+  }
 };
 
 class PgSession;

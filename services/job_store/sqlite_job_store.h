@@ -19,27 +19,8 @@
 
 namespace pbgi::farm::sqlite_store {
 
-// A result column: NULL is how SQLite stored a NaN.
-inline double realOrNan(const Query& q, int column) {
-  return q.isNull(column) ? std::numeric_limits<double>::quiet_NaN() : q.real(column);
-}
-
 // Reads a row selected with PBGI_TASK_COLUMNS.
-inline TaskInfo readTask(const Query& q) {
-  TaskInfo task;
-  task.id = q.int64(0);
-  task.ref.job = q.int64(1);
-  task.ref.kind = static_cast<TaskKind>(q.integer(2));
-  task.ref.frame = q.integer(3);
-  task.ref.tile = q.integer(4);
-  task.state = static_cast<TaskState>(q.integer(5));
-  task.attempt = q.integer(6);
-  task.failures = q.integer(7);
-  task.worker = q.text(8);
-  task.lastError = q.text(9);
-  task.progress = q.real(10);
-  return task;
-}
+inline TaskInfo readTask(const Query& q) { return readTaskRow(q); }
 
 enum class Access { kRead, kWrite };
 

@@ -6,23 +6,7 @@
 namespace pbgi::farm::sqlite_store {
 
 absl::StatusOr<AuditInfo> SqliteJobStore::readAudit(const Query& q) const {
-  AuditInfo info;
-  info.id = q.int64(0);
-  info.job = q.int64(1);
-  info.spec.frame = q.integer(2);
-  PBGI_ASSIGN_OR_RETURN(info.spec.tiles,
-                        parseFrames(q.text(3), fmt::format("{}: audit {} tiles", path_, info.id)));
-  info.spec.spp = q.integer(4);
-  info.spec.threshold = q.real(5);
-  info.state = static_cast<AuditState>(q.integer(6));
-  info.attempt = q.integer(7);
-  info.failures = q.integer(8);
-  info.worker = q.text(9);
-  info.lastError = q.text(10);
-  if (info.state == AuditState::kDone) {
-    info.result = AuditResult{realOrNan(q, 11), realOrNan(q, 12), realOrNan(q, 13)};
-  }
-  return info;
+  return readAuditRow(q, path_);
 }
 
 absl::StatusOr<AuditInfo> SqliteJobStore::loadAudit(int64_t audit) {

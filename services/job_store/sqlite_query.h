@@ -4,6 +4,7 @@
 #include <sqlite3.h>
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -74,6 +75,10 @@ class Query {
   std::string text(int column) const;
   std::string bytes(int column) const { return text(column); }
   bool boolean(int column) const { return integer(column) != 0; }
+  // NULL is how SQLite stores a NaN.
+  double realOrNan(int column) const {
+    return isNull(column) ? std::numeric_limits<double>::quiet_NaN() : real(column);
+  }
 
  private:
   Query& note(int rc);
