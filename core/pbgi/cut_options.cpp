@@ -33,31 +33,35 @@ absl::Status CutOptions::validate() const {
   return absl::OkStatus();
 }
 
+namespace {
+
+// The quality presets' thresholds, from the coarsest.
+struct CutPreset {
+  std::string_view name;
+  float lightSolidAngle, lightBound, receiverBound, normalAngleDeg;
+  int nearRays;
+};
+constexpr CutPreset kCutPresets[] = {
+    {"draft", 0.03f, 0.3f, 0.05f, 45.0f, 16},
+    {"default", 0.02f, 0.2f, 0.03f, 30.0f, 32},
+    {"high", 0.005f, 0.05f, 0.01f, 20.0f, 64},
+};
+
+}  // namespace
+
 absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
-  CutOptions o;
-  if (name == "draft") {
-    o.lightSolidAngle = 0.03f;
-    o.lightBound = 0.3f;
-    o.receiverBound = 0.05f;
-    o.normalAngle = radians(45.0f);
-    o.nearRays = 16;
-  } else if (name == "default") {
-    o.lightSolidAngle = 0.02f;
-    o.lightBound = 0.2f;
-    o.receiverBound = 0.03f;
-    o.normalAngle = radians(30.0f);
-    o.nearRays = 32;
-  } else if (name == "high") {
-    o.lightSolidAngle = 0.005f;
-    o.lightBound = 0.05f;
-    o.receiverBound = 0.01f;
-    o.normalAngle = radians(20.0f);
-    o.nearRays = 64;
-  } else {
-    return absl::InvalidArgumentError(
-        fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
+  for (const CutPreset& p : kCutPresets) {
+    if (p.name != name) continue;
+    CutOptions o;
+    o.lightSolidAngle = p.lightSolidAngle;
+    o.lightBound = p.lightBound;
+    o.receiverBound = p.receiverBound;
+    o.normalAngle = radians(p.normalAngleDeg);
+    o.nearRays = p.nearRays;
+    return o;
   }
-  return o;
+  return absl::InvalidArgumentError(
+      fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
 }
 
 // (nearRays only where there are some: a bake's hash holds its bounces' cut.)
