@@ -182,73 +182,17 @@ absl::Status checkReceiver(const CutReceiver& r, size_t i) {
   return absl::OkStatus();
 }
 
-}  // namespace
-
-struct BidirectionalCut::State {
+// The receivers of one cut as an octree (leaves of the cut's receiverLeafSize, each node with
+// its bounds and normal cone), and the light the cut deposits on them: a linear field per
+// node, an exact sum per receiver. An item is a node's index or kReceiverBit | a receiver's.
+struct ReceiverTree {
+  std::span<const CutReceiver> receivers;
   std::vector<ReceiverNode> nodes;
   std::vector<uint32_t> order;  // receiver indices, grouped by tree node
-  std::vector<uint32_t> scratch;
-  std::vector<Rgb> single;  // per receiver: light from pairs with it alone
-  std::unordered_map<uint32_t, Bucket> buckets;
-  std::priority_queue<uint32_t> pages;
-  std::vector<Pair> stack;
-  std::vector<Probe> probes;  // the page's being resolved
-  std::vector<uint8_t> lit;  // a leaf's surfels that send light
-  std::vector<Rgb> leafLight;  // and what each sends a single receiver
-  std::vector<NearHit> nearHits;    // the near field's
-  std::vector<NearStep> nearSteps;  // the page's readings under way
-  std::vector<NearStep> nearStack;
-  uint64_t pending = 0;
-  NodeRef root;
-  bool nearTraced = false;  // the near field's rays are traced when the root's page is read
-  float nearRadius = 0.0f;  // 0 without a near field, or before the root's page
-  float readRadius = 0.0f;
+  std::vector<Rgb> single;      // per receiver: light from pairs with it alone
 
-  // The cut under way (begin() to finish()).
-  CutOptions opts;
-  TreePageSource* source = nullptr;
-  const Scene* scn = nullptr;
-  std::span<const CutReceiver> receivers;
-  uint64_t key = 0;
-  CutStats stats;
-
-  absl::Status begin(TreePageSource& tree, const Scene& scene,
-                     std::span<const CutReceiver> cutReceivers, uint64_t cutKey,
-                     const CutOptions& options);
-  // The highest page with pairs waiting; nullopt when the cut is done.
-  std::optional<uint32_t> nextPage() const {
-    if (pages.empty()) return std::nullopt;
-    return pages.top();
-  }
-  // Evaluates the pairs waiting on pages `lowest` and up, highest first, with those that
-  // their refinement sends to those pages.
-  absl::Status sweep(uint32_t lowest);
-  absl::Status finish(std::span<Rgb> out, CutStats* statsOut);
-
-  void build(std::span<const CutReceiver> receivers, int leafSize);
-  ReceiverNode makeNode(std::span<const CutReceiver> receivers, uint32_t first, uint32_t count,
-                        uint32_t parent) const;
-  // A pair to evaluate: now when its light is in the page at hand, else in its page's bucket.
-  void push(const Pair& p, uint32_t currentPage) {
-    if (p.light.page == currentPage) {
-      stack.push_back(p);
-      return;
-    }
-    waitOn(p.light.page).pairs.push_back(p);
-  }
-  // The bucket of page `id`, queued for the sweep, for one more waiting pair or descent.
-  Bucket& waitOn(uint32_t id) {
-    Bucket& b = buckets[id];
-    if (!b.queued) {
-      b.queued = true;
-      pages.push(id);
-    }
-    ++pending;
-    stats.peakPendingPairs = std::max(stats.peakPendingPairs, pending);
-    return b;
-  }
-
-  ReceiverView receiverView(uint32_t item) const {
+  void build(std::span<const CutReceiver> cutReceivers, int leafSize);
+  ReceiverView view(uint32_t item) const {
     ReceiverView v;
     if (item & kReceiverBit) {
       const CutReceiver& r = receivers[item & ~kReceiverBit];
@@ -312,6 +256,176 @@ struct BidirectionalCut::State {
     const uint32_t k = std::min(n.count - 1, static_cast<uint32_t>(rng.uniform() * n.count));
     return order[n.first + k];
   }
+  uint64_t served(uint32_t item) const { return (item & kReceiverBit) ? 1 : nodes[item].count; }
+  // Each node's field pushed down to its children (re-centred), then read at each receiver,
+  // plus its own light: the cut's irradiance, in the receivers' order.
+  absl::Status read(std::span<Rgb> out);
+
+ private:
+  ReceiverNode makeNode(uint32_t first, uint32_t count, uint32_t parent) const;
+  std::vector<uint32_t> scratch;
+};
+
+ReceiverNode ReceiverTree::makeNode(uint32_t first, uint32_t count, uint32_t parent) const {
+  ReceiverNode node;
+  node.first = first;
+  node.count = count;
+  node.parent = parent;
+  Vec3f normalSum(0.0f);
+  for (uint32_t i = first; i < first + count; ++i) {
+    const CutReceiver& r = receivers[order[i]];
+    node.bounds.extend(r.p);
+    normalSum += r.n;
+  }
+  node.center = node.bounds.center();
+  node.radius = node.bounds.radius();
+  const float len = length(normalSum);
+  if (!(len > 1e-6f)) {
+    node.axis = Vec3f(0.0f, 0.0f, 1.0f);
+    node.angle = kPi;
+    node.cosAngle = -1.0f;
+    node.sinAngle = 0.0f;
+    return node;
+  }
+  node.axis = normalSum / len;
+  float minCos = 1.0f;
+  for (uint32_t i = first; i < first + count; ++i) {
+    minCos = std::min(minCos, dot(node.axis, receivers[order[i]].n));
+  }
+  node.angle = safeAcos(minCos);
+  node.cosAngle = std::cos(node.angle);
+  node.sinAngle = std::sin(node.angle);
+  return node;
+}
+
+void ReceiverTree::build(std::span<const CutReceiver> cutReceivers, int leafSize) {
+  receivers = cutReceivers;
+  single.assign(receivers.size(), Rgb(0.0f));
+  nodes.clear();
+  order.resize(receivers.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<uint32_t>(i);
+  if (receivers.empty()) return;
+  nodes.push_back(makeNode(0, static_cast<uint32_t>(receivers.size()), kNoParent));
+  // Breadth first: children follow their parents, so one forward pass pushes light down.
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const uint32_t first = nodes[i].first, count = nodes[i].count;
+    if (count <= static_cast<uint32_t>(leafSize)) continue;
+    const Vec3f mid = nodes[i].center;
+    std::array<uint32_t, 9> start{};
+    auto octant = [&](uint32_t r) {
+      const Vec3f& p = receivers[r].p;
+      return (p.x > mid.x ? 1 : 0) | (p.y > mid.y ? 2 : 0) | (p.z > mid.z ? 4 : 0);
+    };
+    for (uint32_t k = first; k < first + count; ++k) ++start[octant(order[k]) + 1];
+    int groups = 0;
+    for (int o = 0; o < 8; ++o) groups += start[o + 1] > 0 ? 1 : 0;
+    std::vector<std::pair<uint32_t, uint32_t>> ranges;  // (first, count) per child
+    if (groups >= 2) {
+      for (int o = 0; o < 8; ++o) start[o + 1] += start[o];
+      scratch.resize(count);
+      std::array<uint32_t, 8> fill{};
+      for (int o = 0; o < 8; ++o) fill[o] = start[o];
+      for (uint32_t k = first; k < first + count; ++k) scratch[fill[octant(order[k])]++] = order[k];
+      std::copy(scratch.begin(), scratch.begin() + count, order.begin() + first);
+      for (int o = 0; o < 8; ++o) {
+        if (start[o + 1] > start[o]) ranges.push_back({first + start[o], start[o + 1] - start[o]});
+      }
+    } else {
+      // Every receiver in one place (or one float step apart): halves, in the given order.
+      ranges.push_back({first, count / 2});
+      ranges.push_back({first + count / 2, count - count / 2});
+    }
+    nodes[i].firstChild = static_cast<uint32_t>(nodes.size());
+    nodes[i].childCount = static_cast<uint32_t>(ranges.size());
+    for (const auto& [f, c] : ranges) {
+      nodes.push_back(makeNode(f, c, static_cast<uint32_t>(i)));
+    }
+  }
+}
+
+absl::Status ReceiverTree::read(std::span<Rgb> out) {
+  for (size_t i = 1; i < nodes.size(); ++i) {
+    ReceiverNode& n = nodes[i];
+    const ReceiverNode& parent = nodes[n.parent];
+    n.field.add(parent.field, n.center - parent.center);
+  }
+  for (const ReceiverNode& n : nodes) {
+    if (n.childCount > 0) continue;
+    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+      const uint32_t r = order[k];
+      const CutReceiver& rec = receivers[r];
+      const Vec3f delta = rec.p - n.center;
+      Rgb e;
+      for (int c = 0; c < 3; ++c) e[c] = std::max(0.0f, dot(rec.n, n.field.at(c, delta)));
+      out[r] = e + single[r];
+      if (!isFinite(out[r])) {
+        return absl::DataLossError(fmt::format(
+            "cut: irradiance {} at {} is not finite: the tree holds non-finite radiance", out[r],
+            rec.p));
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+struct BidirectionalCut::State {
+  ReceiverTree tree;
+  std::unordered_map<uint32_t, Bucket> buckets;
+  std::priority_queue<uint32_t> pages;
+  std::vector<Pair> stack;
+  std::vector<Probe> probes;        // the page's being resolved
+  std::vector<uint8_t> lit;         // a leaf's surfels that send light
+  std::vector<Rgb> leafLight;       // and what each sends a single receiver
+  std::vector<NearHit> nearHits;    // the near field's
+  std::vector<NearStep> nearSteps;  // the page's readings under way
+  std::vector<NearStep> nearStack;
+  uint64_t pending = 0;
+  NodeRef root;
+  bool nearTraced = false;  // the near field's rays are traced when the root's page is read
+  float nearRadius = 0.0f;  // 0 without a near field, or before the root's page
+  float readRadius = 0.0f;
+
+  // The cut under way (begin() to finish()).
+  CutOptions opts;
+  TreePageSource* source = nullptr;
+  const Scene* scn = nullptr;
+  uint64_t key = 0;
+  CutStats stats;
+
+  absl::Status begin(TreePageSource& treeSource, const Scene& scene,
+                     std::span<const CutReceiver> cutReceivers, uint64_t cutKey,
+                     const CutOptions& options);
+  // The highest page with pairs waiting; nullopt when the cut is done.
+  std::optional<uint32_t> nextPage() const {
+    if (pages.empty()) return std::nullopt;
+    return pages.top();
+  }
+  // Evaluates the pairs waiting on pages `lowest` and up, highest first, with those that
+  // their refinement sends to those pages.
+  absl::Status sweep(uint32_t lowest);
+  absl::Status finish(std::span<Rgb> out, CutStats* statsOut);
+
+  // A pair to evaluate: now when its light is in the page at hand, else in its page's bucket.
+  void push(const Pair& p, uint32_t currentPage) {
+    if (p.light.page == currentPage) {
+      stack.push_back(p);
+      return;
+    }
+    waitOn(p.light.page).pairs.push_back(p);
+  }
+  // The bucket of page `id`, queued for the sweep, for one more waiting pair or descent.
+  Bucket& waitOn(uint32_t id) {
+    Bucket& b = buckets[id];
+    if (!b.queued) {
+      b.queued = true;
+      pages.push(id);
+    }
+    ++pending;
+    stats.peakPendingPairs = std::max(stats.peakPendingPairs, pending);
+    return b;
+  }
 
   // A cluster's light at a receiver item, once its shadow ray's target is known: deposited
   // when the ray arrives, else dropped (and dropped when no surfel sends the receiver
@@ -322,8 +436,8 @@ struct BidirectionalCut::State {
       case Descent::Kind::kNothing:
         return;
       case Descent::Kind::kSurfel:
-        if (visibleSurfel(*scn, receivers[origin], d.surfel, &stats)) {
-          deposit(receiver, src, d.scale);
+        if (visibleSurfel(*scn, tree.receivers[origin], d.surfel, &stats)) {
+          tree.deposit(receiver, src, d.scale);
         }
         return;
       case Descent::Kind::kElsewhere:
@@ -340,20 +454,16 @@ struct BidirectionalCut::State {
     }
   }
 
-  uint64_t served(uint32_t item) const {
-    return (item & kReceiverBit) ? 1 : nodes[item].count;
-  }
-
   void refineReceiver(const Pair& pair, uint32_t page) {
     ++stats.refinedReceiver;
-    const ReceiverNode& n = nodes[pair.receiver];
+    const ReceiverNode& n = tree.nodes[pair.receiver];
     if (n.childCount > 0) {
       for (uint32_t c = 0; c < n.childCount; ++c) {
         push({pair.light, n.firstChild + c, pair.depth}, page);
       }
     } else {
       for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-        push({pair.light, kReceiverBit | order[k], pair.depth}, page);
+        push({pair.light, kReceiverBit | tree.order[k], pair.depth}, page);
       }
     }
   }
@@ -376,7 +486,7 @@ struct BidirectionalCut::State {
       const Surfel& s = surfels[k];
       bool sends = false;
       if (rv.single) {
-        sends = surfelLight(s, receivers[pair.receiver & ~kReceiverBit], opts.selfSkipRadius,
+        sends = surfelLight(s, tree.receivers[pair.receiver & ~kReceiverBit], opts.selfSkipRadius,
                             nearRadius, &leafLight[k]);
       } else {
         sends = !isBlack(facingSide(s, s.position - rv.center).radiance);
@@ -389,7 +499,7 @@ struct BidirectionalCut::State {
       solidAngle += s.area() * std::abs(dot(s.normal, v)) / (std::sqrt(v.length2()) * d2);
     }
     stats.surfelTerms += n;
-    stats.receiversServed += served(pair.receiver) * n;
+    stats.receiversServed += tree.served(pair.receiver) * n;
     if (litCount == 0) return;
     const size_t strata =
         opts.lightSolidAngle > 0.0f
@@ -411,17 +521,17 @@ struct BidirectionalCut::State {
           break;
         }
       }
-      const CutReceiver& from = receivers[originOf(pair.receiver, rng)];
+      const CutReceiver& from = tree.receivers[tree.originOf(pair.receiver, rng)];
       if (!visibleSurfel(*scn, from, surfels[target], &stats)) continue;
       for (size_t k = begin; k < end; ++k) {
         if (!lit[k]) continue;
         if (rv.single) {
-          single[pair.receiver & ~kReceiverBit] += leafLight[k];
+          tree.single[pair.receiver & ~kReceiverBit] += leafLight[k];
           continue;
         }
         PointSource src;
         if (surfelSource(surfels[k], normalize(rv.center - surfels[k].position), &src)) {
-          deposit(pair.receiver, src, 1.0f);
+          tree.deposit(pair.receiver, src, 1.0f);
         }
       }
     }
@@ -440,18 +550,18 @@ struct BidirectionalCut::State {
     const float sinGamma = safeSqrt(1.0f - cosGamma * cosGamma);
     if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
       ++stats.clusterPairs;
-      stats.receiversServed += served(pair.receiver);
+      stats.receiversServed += tree.served(pair.receiver);
       const PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
       if (isBlack(src.intensity)) return absl::OkStatus();
       Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-      const uint32_t origin = originOf(pair.receiver, rng);
+      const uint32_t origin = tree.originOf(pair.receiver, rng);
       // Towards one of the cluster's surfels, picked in proportion to the light it sends:
       // the fraction of rays that arrive is then the fraction of the cluster's light that
       // does, wherever the light sits in the cluster (a floor cluster reaching under a block
       // has its centroid, or points of its bounds, where no light is). The descent starts
       // from the cluster's own estimate at the ray's origin, which its corrections divide: at
       // a single receiver, the source's, seen at the cosine and distance just measured.
-      const CutReceiver& from = receivers[origin];
+      const CutReceiver& from = tree.receivers[origin];
       const float estimate = rv.single ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
                                        : nodeContribution(a, page.waveletOf(node), from.p, from.n);
       absl::StatusOr<Descent> target =
@@ -471,7 +581,7 @@ struct BidirectionalCut::State {
 
   absl::Status process(const Pair& pair, const TreePage& page) {
     ++stats.pairs;
-    const ReceiverView rv = receiverView(pair.receiver);
+    const ReceiverView rv = tree.view(pair.receiver);
     absl::StatusOr<const TreeNode*> nodeOr = nodeAt(page, pair.light);
     if (!nodeOr.ok()) return nodeOr.status();
     const TreeNode& node = **nodeOr;
@@ -578,105 +688,26 @@ struct BidirectionalCut::State {
   }
 };
 
-ReceiverNode BidirectionalCut::State::makeNode(std::span<const CutReceiver> receivers,
-                                               uint32_t first, uint32_t count,
-                                               uint32_t parent) const {
-  ReceiverNode node;
-  node.first = first;
-  node.count = count;
-  node.parent = parent;
-  Vec3f normalSum(0.0f);
-  for (uint32_t i = first; i < first + count; ++i) {
-    const CutReceiver& r = receivers[order[i]];
-    node.bounds.extend(r.p);
-    normalSum += r.n;
-  }
-  node.center = node.bounds.center();
-  node.radius = node.bounds.radius();
-  const float len = length(normalSum);
-  if (!(len > 1e-6f)) {
-    node.axis = Vec3f(0.0f, 0.0f, 1.0f);
-    node.angle = kPi;
-    node.cosAngle = -1.0f;
-    node.sinAngle = 0.0f;
-    return node;
-  }
-  node.axis = normalSum / len;
-  float minCos = 1.0f;
-  for (uint32_t i = first; i < first + count; ++i) {
-    minCos = std::min(minCos, dot(node.axis, receivers[order[i]].n));
-  }
-  node.angle = safeAcos(minCos);
-  node.cosAngle = std::cos(node.angle);
-  node.sinAngle = std::sin(node.angle);
-  return node;
-}
-
-void BidirectionalCut::State::build(std::span<const CutReceiver> receivers, int leafSize) {
-  nodes.clear();
-  order.resize(receivers.size());
-  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<uint32_t>(i);
-  if (receivers.empty()) return;
-  nodes.push_back(makeNode(receivers, 0, static_cast<uint32_t>(receivers.size()), kNoParent));
-  // Breadth first: children follow their parents, so one forward pass pushes light down.
-  for (size_t i = 0; i < nodes.size(); ++i) {
-    const uint32_t first = nodes[i].first, count = nodes[i].count;
-    if (count <= static_cast<uint32_t>(leafSize)) continue;
-    const Vec3f mid = nodes[i].center;
-    std::array<uint32_t, 9> start{};
-    auto octant = [&](uint32_t r) {
-      const Vec3f& p = receivers[r].p;
-      return (p.x > mid.x ? 1 : 0) | (p.y > mid.y ? 2 : 0) | (p.z > mid.z ? 4 : 0);
-    };
-    for (uint32_t k = first; k < first + count; ++k) ++start[octant(order[k]) + 1];
-    int groups = 0;
-    for (int o = 0; o < 8; ++o) groups += start[o + 1] > 0 ? 1 : 0;
-    std::vector<std::pair<uint32_t, uint32_t>> ranges;  // (first, count) per child
-    if (groups >= 2) {
-      for (int o = 0; o < 8; ++o) start[o + 1] += start[o];
-      scratch.resize(count);
-      std::array<uint32_t, 8> fill{};
-      for (int o = 0; o < 8; ++o) fill[o] = start[o];
-      for (uint32_t k = first; k < first + count; ++k) scratch[fill[octant(order[k])]++] = order[k];
-      std::copy(scratch.begin(), scratch.begin() + count, order.begin() + first);
-      for (int o = 0; o < 8; ++o) {
-        if (start[o + 1] > start[o]) ranges.push_back({first + start[o], start[o + 1] - start[o]});
-      }
-    } else {
-      // Every receiver in one place (or one float step apart): halves, in the given order.
-      ranges.push_back({first, count / 2});
-      ranges.push_back({first + count / 2, count - count / 2});
-    }
-    nodes[i].firstChild = static_cast<uint32_t>(nodes.size());
-    nodes[i].childCount = static_cast<uint32_t>(ranges.size());
-    for (const auto& [f, c] : ranges) {
-      nodes.push_back(makeNode(receivers, f, c, static_cast<uint32_t>(i)));
-    }
-  }
-}
-
 BidirectionalCut::BidirectionalCut(const CutOptions& options)
     : options_(options), state_(std::make_unique<State>()) {}
 BidirectionalCut::~BidirectionalCut() = default;
 BidirectionalCut::BidirectionalCut(BidirectionalCut&&) noexcept = default;
 
-absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& scene,
-                                           std::span<const CutReceiver> cutReceivers,
-                                           uint64_t cutKey, const CutOptions& options) {
+absl::Status BidirectionalCut::State::begin(TreePageSource& treeSource, const Scene& scene,
+                                            std::span<const CutReceiver> cutReceivers,
+                                            uint64_t cutKey, const CutOptions& options) {
   for (size_t i = 0; i < cutReceivers.size(); ++i) {
     if (absl::Status s = checkReceiver(cutReceivers[i], i); !s.ok()) return s;
   }
   opts = options;
-  source = &tree;
+  source = &treeSource;
   scn = &scene;
-  receivers = cutReceivers;
   key = cutKey;
   stats = CutStats{};
   stats.cuts = 1;
-  stats.receivers = receivers.size();
-  build(receivers, opts.receiverLeafSize);
-  stats.receiverNodes = nodes.size();
-  single.assign(receivers.size(), Rgb(0.0f));
+  stats.receivers = cutReceivers.size();
+  tree.build(cutReceivers, opts.receiverLeafSize);
+  stats.receiverNodes = tree.nodes.size();
   for (auto& [id, bucket] : buckets) {
     bucket.pairs.clear();
     bucket.probes.clear();
@@ -691,8 +722,8 @@ absl::Status BidirectionalCut::State::begin(TreePageSource& tree, const Scene& s
   nearSteps.clear();
   nearTraced = opts.nearRays == 0;
   nearRadius = readRadius = 0.0f;
-  if (receivers.empty()) return absl::OkStatus();
-  root = tree.root();
+  if (tree.receivers.empty()) return absl::OkStatus();
+  root = treeSource.root();
   push({root, 0, 0}, ~root.page);
   return absl::OkStatus();
 }
@@ -728,7 +759,7 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
       nearRadius = kNearFieldRadii * *mean;
       readRadius = kNearReadRadii * *mean;
       if (nearRadius > 0.0f) {
-        traceNearField(*scn, receivers, opts.nearRays, nearRadius, &nearHits, &stats);
+        traceNearField(*scn, tree.receivers, opts.nearRays, nearRadius, &nearHits, &stats);
         for (uint32_t i = 0; i < nearHits.size(); ++i) {
           nearSteps.push_back({.at = root, .depth = 0, .hit = i});
         }
@@ -744,7 +775,7 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
     for (Probe& probe : probes) {
       absl::StatusOr<Descent> target =
           descend(**page, probe.at, probe.depth, probe.estimate, probe.scale,
-                  receivers[probe.origin], opts.coneDescent, probe.rng);
+                  tree.receivers[probe.origin], opts.coneDescent, probe.rng);
       if (!target.ok()) return target.status();
       resolve(*target, probe.receiver, probe.origin, probe.rng, probe.src);
     }
@@ -763,31 +794,10 @@ absl::Status BidirectionalCut::State::sweep(uint32_t lowest) {
 }
 
 absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* statsOut) {
-  PBGI_CHECK_EQ(out.size(), receivers.size());
+  PBGI_CHECK_EQ(out.size(), tree.receivers.size());
   std::fill(out.begin(), out.end(), Rgb(0.0f));
-  addNearLight(nearHits, opts.nearRays, single, &stats);
-  // Push each node's field down to its children (re-centred), then read it at each receiver.
-  for (size_t i = 1; i < nodes.size(); ++i) {
-    ReceiverNode& n = nodes[i];
-    const ReceiverNode& parent = nodes[n.parent];
-    n.field.add(parent.field, n.center - parent.center);
-  }
-  for (const ReceiverNode& n : nodes) {
-    if (n.childCount > 0) continue;
-    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-      const uint32_t r = order[k];
-      const CutReceiver& rec = receivers[r];
-      const Vec3f delta = rec.p - n.center;
-      Rgb e;
-      for (int c = 0; c < 3; ++c) e[c] = std::max(0.0f, dot(rec.n, n.field.at(c, delta)));
-      out[r] = e + single[r];
-      if (!isFinite(out[r])) {
-        return absl::DataLossError(fmt::format(
-            "cut: irradiance {} at {} is not finite: the tree holds non-finite radiance", out[r],
-            rec.p));
-      }
-    }
-  }
+  addNearLight(nearHits, opts.nearRays, tree.single, &stats);
+  if (absl::Status s = tree.read(out); !s.ok()) return s;
   if (statsOut) *statsOut += stats;
   // What waited for pages is gone: give the buckets' memory back (up to about a million
   // pairs and descents at a cut's peak), so that cuts kept for later do not hold it.
