@@ -14,19 +14,6 @@
 namespace pbgi {
 namespace {
 
-// R, G, B of `image`, packed three floats per pixel, as OIIO wants them.
-std::vector<float> packRgb(const Image& image) {
-  const auto rgb = detail::rgbChannelIndices(image);
-  const size_t pixels = static_cast<size_t>(image.width()) * image.height();
-  const size_t stride = image.channelCount();
-  const std::vector<float>& src = image.pixels();
-  std::vector<float> out(pixels * 3);
-  for (size_t p = 0; p < pixels; ++p) {
-    for (int c = 0; c < 3; ++c) out[p * 3 + c] = src[p * stride + rgb[c]];
-  }
-  return out;
-}
-
 bool finiteRgb(const float* v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
 }
@@ -59,8 +46,8 @@ absl::StatusOr<ImageMetrics> compareImages(const Image& image, const Image& refe
   const int width = image.width();
   const int height = image.height();
   const size_t pixels = static_cast<size_t>(width) * height;
-  std::vector<float> a = packRgb(image);
-  std::vector<float> b = packRgb(reference);
+  std::vector<float> a = detail::packRgb(image);
+  std::vector<float> b = detail::packRgb(reference);
 
   try {
     const OIIO::ImageSpec spec(width, height, 3, OIIO::TypeDesc::FLOAT);

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <mutex>
 #include <random>
+#include <string_view>
 #include <system_error>
 #include <vector>
 
@@ -19,6 +20,7 @@
 #include <OpenEXR/ImfHeader.h>
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#include <absl/strings/ascii.h>
 #include <absl/strings/match.h>
 #include <absl/strings/str_cat.h>
 #include <absl/strings/str_format.h>
@@ -295,13 +297,7 @@ absl::StatusOr<std::vector<uint8_t>> displayRgb8(const Image& image, const std::
                      "share/pbgi/ocio/config.ocio beside the bin/ folder of pbgi"));
   }
 
-  const size_t pixels = static_cast<size_t>(image.width()) * image.height();
-  const auto rgb = detail::rgbChannelIndices(image);
-  std::vector<float> linear(pixels * 3);
-  for (size_t p = 0; p < pixels; ++p) {
-    for (int c = 0; c < 3; ++c)
-      linear[p * 3 + c] = image.pixels()[p * image.channelCount() + rgb[c]];
-  }
+  std::vector<float> linear = detail::packRgb(image);
 
   try {
     OCIO::ConstConfigRcPtr config = OCIO::Config::CreateFromFile(ocioConfig.c_str());
@@ -339,6 +335,69 @@ absl::Status writePreviewPng(const Image& image, const std::string& path,
   absl::StatusOr<std::vector<uint8_t>> encoded = displayRgb8(image, path, ocioConfig);
   if (!encoded.ok()) return encoded.status();
   return writeAtomically(path, "png", previewSpec(image), OIIO::TypeDesc::UINT8, encoded->data());
+}
+
+namespace {
+
+struct FormatByExtension {
+  std::string_view extension;
+  OutputFormat format;
+  const char* oiioName;
+};
+constexpr FormatByExtension kOutputFormats[] = {
+    {".exr", OutputFormat::kExr, "openexr"},    {".tif", OutputFormat::kFloatRgb, "tiff"},
+    {".tiff", OutputFormat::kFloatRgb, "tiff"}, {".hdr", OutputFormat::kFloatRgb, "hdr"},
+    {".png", OutputFormat::kDisplay8, "png"},   {".jpg", OutputFormat::kDisplay8, "jpeg"},
+    {".jpeg", OutputFormat::kDisplay8, "jpeg"},
+};
+
+const FormatByExtension* formatOf(const std::string& path) {
+  const std::string extension = absl::AsciiStrToLower(fs::path(path).extension().string());
+  for (const FormatByExtension& f : kOutputFormats) {
+    if (f.extension == extension) return &f;
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+absl::StatusOr<OutputFormat> outputFormatFor(const std::string& path) {
+  if (const FormatByExtension* f = formatOf(path)) return f->format;
+  return absl::InvalidArgumentError(absl::StrCat(
+      path, ": unknown image format '", fs::path(path).extension().string(),
+      "' (expected .exr for every AOV in float; .tif, .tiff or .hdr for the beauty in float; "
+      ".png, .jpg or .jpeg for 8-bit through the OCIO view)"));
+}
+
+absl::Status writeRender(const Image& image, const std::string& path, const std::string& ocioConfig,
+                         std::vector<std::string>* warnings) {
+  const FormatByExtension* f = formatOf(path);
+  if (f == nullptr) return outputFormatFor(path).status();
+  if (f->format == OutputFormat::kExr) return writeExr(image, path);
+  if (image.width() <= 0 || image.height() <= 0 || image.channelCount() == 0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: cannot write an empty image (%dx%d, %d channels)", path, image.width(),
+                        image.height(), image.channelCount()));
+  }
+  const std::string dropped =
+      image.channelCount() > 3 ? absl::StrFormat(" and %d AOV channels", image.channelCount() - 3)
+                               : std::string();
+  if (f->format == OutputFormat::kFloatRgb) {
+    warnings->push_back(absl::StrCat(path, ": ", std::string(f->extension),
+                                     " keeps the image's colour in float; its metadata", dropped,
+                                     " are written only to .exr"));
+    const std::vector<float> rgb = detail::packRgb(image);
+    const OIIO::ImageSpec spec(image.width(), image.height(), 3, OIIO::TypeDesc::FLOAT);
+    return writeAtomically(path, f->oiioName, spec, OIIO::TypeDesc::FLOAT, rgb.data());
+  }
+  warnings->push_back(absl::StrCat(path, ": ", std::string(f->extension),
+                                   " is 8-bit, made through the OCIO view as the preview is: the "
+                                   "high dynamic range, the metadata",
+                                   dropped, " are dropped (write .exr to keep them)"));
+  absl::StatusOr<std::vector<uint8_t>> encoded = displayRgb8(image, path, ocioConfig);
+  if (!encoded.ok()) return encoded.status();
+  return writeAtomically(path, f->oiioName, previewSpec(image), OIIO::TypeDesc::UINT8,
+                         encoded->data());
 }
 
 absl::StatusOr<std::string> encodePreviewPng(const Image& image, const std::string& what,

@@ -3,6 +3,7 @@
 // folder and renamed, so a reader never sees a partial file.
 
 #include <string>
+#include <vector>
 
 #include <absl/status/statusor.h>
 
@@ -15,6 +16,17 @@ namespace pbgi {
 // metadata as EXR attributes and its window as the data window inside the display window.
 // Channel names are EXR layer names ("albedo.R").
 absl::Status writeExr(const Image& image, const std::string& path);
+
+// What a render's output path asks for, by its extension (any case): OpenEXR (.exr: every
+// channel as float, with the metadata), the beauty's colour in float (.tif, .tiff, .hdr), or
+// 8-bit through the OCIO view like the preview (.png, .jpg, .jpeg). InvalidArgument naming
+// the path and the known extensions for any other.
+enum class OutputFormat { kExr, kFloatRgb, kDisplay8 };
+absl::StatusOr<OutputFormat> outputFormatFor(const std::string& path);
+// Writes a render to `path` in the format its extension names; what that format cannot hold
+// (AOVs, metadata, the high dynamic range) is said in `warnings`.
+absl::Status writeRender(const Image& image, const std::string& path, const std::string& ocioConfig,
+                         std::vector<std::string>* warnings);
 
 // Reads any image OIIO can read (EXR, PNG, JPEG, ...) into float channels with its metadata;
 // its pixels are the data window's, whose place in the display window is the image's window.

@@ -122,7 +122,7 @@ int runRender(const RenderOptions& o) {
   if (!report.ok()) return reportError(report.status());
   for (const std::string& w : report->warnings)
     std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
-  std::printf("wrote %s\n", report->exrPath.c_str());
+  std::printf("wrote %s\n", report->imagePath.c_str());
   if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
   std::printf("%s", formatStages(report->stages).c_str());
   if (report->tree) printTreeReport(*report->tree);
@@ -151,7 +151,10 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::PositiveNumber);
   cmd->add_option("--tile-size", options->tileSize, "Tile edge in pixels (default: the shot's)")
       ->check(CLI::Range(4, 1024));
-  cmd->add_option("--out", options->out, "Output EXR (default: the shot's output pattern)");
+  cmd->add_option("--out", options->out,
+                  "Output image, its format by extension: .exr (every AOV), .tif/.tiff/.hdr "
+                  "(colour in float), .png/.jpg (8-bit through the OCIO view) (default: the "
+                  "shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
   cmd->add_option("--crop", options->crop,
                   "Render only pixels X0,Y0,X1,Y1 of the full frame (half-open, origin top "

@@ -13,6 +13,7 @@
 #include "core/render/integrators.h"
 #include "core/util/log.h"
 #include "core/util/status.h"
+#include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/coordinator/coordinator_metrics.h"
@@ -323,7 +324,8 @@ class FarmService final : public v1::Coordinator::Service {
   }
   absl::StatusOr<int64_t> submit(const v1::SubmitJobRequest& request);
   absl::Status planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
-                          const IntegratorInfo& integrator, JobSpec* spec) const;
+                          const IntegratorInfo& integrator, OutputFormat format,
+                          JobSpec* spec) const;
   grpc::Status completeAudit(const v1::CompleteTaskRequest& request);
   void describeLease(const Lease& lease, const ParsedJob& view, v1::LeaseTaskResponse* out) const;
   void describeAudit(const AuditLease& audit, const ParsedJob& view,
@@ -362,10 +364,11 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
     pattern = (dir / fs::path(shot.output).filename()).string();
   }
   PBGI_ASSIGN_OR_RETURN(spec.outputPattern, confineToRoot(pattern, options_.outputRoot));
+  PBGI_ASSIGN_OR_RETURN(const OutputFormat format, outputFormatFor(spec.outputPattern));
   spec.tileCount = static_cast<int>(farmTiles(shot, jobs_.tileSize()).size());
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
   spec.needsBake = integrator->needsTree;
-  PBGI_RETURN_IF_ERROR(planAudits(request, shot, *integrator, &spec));
+  PBGI_RETURN_IF_ERROR(planAudits(request, shot, *integrator, format, &spec));
   PBGI_ASSIGN_OR_RETURN(const int64_t id, store_.submit(spec, wallClock()));
   std::error_code ec;
   fs::create_directories(jobs_.workDir(id), ec);
@@ -375,12 +378,22 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
 }
 
 // The job's accuracy audits: per frame, tiles chosen by the seeded rule, unless the request
-// or the integrator (the path tracer is its own reference) says none.
+// or the integrator (the path tracer is its own reference) says none. An audit compares the
+// frame's linear light, so a frame written in 8 bits has none by default and refuses one
+// asked for.
 absl::Status FarmService::planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
-                                     const IntegratorInfo& integrator, JobSpec* spec) const {
-  const int tiles = request.has_audit_tiles() ? request.audit_tiles()
-                    : integrator.needsTree    ? kDefaultAuditTiles
-                                              : 0;
+                                     const IntegratorInfo& integrator, OutputFormat format,
+                                     JobSpec* spec) const {
+  const bool hdr = format != OutputFormat::kDisplay8;
+  const int tiles = request.has_audit_tiles()     ? request.audit_tiles()
+                    : integrator.needsTree && hdr ? kDefaultAuditTiles
+                                                  : 0;
+  if (tiles > 0 && !hdr) {
+    return absl::InvalidArgumentError(fmt::format(
+        "an audit of {} tiles compares the frame's linear light, which {} does not hold in 8 "
+        "bits: write .exr (the shot's output or --output-dir) or pass --audit-tiles 0",
+        tiles, spec->outputPattern));
+  }
   const int spp = request.audit_spp() != 0 ? request.audit_spp() : kDefaultAuditSpp;
   const double threshold =
       request.audit_threshold() != 0 ? request.audit_threshold() : kDefaultAuditThreshold;

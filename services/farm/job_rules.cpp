@@ -103,8 +103,10 @@ absl::StatusOr<std::string> confineToRoot(const std::string& path, const std::st
       rootEnd == rootPath.end() || (std::next(rootEnd) == rootPath.end() && rootEnd->empty());
   if (!rootConsumed || fullIt == full.end()) {
     return absl::PermissionDeniedError(fmt::format(
-        "output {} lies outside the coordinator's output root {}", full.string(),
-        rootPath.string()));
+        "output {} lies outside the coordinator's output root {}: submit with --output-dir "
+        "DIR (a folder under the root, or relative to it), or start the coordinator with "
+        "--output-root set to a folder that holds the shot's output",
+        full.string(), rootPath.string()));
   }
   return full.string();
 }

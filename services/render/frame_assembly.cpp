@@ -8,6 +8,7 @@
 
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
+#include "formats/image/ocio_config.h"
 
 namespace pbgi {
 
@@ -74,7 +75,8 @@ absl::StatusOr<TileRect> parseRegion(const std::string& text) {
 
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
-                                    const std::string& outPath) {
+                                    const std::string& outPath,
+                                    std::vector<std::string>* warnings) {
   if (tilePaths.size() != tiles.size() || tiles.empty()) {
     return absl::InvalidArgumentError(fmt::format(
         "assemble {}: {} tile files for {} tiles", outPath, tilePaths.size(), tiles.size()));
@@ -130,7 +132,9 @@ absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
     }
   }
   frame.setMetadata("pbgi/assembledTiles", static_cast<int>(tiles.size()));
-  PBGI_RETURN_IF_ERROR(writeExr(frame, outPath));
+  std::vector<std::string> dropped;
+  PBGI_RETURN_IF_ERROR(
+      writeRender(frame, outPath, defaultOcioConfigPath(), warnings ? warnings : &dropped));
   return frame;
 }
 

@@ -42,8 +42,11 @@ std::string regionsText(const std::vector<TileRect>& regions);
 // InvalidArgument when a rectangle leaves the frame.
 absl::StatusOr<Image> cropRegions(const Image& frame, const std::vector<TileRect>& regions);
 
+// Writes the frame to `outPath` in the format its extension names (writeRender: .exr keeps
+// every AOV; what another format drops is said in `warnings`).
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
-                                    const std::string& outPath);
+                                    const std::string& outPath,
+                                    std::vector<std::string>* warnings = nullptr);
 
 }  // namespace pbgi

@@ -19,13 +19,13 @@ namespace pbgi {
 
 namespace {
 
-std::string previewPathFor(const std::string& exrPath) {
-  const size_t dot = exrPath.find_last_of('.');
-  const size_t slash = exrPath.find_last_of('/');
+std::string previewPathFor(const std::string& imagePath) {
+  const size_t dot = imagePath.find_last_of('.');
+  const size_t slash = imagePath.find_last_of('/');
   if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) {
-    return exrPath + ".png";
+    return imagePath + ".png";
   }
-  return exrPath.substr(0, dot) + ".png";
+  return imagePath.substr(0, dot) + ".png";
 }
 
 // The tree a PBGI render reads: request.treePath, else the frame's bake when one made from
@@ -66,9 +66,10 @@ absl::StatusOr<std::shared_ptr<TreeFile>> frameTree(const ShotDesc& shot,
 
 }  // namespace
 
-std::string writePreviewBeside(const Image& image, const std::string& exrPath,
+std::string writePreviewBeside(const Image& image, const std::string& imagePath,
                                const std::string& ocioConfig, std::vector<std::string>* warnings) {
-  const std::string path = previewPathFor(exrPath);
+  const std::string path = previewPathFor(imagePath);
+  if (path == imagePath) return {};  // the image is its own preview (a .png output)
   const std::string config = ocioConfig.empty() ? defaultOcioConfigPath() : ocioConfig;
   if (absl::Status s = writePreviewPng(image, path, config); !s.ok()) {
     warnings->push_back(fmt::format("no preview: {}", s.message()));
@@ -101,6 +102,10 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   // Before a bake: a region the frame cannot hold fails now, not minutes later.
   PBGI_RETURN_IF_ERROR(checkRegions(request.regions, shot.width * shot.camera.views.x,
                                     shot.height * shot.camera.views.y));
+  report.imagePath = request.outPath.empty() ? outputPathForFrame(shot.output, request.frame,
+                                                                  shot.lastFrame > shot.firstFrame)
+                                             : request.outPath;
+  PBGI_RETURN_IF_ERROR(outputFormatFor(report.imagePath).status());  // before the render's time
   PBGI_ASSIGN_OR_RETURN(const RenderSettings settings, requestSettings(shot, request));
   PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* info, findIntegrator(settings.integrator));
   report.integrator = settings.integrator;
@@ -168,14 +173,12 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
     image->setMetadata("pbgi/gather", report.tree->integratorDescription);
   }
 
-  report.exrPath = request.outPath.empty()
-                       ? outputPathForFrame(shot.output, request.frame,
-                                            shot.lastFrame > shot.firstFrame)
-                       : request.outPath;
-  if (absl::Status s = writeExr(*image, report.exrPath); !s.ok()) return s;
+  const std::string ocio =
+      request.ocioConfig.empty() ? defaultOcioConfigPath() : request.ocioConfig;
+  PBGI_RETURN_IF_ERROR(writeRender(*image, report.imagePath, ocio, &report.warnings));
   if (request.preview) {
     report.previewPath =
-        writePreviewBeside(*image, report.exrPath, request.ocioConfig, &report.warnings);
+        writePreviewBeside(*image, report.imagePath, request.ocioConfig, &report.warnings);
   }
   clock.lap("write");
   report.wallSeconds = clock.totalSeconds();

@@ -64,7 +64,7 @@ struct TreeReadReport {
 struct FrameRenderReport {
   std::string integrator;
   std::vector<CounterSpec> counterSpecs;  // names of counters.values
-  std::string exrPath;
+  std::string imagePath;
   std::string previewPath;  // empty when none was written
   std::vector<StageTime> stages;
   double wallSeconds = 0.0;
@@ -73,10 +73,10 @@ struct FrameRenderReport {
   std::vector<std::string> warnings;
 };
 
-// Writes the image's OCIO preview beside `exrPath` (its extension replaced by .png) with
+// Writes the image's OCIO preview beside `imagePath` (its extension replaced by .png) with
 // `ocioConfig` (empty: the shipped config). Returns the PNG's path, or an empty string with a
 // warning added: a missing preview never fails a frame.
-std::string writePreviewBeside(const Image& image, const std::string& exrPath,
+std::string writePreviewBeside(const Image& image, const std::string& imagePath,
                                const std::string& ocioConfig, std::vector<std::string>* warnings);
 
 // The settings a render uses: the shot's [render], the request's integrator, spp and

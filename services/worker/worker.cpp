@@ -380,7 +380,7 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
                         scenes_.get(shot, task.frame(), &result.log));
   request.scene = scene.get();
   PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
-  result.log += fmt::format("wrote {} (regions {})\n{}", report.exrPath,
+  result.log += fmt::format("wrote {} (regions {})\n{}", report.imagePath,
                             regionsText(request.regions), formatStages(report.stages));
   if (report.tree) {
     result.cacheHits = report.tree->cache.hits;
@@ -415,12 +415,13 @@ absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
   for (size_t t = 0; t < tiles.size(); ++t) {
     paths.push_back(farmTilePath(task.work_dir(), task.frame(), static_cast<int>(t)));
   }
-  PBGI_ASSIGN_OR_RETURN(const Image frame,
-                        assembleFrame(paths, tiles, shot.width * shot.camera.views.x,
-                                      shot.height * shot.camera.views.y, task.output_path()));
+  std::vector<std::string> warnings;
+  PBGI_ASSIGN_OR_RETURN(
+      const Image frame,
+      assembleFrame(paths, tiles, shot.width * shot.camera.views.x,
+                    shot.height * shot.camera.views.y, task.output_path(), &warnings));
   TaskResult result;
   result.log = fmt::format("assembled {} tiles into {}\n", tiles.size(), task.output_path());
-  std::vector<std::string> warnings;
   const std::string preview = writePreviewBeside(frame, task.output_path(), "", &warnings);
   if (!preview.empty()) result.log += fmt::format("preview {}\n", preview);
   for (const std::string& w : warnings) result.log += "warning: " + w + "\n";
@@ -467,7 +468,7 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
       if (total > 0) beat.progress((i + double(done) / total) / n);
     };
     PBGI_ASSIGN_OR_RETURN(const FrameRenderReport report, renderShotFrame(shot, request));
-    PBGI_ASSIGN_OR_RETURN(const Image reference, readImage(report.exrPath));
+    PBGI_ASSIGN_OR_RETURN(const Image reference, readImage(report.imagePath));
     PBGI_ASSIGN_OR_RETURN(const Image job, cropRegions(frame, request.regions));
     PBGI_ASSIGN_OR_RETURN(const ImageMetrics m, compareImages(job, reference));
     if (m.nonFiniteImage > 0 || m.nonFiniteReference > 0) {

@@ -152,6 +152,74 @@ TEST(ImageIoTest, ExrRoundTripKeepsAovChannelsMetadataAndExactBits) {
   EXPECT_EQ(header.attributes.at("pbgi:exposure").first, "float");
 }
 
+// The first bytes of a file: which format it really is, whatever its name says.
+std::string magic(const std::string& path, size_t n) {
+  std::ifstream f(path, std::ios::binary);
+  std::string bytes(n, '\0');
+  f.read(bytes.data(), static_cast<std::streamsize>(n));
+  return bytes.substr(0, static_cast<size_t>(f.gcount()));
+}
+
+// A render's output path picks its format: .exr keeps everything; .tif and .hdr the colour
+// in float (HDR kept, the AOVs said dropped); .png and .jpg 8 bits through the OCIO view (the
+// range said dropped); anything else is refused before anything is written.
+TEST(ImageIoTest, ARendersExtensionChoosesItsFormatAndSaysWhatItDrops) {
+  const fs::path dir = testing::makeTempDir("image-io");
+  Image image = aovImage();
+  const int r = image.channelIndex("R");
+  image.at(0, 0, r) = 7.5f;  // past what 8 bits hold (G and B near it: RGBE shares an exponent)
+  image.at(0, 0, image.channelIndex("G")) = 0.5f;
+  image.at(0, 0, image.channelIndex("B")) = 0.25f;
+  const std::string ocio = defaultOcioConfigPath();
+  struct Case {
+    const char* name;
+    std::string magic;
+    bool hdr;
+  };
+  for (const Case& c :
+       {Case{"frame.exr", std::string("\x76\x2f\x31\x01", 4), true}, Case{"frame.tif", "", true},
+        Case{"FRAME.TIFF", "", true}, Case{"frame.hdr", "#?", true},
+        Case{"frame.png", "\x89PNG", false}, Case{"frame.JPG", "\xff\xd8\xff", false}}) {
+    SCOPED_TRACE(c.name);
+    const std::string path = (dir / c.name).string();
+    std::vector<std::string> warnings;
+    ASSERT_TRUE(writeRender(image, path, ocio, &warnings).ok());
+    if (!c.magic.empty()) EXPECT_EQ(magic(path, c.magic.size()), c.magic);
+    if (std::string(c.name).find("TIF") != std::string::npos ||
+        std::string(c.name).find("tif") != std::string::npos) {
+      const std::string m = magic(path, 4);
+      EXPECT_TRUE(m == std::string("II*\0", 4) || m == std::string("MM\0*", 4));
+    }
+    absl::StatusOr<Image> read = readImage(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    EXPECT_EQ(read->width(), image.width());
+    const float back = read->at(0, 0, read->channelIndex("R") >= 0 ? read->channelIndex("R") : 0);
+    if (c.hdr) {
+      EXPECT_NEAR(back, 7.5f, 0.1f);  // RGBE rounds to 8 bits of mantissa
+    } else {
+      EXPECT_LE(back, 1.0f);
+    }
+    const bool exr = std::string(c.name) == "frame.exr";
+    EXPECT_EQ(warnings.empty(), exr);
+    if (!exr) {
+      ASSERT_EQ(warnings.size(), 1u);
+      EXPECT_NE(warnings[0].find("AOV channels"), std::string::npos) << warnings[0];
+      EXPECT_NE(warnings[0].find(".exr"), std::string::npos) << warnings[0];
+    }
+  }
+  for (const char* bad : {"frame.bmp", "frame", "frame.exr.gz"}) {
+    const std::string path = (dir / bad).string();
+    std::vector<std::string> warnings;
+    const absl::Status s = writeRender(image, path, ocio, &warnings);
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(s.message().find("unknown image format"), std::string::npos) << s;
+    EXPECT_NE(s.message().find(".exr"), std::string::npos) << s;
+    EXPECT_FALSE(fs::exists(path)) << bad;
+    EXPECT_EQ(outputFormatFor(path).status().code(), absl::StatusCode::kInvalidArgument);
+  }
+  fs::remove_all(dir);
+}
+
 // A farm tile is an EXR of its own pixels whose data window is its place in the frame's
 // display window; other readers (OIIO here) see it there.
 TEST(ImageIoTest, ExrKeepsAPartOfAFrameAsItsDataWindow) {

@@ -44,6 +44,37 @@ TEST(RenderCliTest, RendersTheSampleShotWithMetadataAndPreview) {
   std::filesystem::remove_all(dir);
 }
 
+// --out names the format; the preview never takes the output's place; an unknown extension
+// is refused before the render, naming what is known.
+TEST(RenderCliTest, TheOutputsExtensionChoosesItsFormatAndThePreviewNeverOverwritesIt) {
+  const auto dir = testing::makeTempDir("render-cli");
+  const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
+  const std::string args = "render " + shot.string() + " --integrator path --spp 1 --threads 2 ";
+  const Result png = runPbgi(args + "--out " + (dir / "x.png").string());
+  ASSERT_EQ(png.exitCode, 0) << png.output();
+  EXPECT_NE(png.output().find("8-bit"), std::string::npos) << png.output();
+  std::ifstream f(dir / "x.png", std::ios::binary);
+  std::string head(4, '\0');
+  f.read(head.data(), 4);
+  EXPECT_EQ(head, "\x89PNG");
+  auto read = readImage((dir / "x.png").string());
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->channelCount(), 3);
+
+  const Result tif = runPbgi(args + "--out " + (dir / "z.tif").string());
+  ASSERT_EQ(tif.exitCode, 0) << tif.output();
+  auto tiff = readImage((dir / "z.tif").string());
+  ASSERT_TRUE(tiff.ok()) << tiff.status();
+  EXPECT_TRUE(std::filesystem::exists(dir / "z.png")) << "the preview beside it";
+
+  const Result bad = runPbgi(args + "--out " + (dir / "w.xyz").string());
+  EXPECT_EQ(bad.exitCode, 2) << bad.output();
+  EXPECT_NE(bad.output().find("unknown image format '.xyz'"), std::string::npos) << bad.output();
+  EXPECT_EQ(bad.output().find("render sponza"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(dir / "w.xyz"));
+  std::filesystem::remove_all(dir);
+}
+
 TEST(RenderCliTest, BadInputExitsTwoWithFileAndLine) {
   const auto dir = testing::makeTempDir("render-cli-bad");
   const auto shot = dir / "bad.toml";

@@ -76,6 +76,33 @@ TEST_F(CoordinatorTest, OutputsOutsideTheOutputRootAreRejected) {
             (fs::path(options_.outputRoot) / "renders/v1/small.####.exr").string());
 }
 
+// A job's output format is checked at submission: an unknown extension is refused, and an
+// 8-bit frame cannot be audited (an audit compares linear light).
+TEST_F(CoordinatorTest, AnOutputsFormatIsCheckedAtSubmission) {
+  start();
+  pbgi::testing::SmallShot unknown;
+  unknown.output = "out/small.####.bmp";
+  const auto refused = client_->submitJob(shotRequest(unknown));
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument) << refused.status();
+  EXPECT_NE(refused.status().message().find("unknown image format '.bmp'"), std::string::npos)
+      << refused.status();
+
+  pbgi::testing::SmallShot png;
+  png.output = "out/small.####.png";
+  png.integrator = "pbgi";
+  v1::SubmitJobRequest audited = shotRequest(png);
+  audited.set_audit_tiles(1);
+  const auto noAudit = client_->submitJob(audited);
+  EXPECT_EQ(noAudit.status().code(), absl::StatusCode::kInvalidArgument) << noAudit.status();
+  EXPECT_NE(noAudit.status().message().find("--audit-tiles 0"), std::string::npos)
+      << noAudit.status();
+  const auto accepted = client_->submitJob(shotRequest(png));
+  ASSERT_TRUE(accepted.ok()) << accepted.status();
+  auto audits = coordinator_->store().audits(accepted->job());
+  ASSERT_TRUE(audits.ok()) << audits.status();
+  EXPECT_TRUE(audits->empty());
+}
+
 TEST_F(CoordinatorTest, ABadShotIsRefusedWithItsLineAndTheCoordinatorCarriesOn) {
   start();
   v1::SubmitJobRequest bad = shotRequest({});
