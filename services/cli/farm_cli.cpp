@@ -4,10 +4,11 @@
 #include <filesystem>
 #include <map>
 
-#include <CLI/CLI.hpp>
 #include <absl/strings/numbers.h>
 #include <absl/strings/str_split.h>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <CLI/CLI.hpp>
 
 #include "core/render/integrators.h"
 #include "core/util/status.h"
@@ -127,8 +128,8 @@ JobProgress jobProgress(const farm::v1::JobStatus& job) {
 std::string describeJob(const farm::v1::JobStatus& job) {
   const JobProgress p = jobProgress(job);
   std::string out = fmt::format("job {} {} {}: {} of {} tasks done, {} frames x {} tiles\n",
-                                job.job(), job.name(), farm::wireWord(farm::jobStateOf(job)),
-                                p.done, p.total, job.frames_size(), job.tiles_per_frame());
+                                job.job(), job.name(), jobStateWord(job), p.done, p.total,
+                                job.frames_size(), job.tiles_per_frame());
   struct FrameLine {
     std::string bake = "-";
     int tilesDone = 0;
@@ -179,9 +180,33 @@ std::string describeJob(const farm::v1::JobStatus& job) {
                        kind == farm::v1::TASK_KIND_TILE ? fmt::format(" {}", d.tile()) : "",
                        d.attempt(), d.last_error());
   }
+  if (job.stall() == "stalled") {
+    out += fmt::format(
+        "  STALLED: no live worker may take its ready tasks; blocklisted: {}{}\n  (pbgi retry "
+        "{} lifts the blocklist)\n",
+        fmt::join(job.blocklisted_workers(), ", "),
+        job.stall_error().empty() ? "" : fmt::format("; last error: {}", job.stall_error()),
+        job.job());
+  } else if (job.stall() == "waiting") {
+    out += "  waiting: no worker is live\n";
+  } else if (!job.blocklisted_workers().empty()) {
+    out += fmt::format("  blocklisted: {}\n", fmt::join(job.blocklisted_workers(), ", "));
+  }
   out += describeAudits(job);
   for (const auto& o : job.outputs()) out += fmt::format("  wrote {}\n", o);
   return out;
+}
+
+std::string jobStateWord(const farm::v1::JobStatus& job) {
+  return job.stall().empty() ? farm::wireWord(farm::jobStateOf(job)) : job.stall();
+}
+
+std::string stallSummary(const farm::v1::JobStatus& job) {
+  if (job.stall() == "stalled") {
+    return fmt::format(", no live worker may take its tasks (blocklisted: {})",
+                       fmt::join(job.blocklisted_workers(), ", "));
+  }
+  return job.stall() == "waiting" ? ", no worker is live" : "";
 }
 
 std::string describeAudits(const farm::v1::JobStatus& job) {

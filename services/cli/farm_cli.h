@@ -34,6 +34,11 @@ struct JobFlags {
   double auditThreshold = 0;
 };
 void addJobFlags(CLI::App& cmd, JobFlags& flags);
+// The job's state as users read it: the store's word, or "stalled" / "waiting" for an active
+// job that cannot go on (JobStatus.stall); and ", no worker is live" or the blocklisted
+// workers, for a one-line listing.
+std::string jobStateWord(const farm::v1::JobStatus& job);
+std::string stallSummary(const farm::v1::JobStatus& job);
 // A job's audits, one line per frame ("  audit frame 1: relMSE 0.0041, bias -1.2 % ..."), and
 // the summary "audited 3/4 frames, 1 flagged" (empty without audits).
 std::string describeAudits(const farm::v1::JobStatus& job);

@@ -5,9 +5,10 @@
 #include <cstdio>
 #include <ctime>
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <google/protobuf/util/json_util.h>
+#include <CLI/CLI.hpp>
 
 #include "core/util/status.h"
 #include "formats/shot/shot_file.h"
@@ -83,13 +84,12 @@ int runStatus(const StatusOptions& o) {
       std::printf("%s", describeJob(job).c_str());
     } else {
       const JobProgress p = jobProgress(job);
-      std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s%s\n",
-                  static_cast<long long>(job.job()), job.name().c_str(),
-                  farm::wireWord(farm::jobStateOf(job)).c_str(),
+      std::printf("%6lld  %-20s %-9s %3d%%  %d/%d tasks  %d frames x %d tiles%s%s%s\n",
+                  static_cast<long long>(job.job()), job.name().c_str(), jobStateWord(job).c_str(),
                   p.total > 0 ? 100 * p.done / p.total : 0, p.done, p.total, job.frames_size(),
                   job.tiles_per_frame(),
                   job.dead().empty() ? "" : fmt::format(", {} dead", job.dead_size()).c_str(),
-                  auditSummary(job).c_str());
+                  auditSummary(job).c_str(), stallSummary(job).c_str());
     }
   }
   return kExitOk;
@@ -119,8 +119,24 @@ int runRetry(const JobOptions& o) {
   request.set_job(o.job);
   if (o.frame) request.set_frame(*o.frame);
   if (o.tile) request.set_tile(*o.tile);
-  if (auto r = (*client)->retryJob(request); !r.ok()) return reportError(r.status());
-  std::printf("retrying job %lld\n", static_cast<long long>(o.job));
+  auto r = (*client)->retryJob(request);
+  if (!r.ok()) return reportError(r.status());
+  const std::string what =
+      fmt::format("job {}{}{}", o.job, o.frame ? fmt::format(" frame {}", *o.frame) : "",
+                  o.tile ? fmt::format(" tile {}", *o.tile) : "");
+  if (r->tasks() == 0 && r->audits() == 0 && r->unblocked_workers().empty()) {
+    std::fprintf(stderr,
+                 "pbgi: %s: nothing to retry (no dead or cancelled task or audit, no worker "
+                 "blocklisted)\n",
+                 what.c_str());
+    return kExitFailed;
+  }
+  std::printf("retrying %s: %d task(s) and %d audit(s) ready again%s\n", what.c_str(), r->tasks(),
+              r->audits(),
+              r->unblocked_workers().empty() ? ""
+                                             : fmt::format("; blocklist lifted for {}",
+                                                           fmt::join(r->unblocked_workers(), ", "))
+                                                   .c_str());
   return kExitOk;
 }
 

@@ -77,7 +77,8 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status GetStatus(grpc::ServerContext*, const v1::GetStatusRequest* request,
                          v1::GetStatusResponse* response) override {
-    auto s = statusReport(store_, jobs_, *request);
+    auto s = statusReport(store_, jobs_, *request,
+                          liveWorkers(store_, activity_, wallClock(), options_.leaseSeconds));
     if (!s.ok()) return toGrpc(s.status());
     *response = *std::move(s);
     return grpc::Status::OK;
@@ -89,9 +90,11 @@ class FarmService final : public v1::Coordinator::Service {
   }
 
   grpc::Status RetryJob(grpc::ServerContext*, const v1::RetryJobRequest* request,
-                        v1::RetryJobResponse*) override {
-    return changed(
-        store_.retry(request->job(), optionalFrame(*request), optionalTile(*request), wallClock()));
+                        v1::RetryJobResponse* response) override {
+    auto outcome = retry(*request);
+    if (!outcome.ok()) return toGrpc(outcome.status());
+    *response = *std::move(outcome);
+    return changed(absl::OkStatus());
   }
 
   grpc::Status GetLogs(grpc::ServerContext*, const v1::GetLogsRequest* request,
@@ -323,6 +326,7 @@ class FarmService final : public v1::Coordinator::Service {
     return toGrpc(s);
   }
   absl::StatusOr<int64_t> submit(const v1::SubmitJobRequest& request);
+  absl::StatusOr<v1::RetryJobResponse> retry(const v1::RetryJobRequest& request);
   absl::Status planAudits(const v1::SubmitJobRequest& request, const ShotDesc& shot,
                           const IntegratorInfo& integrator, OutputFormat format,
                           JobSpec* spec) const;
@@ -375,6 +379,34 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
   log::info("submitted job={} shot={} frames={} tiles={} integrator={} output={}", id, spec.name,
             spec.frames.size(), spec.tileCount, shot.render.integrator, spec.outputPattern);
   return id;
+}
+
+// What a retry will revive is read first (the store's retry changes it all in one
+// transaction; a task that dies between the two reads is counted the next time).
+absl::StatusOr<v1::RetryJobResponse> FarmService::retry(const v1::RetryJobRequest& request) {
+  const std::optional<int> frame = optionalFrame(request), tile = optionalTile(request);
+  PBGI_ASSIGN_OR_RETURN(const std::vector<TaskInfo> tasks, store_.tasks(request.job()));
+  PBGI_ASSIGN_OR_RETURN(const std::vector<AuditInfo> audits, store_.audits(request.job()));
+  PBGI_ASSIGN_OR_RETURN(const std::vector<std::string> blocked,
+                        store_.blocklistedWorkers(request.job()));
+  v1::RetryJobResponse response;
+  for (const TaskInfo& t : tasks) {
+    const bool revived = t.state == TaskState::kDead || t.state == TaskState::kCancelled;
+    const bool matches = (!frame || t.ref.frame == *frame) &&
+                         (!tile || t.ref.kind != TaskKind::kTile || t.ref.tile == *tile);
+    if (revived && matches) response.set_tasks(response.tasks() + 1);
+  }
+  for (const AuditInfo& a : audits) {
+    const bool revived = a.state == AuditState::kFailed || a.state == AuditState::kCancelled;
+    if (revived && (!frame || a.spec.frame == *frame)) response.set_audits(response.audits() + 1);
+  }
+  for (const std::string& w : blocked) response.add_unblocked_workers(w);
+  PBGI_RETURN_IF_ERROR(store_.retry(request.job(), frame, tile, wallClock()));
+  log::info("retried job={} frame={} tile={}: {} tasks, {} audits, {} workers unblocked",
+            request.job(), frame ? std::to_string(*frame) : "all",
+            tile ? std::to_string(*tile) : "all", response.tasks(), response.audits(),
+            blocked.size());
+  return response;
 }
 
 // The job's accuracy audits: per frame, tiles chosen by the seeded rule, unless the request
@@ -578,7 +610,8 @@ absl::Status Coordinator::Impl::serveHttp() {
     res.set_content(metrics->registry.text(), "text/plain; version=0.0.4");
   });
   http.Get("/status", [this](const httplib::Request&, httplib::Response& res) {
-    auto status = statusReport(*store, *jobs, v1::GetStatusRequest());
+    auto status = statusReport(*store, *jobs, v1::GetStatusRequest(),
+                               liveWorkers(*store, activity, wallClock(), options.leaseSeconds));
     if (!status.ok()) {
       res.status = 500;
       res.set_content(std::string(status.status().message()), "text/plain");
@@ -591,7 +624,7 @@ absl::Status Coordinator::Impl::serveHttp() {
   previews = std::make_unique<FramePreviews>(defaultOcioConfigPath());
   dashboard = std::make_unique<DashboardParts>(
       DashboardParts{*store, *jobs, activity, *previews, *metrics->refused, options.token,
-                     isPostgresUri(options.store)});
+                     isPostgresUri(options.store), options.leaseSeconds});
   addDashboard(http, *dashboard);
   const size_t colon = options.httpListen.rfind(':');
   const std::string httpHost = options.httpListen.substr(0, colon);

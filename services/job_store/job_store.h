@@ -76,10 +76,13 @@ class JobStore {
 
   virtual absl::Status cancel(int64_t job) = 0;
   // Dead and cancelled tasks of the job (of one frame, or one tile of it) become ready again
-  // with their failures reset; the job becomes active.
+  // with their failures reset; the job becomes active; its blocklist is lifted.
   virtual absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                              Seconds now) = 0;
   virtual absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) = 0;
+  // The workers the job has blocklisted, by name. retry() lifts the job's blocklist: what
+  // failed on a worker is tried there again.
+  virtual absl::StatusOr<std::vector<std::string>> blocklistedWorkers(int64_t job) = 0;
   // The job's events in order, of one frame or one tile of it when given.
   virtual absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                         std::optional<int> tile) = 0;

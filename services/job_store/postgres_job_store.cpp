@@ -174,6 +174,7 @@ class PostgresJobStore final : public JobStore {
   absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                      Seconds now) override;
   absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
+  absl::StatusOr<std::vector<std::string>> blocklistedWorkers(int64_t job) override;
   absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                 std::optional<int> tile) override;
   absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker, Seconds now,
@@ -674,6 +675,7 @@ absl::Status PostgresJobStore::retry(int64_t job, std::optional<int> frame, std:
         "AND ($2::integer IS NULL OR frame = $2::integer)",
         job, nullable(frame));
     tx.exec("UPDATE jobs SET state = 0 WHERE id = $1", job);
+    tx.exec("DELETE FROM job_worker_failures WHERE job = $1", job);
     promoteBlocked(tx, job, frame);
     // What was revived may still wait on a task left dead (another tile of the frame, say).
     for (const auto& row : tx.exec("SELECT " PBGI_TASK_COLUMNS
@@ -684,6 +686,19 @@ absl::Status PostgresJobStore::retry(int64_t job, std::optional<int> frame, std:
       killDependents(tx, readTask(row));
     }
     return settleJob(tx, job);
+  });
+}
+
+absl::StatusOr<std::vector<std::string>> PostgresJobStore::blocklistedWorkers(int64_t job) {
+  return transaction(PgAccess::kRead, [&](PgTx& tx) -> absl::StatusOr<std::vector<std::string>> {
+    PBGI_RETURN_IF_ERROR(jobState(tx, job).status());
+    std::vector<std::string> workers;
+    for (const auto& row : tx.exec("SELECT worker FROM job_worker_failures WHERE job = $1 AND "
+                                   "failures >= $2 ORDER BY worker",
+                                   job, blocklistThreshold(policy_))) {
+      workers.push_back(row[0].as<std::string>());
+    }
+    return workers;
   });
 }
 

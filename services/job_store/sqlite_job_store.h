@@ -52,6 +52,7 @@ class SqliteJobStore final : public JobStore {
   absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                      Seconds now) override;
   absl::StatusOr<bool> blocklisted(int64_t job, const std::string& worker) override;
+  absl::StatusOr<std::vector<std::string>> blocklistedWorkers(int64_t job) override;
   absl::StatusOr<std::vector<TaskEvent>> events(int64_t job, std::optional<int> frame,
                                                 std::optional<int> tile) override;
   absl::StatusOr<std::optional<AuditLease>> leaseAudit(const std::string& worker, Seconds now,

@@ -200,6 +200,11 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
       q.bind(1, job);
       PBGI_RETURN_IF_ERROR(q.run());
     }
+    {
+      Query q = query("DELETE FROM job_worker_failures WHERE job = ?1");
+      q.bind(1, job);
+      PBGI_RETURN_IF_ERROR(q.run());
+    }
     PBGI_RETURN_IF_ERROR(promoteBlocked(job, frame));
     // What was revived may still wait on a task left dead (another tile of the frame, say).
     std::vector<TaskInfo> dead;
@@ -216,6 +221,23 @@ absl::Status SqliteJobStore::retry(int64_t job, std::optional<int> frame, std::o
     }
     for (const TaskInfo& task : dead) PBGI_RETURN_IF_ERROR(killDependents(task));
     return settleJob(job);
+  });
+}
+
+absl::StatusOr<std::vector<std::string>> SqliteJobStore::blocklistedWorkers(int64_t job) {
+  return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<std::string>> {
+    PBGI_RETURN_IF_ERROR(jobState(job).status());
+    Query q = query(
+        "SELECT worker FROM job_worker_failures WHERE job = ?1 AND failures >= ?2 "
+        "ORDER BY worker");
+    q.bind(1, job).bind(2, blocklistThreshold(policy_));
+    std::vector<std::string> workers;
+    for (;;) {
+      PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
+      if (!row) break;
+      workers.push_back(q.text(0));
+    }
+    return workers;
   });
 }
 

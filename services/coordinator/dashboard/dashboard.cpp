@@ -19,6 +19,7 @@
 #include "services/coordinator/dashboard/dashboard_assets.h"
 #include "services/coordinator/farm_auth.h"
 #include "services/coordinator/lease_reaper.h"
+#include "services/coordinator/status_report.h"
 
 namespace pbgi::farm {
 
@@ -106,7 +107,8 @@ Json auditJson(const AuditInfo& a) {
 
 // A job as the list shows it: state, counts, progress and the time left at the rate so far,
 // and how many of its frames' audits are done and flagged.
-Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, Seconds now) {
+Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, const JobStall& stall,
+                    Seconds now) {
   int audited = 0, flagged = 0;
   for (const AuditInfo& a : audits) {
     audited += a.result.has_value();
@@ -128,7 +130,9 @@ Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, Se
   for (size_t i = 0; i < job.dead.size() && i < 20; ++i) dead.push_back(taskJson(job.dead[i]));
   return {{"id", job.id},
           {"name", job.spec.name},
-          {"state", toString(job.state)},
+          {"state", stall.word.empty() ? toString(job.state) : stall.word},
+          {"blocklisted", stall.blocklisted},
+          {"stallError", stall.error},
           {"priority", job.spec.priority},
           {"submitted", number(job.submitted)},
           {"frames", job.spec.frames},
@@ -204,7 +208,10 @@ absl::StatusOr<Json> jobDetailJson(const DashboardParts& p, int64_t id, Seconds 
                           {"output", ParsedJobCache::frameOutput(*view, f)},
                           {"audit", fr.audit}});
   }
-  return Json{{"job", jobSummaryJson(info, audits, now)},
+  PBGI_ASSIGN_OR_RETURN(
+      const JobStall stall,
+      jobStall(p.store, info, liveWorkers(p.store, p.activity, now, p.leaseSeconds)));
+  return Json{{"job", jobSummaryJson(info, audits, stall, now)},
               {"tileSize", tileSize},
               {"width", view->shot.width},
               {"height", view->shot.height},
@@ -365,10 +372,13 @@ void addDashboard(httplib::Server& http, const DashboardParts& parts) {
     if (!jobs.ok()) return replyError(res, jobs.status());
     const Seconds now = wallClock();
     Json list = Json::array();
+    const std::vector<std::string> live = liveWorkers(p->store, p->activity, now, p->leaseSeconds);
     for (const JobInfo& j : *jobs) {
       auto audits = p->store.audits(j.id);
       if (!audits.ok()) return replyError(res, audits.status());
-      list.push_back(jobSummaryJson(j, *audits, now));
+      auto stall = jobStall(p->store, j, live);
+      if (!stall.ok()) return replyError(res, stall.status());
+      list.push_back(jobSummaryJson(j, *audits, *stall, now));
     }
     replyJson(res, dump(Json{{"version", p->activity.version()},
                              {"now", number(now)},

@@ -44,6 +44,9 @@ struct DashboardParts {
   // The store is shared with other coordinators (PostgreSQL): their changes move no version
   // here, so event streams look again every second.
   bool sharedStore = false;
+  // A worker not heard from for longer than a lease is not live (a job whose only live
+  // workers are blocklisted is stalled).
+  Seconds leaseSeconds = 30;
 };
 
 // Adds the page, its files and the API to `http`. The parts outlive the server.

@@ -73,26 +73,38 @@ function renderJobs() {
   $('no-jobs').hidden = view.jobs.length > 0;
   for (const j of view.jobs) {
     const actions = el('td');
-    if (j.state === 'active') {
+    // Stalled and waiting jobs are active ones that cannot go on (the store keeps them active).
+    const running = j.state === 'active' || j.state === 'stalled' || j.state === 'waiting';
+    if (running) {
       actions.append(el('button', {type: 'button', class: 'cancel',
         onclick: (e) => { e.stopPropagation(); act(`api/jobs/${j.id}/cancel`, `Cancel job ${j.id}`); }},
       'Cancel'));
     }
-    if (j.state === 'failed' || j.state === 'cancelled') {
+    if (j.state === 'failed' || j.state === 'cancelled' || j.state === 'stalled') {
       actions.append(el('button', {type: 'button', class: 'retry',
         onclick: (e) => { e.stopPropagation(); act(`api/jobs/${j.id}/retry`, `Retry job ${j.id}`); }},
       'Retry'));
     }
     const bar = el('span', {class: 'bar'}, el('span', {style: `width:${(j.progress * 100).toFixed(1)}%`}));
-    const row = el('tr', {dataset: {job: j.id, state: j.state},
-      class: j.id === view.selectedJob ? 'selected' : '', onclick: () => selectJob(j.id)},
-    el('td', {}, j.id), el('td', {}, j.name),
-    el('td', {}, el('span', {class: `state ${j.state}`}, j.state),
-      j.deadCount ? ` ${j.deadCount} dead` : '',
-      j.flagged ? el('span', {class: 'flag'}, ` ${j.flagged} frame(s) flagged by the audit`) : ''),
-    el('td', {}, bar, `${j.done} / ${j.total}`),
-    el('td', {}, j.state === 'active' ? duration(j.eta) : ''),
-    el('td', {}, j.priority), actions);
+    const row = el(
+        'tr', {
+          dataset: {job: j.id, state: j.state},
+          class: j.id === view.selectedJob ? 'selected' : '',
+          onclick: () => selectJob(j.id)
+        },
+        el('td', {}, j.id), el('td', {}, j.name),
+        el('td', {}, el('span', {class: `state ${j.state}`}, j.state),
+           j.deadCount ? ` ${j.deadCount} dead` : '',
+           j.state === 'stalled' ?
+               el('span', {class: 'stall'},
+                  ` no live worker may take its tasks; blocklisted: ` +
+                      `${j.blocklisted.join(', ')}${
+                          j.stallError ? `; last error: ${j.stallError}` : ''}`) :
+                                         '',
+           j.flagged ? el('span', {class: 'flag'}, ` ${j.flagged} frame(s) flagged by the audit`) :
+                                                 ''),
+                                  el('td', {}, bar, `${j.done} / ${j.total}`), el('td', {}, running ? duration(j.eta) : ''),
+        el('td', {}, j.priority), actions);
     body.append(row);
   }
 }
@@ -272,7 +284,8 @@ async function refresh() {
     view.jobs = jobs.jobs;
     view.workers = workers.workers;
     if (view.selectedJob == null && view.jobs.length) {
-      const active = view.jobs.find((j) => j.state === 'active');
+      const active = view.jobs.find(
+          (j) => j.state !== 'done' && j.state !== 'failed' && j.state !== 'cancelled');
       view.selectedJob = (active || view.jobs[view.jobs.length - 1]).id;
     }
     if (view.selectedJob !== chosen) [job, task] = await selected();

@@ -46,7 +46,9 @@ TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
   const auto all = runPbgi("status" + connection_);
   ASSERT_EQ(all.exitCode, 0) << all.output();
   EXPECT_NE(all.out.find("cornell"), std::string::npos) << all.out;
-  EXPECT_NE(all.out.find("active"), std::string::npos) << all.out;
+  // Active in the store; no worker has called yet, so it waits for one.
+  EXPECT_NE(all.out.find("waiting"), std::string::npos) << all.out;
+  EXPECT_NE(all.out.find("no worker is live"), std::string::npos) << all.out;
   EXPECT_NE(all.out.find("0/10 tasks"), std::string::npos) << all.out;
   const auto one = runPbgi("status 1" + connection_);
   ASSERT_EQ(one.exitCode, 0) << one.output();
@@ -59,7 +61,14 @@ TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
   EXPECT_NE(runPbgi("status" + connection_).out.find("cancelled"), std::string::npos);
   const auto retried = runPbgi("retry 1 --frame 2 --tile 1" + connection_);
   ASSERT_EQ(retried.exitCode, 0) << retried.output();
-  EXPECT_NE(runPbgi("status" + connection_).out.find("active"), std::string::npos);
+  // The tile and its frame's assemble were cancelled (a path-traced job has no bake).
+  EXPECT_NE(retried.out.find("retrying job 1 frame 2 tile 1: 2 task(s)"), std::string::npos)
+      << retried.out;
+  EXPECT_NE(runPbgi("status" + connection_).out.find("waiting"), std::string::npos);
+  // Nothing else of frame 2 is dead or cancelled, and frame 7 is not the job's: said, exit 1.
+  const auto again = runPbgi("retry 1 --frame 7" + connection_);
+  EXPECT_EQ(again.exitCode, 1) << again.output();
+  EXPECT_NE(again.err.find("nothing to retry"), std::string::npos) << again.output();
   const auto workers = runPbgi("workers" + connection_);
   ASSERT_EQ(workers.exitCode, 0) << workers.output();
   EXPECT_EQ(workers.out, "no workers\n");

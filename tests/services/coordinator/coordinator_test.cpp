@@ -172,6 +172,68 @@ TEST_F(CoordinatorTest, TypedOverridesAreCheckedAtSubmissionAndLeasedAsSent) {
             (std::vector<std::string>{"spp=3", "gather=per-pixel"}));
 }
 
+// A job whose only live worker is blocklisted says so, with the failing task's error, and a
+// retry lifts the blocklist and says what it changed; with no live worker it is waiting.
+TEST_F(CoordinatorTest, AJobNoLiveWorkerMayTakeIsStalledAndRetryLiftsTheBlocklist) {
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  auto submitted = client_->submitJob(request);
+  ASSERT_TRUE(submitted.ok()) << submitted.status();
+  const int64_t job = submitted->job();
+  const auto status = [&] {
+    v1::GetStatusRequest r;
+    r.set_job(job);
+    auto s = client_->getStatus(r);
+    EXPECT_TRUE(s.ok()) << s.status();
+    return s.ok() ? s->jobs(0) : v1::JobStatus();
+  };
+  EXPECT_EQ(status().stall(), "waiting");  // no worker has called
+
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("w1");
+  for (int i = 0; i < 3; ++i) {  // the default blocklist: three failures of the job
+    auto leased = client_->leaseTask(lease);
+    ASSERT_TRUE(leased.ok()) << leased.status();
+    ASSERT_TRUE(leased->has_task());
+    v1::FailTaskRequest fail;
+    fail.set_worker("w1");
+    fail.set_task(leased->task());
+    fail.set_attempt(leased->attempt());
+    fail.set_error("small.obj:3: expected a vertex");
+    ASSERT_TRUE(client_->failTask(fail).ok());
+  }
+  auto none = client_->leaseTask(lease);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_FALSE(none->has_task());
+  v1::JobStatus stalled = status();
+  EXPECT_EQ(stalled.stall(), "stalled");
+  ASSERT_EQ(stalled.blocklisted_workers_size(), 1);
+  EXPECT_EQ(stalled.blocklisted_workers(0), "w1");
+  EXPECT_NE(stalled.stall_error().find("expected a vertex"), std::string::npos)
+      << stalled.stall_error();
+
+  v1::RetryJobRequest retry;
+  retry.set_job(job);
+  auto retried = client_->retryJob(retry);
+  ASSERT_TRUE(retried.ok()) << retried.status();
+  // The tile that failed all three times (dead at its attempt cap) and the frame's assemble,
+  // which died waiting on it.
+  EXPECT_EQ(retried->tasks(), 2);
+  ASSERT_EQ(retried->unblocked_workers_size(), 1);
+  EXPECT_EQ(retried->unblocked_workers(0), "w1");
+  const v1::JobStatus lifted = status();
+  EXPECT_EQ(lifted.stall(), "");
+  EXPECT_EQ(lifted.blocklisted_workers_size(), 0);
+  auto again = client_->leaseTask(lease);
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_TRUE(again->has_task());
+  // Nothing left to retry: an empty answer (the CLI exits 1 on it).
+  auto empty = client_->retryJob(retry);
+  ASSERT_TRUE(empty.ok()) << empty.status();
+  EXPECT_EQ(empty->tasks() + empty->audits() + empty->unblocked_workers_size(), 0);
+}
+
 TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   options_.leaseSeconds = 0.4;
   options_.expiryIntervalSeconds = 0.05;

@@ -485,7 +485,7 @@ TEST_P(JobStoreTest, ExpiredLeasesCountAsFailures) {
   EXPECT_EQ(store_->expireLeases(1000).value_or(-1), 0);
 }
 
-TEST_P(JobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnly) {
+TEST_P(JobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnlyUntilARetry) {
   RetryPolicy policy;
   policy.maxAttempts = 10;
   policy.backoffBase = 0;
@@ -511,6 +511,15 @@ TEST_P(JobStoreTest, AWorkerThatKeepsFailingAJobIsBlocklistedForThatJobOnly) {
   auto w1Other = lease("w1", 0);
   ASSERT_TRUE(w1Other.has_value()) << "the blocklist is per job";
   EXPECT_EQ(w1Other->ref.job, other);
+
+  auto listed = store_->blocklistedWorkers(id);
+  ASSERT_TRUE(listed.ok()) << listed.status();
+  EXPECT_EQ(*listed, std::vector<std::string>{"w1"});
+  EXPECT_TRUE(store_->blocklistedWorkers(other).value_or(std::vector<std::string>{"x"}).empty());
+  // A retry lifts the job's blocklist: w1 may take its tasks again.
+  ASSERT_TRUE(store_->retry(id, std::nullopt, std::nullopt, 0).ok());
+  EXPECT_TRUE(store_->blocklistedWorkers(id).value_or(std::vector<std::string>{"x"}).empty());
+  EXPECT_FALSE(store_->blocklisted(id, "w1").value_or(true));
 }
 
 TEST_P(JobStoreTest, ABlocklistThresholdOfZeroNeverBlocklists) {

@@ -124,7 +124,8 @@ async function main() {
   await page.goto(`${url}#job=1`);
   await page.waitForSelector('body[data-ready="1"]');
   let s = await pageState(page);
-  check(s.jobs['1'] === 'active', `job 1 shows as ${s.jobs['1']}`);
+  // Active in the store, but no worker has called yet: it waits for one.
+  check(s.jobs['1'] === 'waiting', `job 1 shows as ${s.jobs['1']}`);
   check(s.frames.length === 2 && s.frames.every((f) => f.states === '1'.repeat(64)),
     `before any worker, both frames show 64 ready tiles: ${JSON.stringify(s.frames)}`);
   await page.waitForSelector('#live.on');
