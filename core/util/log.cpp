@@ -5,6 +5,22 @@
 namespace pbgi::log {
 
 namespace {
+spdlog::level::level_enum spdlogLevel(Level level) {
+  switch (level) {
+    case Level::kDebug:
+      return spdlog::level::debug;
+    case Level::kInfo:
+      return spdlog::level::info;
+    case Level::kWarn:
+      return spdlog::level::warn;
+    case Level::kError:
+      return spdlog::level::err;
+    case Level::kOff:
+      break;
+  }
+  return spdlog::level::off;
+}
+
 std::shared_ptr<spdlog::logger> makeLogger() {
   auto logger = spdlog::stderr_color_mt("pbgi");
   logger->set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
@@ -18,13 +34,9 @@ void setLevel(Level level) {
     return true;
   }();
   (void)installed;
-  switch (level) {
-    case Level::kDebug: spdlog::set_level(spdlog::level::debug); break;
-    case Level::kInfo: spdlog::set_level(spdlog::level::info); break;
-    case Level::kWarn: spdlog::set_level(spdlog::level::warn); break;
-    case Level::kError: spdlog::set_level(spdlog::level::err); break;
-    case Level::kOff: spdlog::set_level(spdlog::level::off); break;
-  }
+  spdlog::set_level(spdlogLevel(level));
 }
+
+bool shows(Level level) { return spdlog::should_log(spdlogLevel(level)); }
 
 }  // namespace pbgi::log

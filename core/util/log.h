@@ -12,6 +12,8 @@ enum class Level { kDebug, kInfo, kWarn, kError, kOff };
 
 // Sets the level of the process-wide logger; messages go to stderr.
 void setLevel(Level level);
+// Whether messages of `level` are shown (progress output follows the info level: -q hides it).
+bool shows(Level level);
 
 template <typename... Args>
 void debug(fmt::format_string<Args...> f, Args&&... args) {

@@ -10,6 +10,7 @@
 #include "services/bake/frame_bake.h"
 #include "services/cli/cli.h"
 #include "services/cli/progress.h"
+#include "services/util/cli_checks.h"
 
 namespace pbgi::cli {
 
@@ -161,14 +162,15 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
   cmd->add_option("SHOT", options->shot, "Shot file (TOML)")->required();
   cmd->add_option("--frame", options->frame, "Frame to bake (default: the shot's first)");
   cmd->add_option("--out", options->out, "Output folder (default: beside the frame's image)");
-  cmd->add_option("--points", options->points,
-                  fmt::format("Surfel count (default: the shot's bake_points, else {})",
-                              kDefaultBakePoints))
-      ->check(CLI::PositiveNumber);
+  cmd->add_option(
+         "--points", options->points,
+         fmt::format("Surfel count (default: the shot's bake_points, else {})", kDefaultBakePoints))
+      ->check(positiveNumber());
   cmd->add_option("--mem-budget", options->memBudget,
                   "Memory budget, e.g. 256M or 2G (default: 1G)");
-  cmd->add_option("--bounces", options->bounces, "Indirect bounces baked into the surfels (default: the shot's bake_bounces)")
-      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--bounces", options->bounces,
+                  "Indirect bounces baked into the surfels (default: the shot's bake_bounces)")
+      ->check(nonNegativeNumber());
   cmd->add_option("--bounce-quality", options->bounceQuality,
                   "Gather preset for the bounces: draft, default, high (default: the shot's "
                   "bake_quality)")
@@ -181,10 +183,11 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(1, kMaxBounceSpacing));
   cmd->add_flag("--no-tail", options->noTail,
                "Leave out the light of the bounces past the last instead of estimating it");
-  cmd->add_option("--light-samples", options->lightSamples, "Light samples per surfel (default: 16)")
-      ->check(CLI::PositiveNumber);
+  cmd->add_option("--light-samples", options->lightSamples,
+                  "Light samples per surfel (default: 16)")
+      ->check(positiveNumber());
   cmd->add_option("--threads", options->threads, "Worker threads (default: all cores)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   cmd->add_option("--leaf-size", options->leafSize, "Most surfels in a leaf (default: 16)")
       ->check(CLI::Range(1, kMaxLeafSize));
   cmd->add_option("--page-size", options->pageSize, "Tree page size (default: 64K)");

@@ -94,8 +94,11 @@ int run(int argc, char** argv) {
   app.require_subcommand(1);
   bool verbose = false;
   bool quiet = false;
+  // Global flags go before or after the subcommand: a subcommand passes what it does not
+  // know up to here.
+  app.fallthrough();
   app.add_flag("-v,--verbose", verbose, "Log debug messages");
-  app.add_flag("-q,--quiet", quiet, "Log errors only");
+  app.add_flag("-q,--quiet", quiet, "Log errors only: no progress, no stage times' log lines");
 
   CommandAction action;
   registerRenderCommand(app, action);

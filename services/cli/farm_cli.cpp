@@ -15,6 +15,7 @@
 #include "services/cli/cli.h"
 #include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
+#include "services/util/cli_checks.h"
 
 namespace pbgi::cli {
 
@@ -22,19 +23,20 @@ void addJobFlags(CLI::App& cmd, JobFlags& flags) {
   cmd.add_option("--frames", flags.frames, "Frames to render, e.g. 1-3,7 (default: every frame)");
   cmd.add_option("--integrator", flags.integrator, "Integrator (default: the shot's)");
   cmd.add_option("--spp", flags.spp, "Camera samples per pixel (default: the shot's)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   addIntegratorParamFlags(cmd, flags.set, flags.gather, flags.quality);
   cmd.add_option("--cache-mb", flags.cacheMb, "PBGI: tree page cache budget in MiB");
   cmd.add_option("--priority", flags.priority, "Higher runs first (default 0)");
   cmd.add_option("--audit-tiles", flags.auditTiles,
                  "Accuracy audit: tiles per frame path traced on idle workers and compared with "
                  "the job's (default: 2 for PBGI, 0 for the path tracer; 0: no audit)")
-      ->check(CLI::NonNegativeNumber);
-  cmd.add_option("--audit-spp", flags.auditSpp, "Accuracy audit: the path tracer's spp (default 256)")
-      ->check(CLI::PositiveNumber);
+      ->check(nonNegativeNumber());
+  cmd.add_option("--audit-spp", flags.auditSpp,
+                 "Accuracy audit: the path tracer's spp (default 256)")
+      ->check(positiveNumber());
   cmd.add_option("--audit-threshold", flags.auditThreshold,
                  "Accuracy audit: the relMSE beyond which a frame is flagged (default 0.05)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
 }
 
 absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {

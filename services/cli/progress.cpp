@@ -8,6 +8,8 @@
 
 #include <fmt/format.h>
 
+#include "core/util/log.h"
+
 namespace pbgi::cli {
 
 namespace {
@@ -28,7 +30,7 @@ std::string Progress::timeLeft(double elapsedSeconds, uint64_t done, uint64_t to
 }
 
 void Progress::update(const std::string& stage, uint64_t done, uint64_t total) {
-  if (total == 0) return;
+  if (total == 0 || !log::shows(log::Level::kInfo)) return;  // -q: errors only
   done = std::min(done, total);
   std::lock_guard<std::mutex> lock(mutex_);
   if (stage != stage_) {

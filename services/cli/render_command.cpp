@@ -11,6 +11,7 @@
 #include "services/cli/cli.h"
 #include "services/cli/progress.h"
 #include "services/render/frame_render.h"
+#include "services/util/cli_checks.h"
 
 namespace pbgi::cli {
 
@@ -146,9 +147,9 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
   cmd->add_option("--frame", options->frame, "Frame to render (default: the shot's first)");
   cmd->add_option("--integrator", options->integrator, "Integrator (default: the shot's)");
   cmd->add_option("--spp", options->spp, "Camera samples per pixel (default: the shot's)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   cmd->add_option("--threads", options->threads, "Worker threads (default: all cores)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   cmd->add_option("--tile-size", options->tileSize, "Tile edge in pixels (default: the shot's)")
       ->check(CLI::Range(4, 1024));
   cmd->add_option("--out", options->out,

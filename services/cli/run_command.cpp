@@ -22,6 +22,7 @@
 #include "services/farm/farm_client.h"
 #include "services/farm/farm_wire.h"
 #include "services/local_farm/local_farm.h"
+#include "services/util/cli_checks.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::cli {
@@ -166,7 +167,7 @@ void registerRunCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(1, 256));
   cmd->add_option("--threads", options->threads,
                   "Render threads over all workers (default: all cores)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   cmd->add_option("--state", options->state,
                   "State folder: the job database, bakes, tiles, worker logs (default: "
                   "<shot folder>/.pbgi-run)");
@@ -175,7 +176,7 @@ void registerRunCommand(CLI::App& app, CommandAction& action) {
   cmd->add_option("--tile-size", options->tileSize, "Farm tile edge in pixels (default 256)")
       ->check(CLI::Range(16, 8192));
   cmd->add_option("--lease-seconds", options->leaseSeconds, "Task lease length (default 30)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   addJobFlags(*cmd, options->job);
   cmd->callback([options, &action] { action = [options] { return runEmbedded(*options); }; });
 }

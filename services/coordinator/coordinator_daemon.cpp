@@ -11,6 +11,7 @@
 #include "core/util/status.h"
 #include "services/coordinator/coordinator.h"
 #include "services/farm/job_rules.h"
+#include "services/util/cli_checks.h"
 #include "services/util/daemon.h"
 
 namespace pbgi::farm {
@@ -44,10 +45,10 @@ int coordinatorDaemonMain(int argc, char** argv) {
   app.add_option("--address-file", addressFile,
                  "Where the bound address is written (default: <state>/coordinator.addr)");
   app.add_option("--lease-seconds", o.leaseSeconds, "Lease length; workers heartbeat within it")
-      ->check(CLI::PositiveNumber)
+      ->check(positiveNumber())
       ->capture_default_str();
   app.add_option("--expiry-interval", o.expiryIntervalSeconds, "Seconds between lease sweeps")
-      ->check(CLI::PositiveNumber)
+      ->check(positiveNumber())
       ->capture_default_str();
   app.add_option("--tile-size", o.tileSize, "Farm tile edge in pixels")
       ->check(CLI::Range(16, 8192))
@@ -56,10 +57,10 @@ int coordinatorDaemonMain(int argc, char** argv) {
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
   app.add_option("--backoff-base", o.retry.backoffBase, "First retry back-off in seconds (doubles)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(nonNegativeNumber())
       ->capture_default_str();
   app.add_option("--backoff-max", o.retry.backoffMax, "Longest retry back-off in seconds")
-      ->check(CLI::NonNegativeNumber)
+      ->check(nonNegativeNumber())
       ->capture_default_str();
   app.add_option("--dispatch", o.localityDispatch,
                  "locality: a worker gets the tasks of frames it holds first (within the job it "
@@ -67,9 +68,10 @@ int coordinatorDaemonMain(int argc, char** argv) {
       ->transform(CLI::CheckedTransformer(
           std::map<std::string, bool>{{"locality", true}, {"plain", false}}, CLI::ignore_case))
       ->default_str("locality");
-  app.add_option("--blocklist-after", o.retry.blocklistAfter,
-                 "Failures of one job on one worker that blocklist the worker for the job (0: never)")
-      ->check(CLI::NonNegativeNumber)
+  app.add_option(
+         "--blocklist-after", o.retry.blocklistAfter,
+         "Failures of one job on one worker that blocklist the worker for the job (0: never)")
+      ->check(nonNegativeNumber())
       ->capture_default_str();
   try {
     app.parse(argc, argv);

@@ -61,7 +61,17 @@ std::string newToken() {
 
 absl::StatusOr<std::string> readTokenFile(const std::string& path) {
   std::ifstream in(path);
-  if (!in) return absl::NotFoundError(fmt::format("{}: cannot read the token file", path));
+  if (!in) {
+    // A value without a folder or an extension that names no file may be the token itself,
+    // passed by mistake: never echo it.
+    const bool pathLike =
+        path.find('/') != std::string::npos || path.find('.') != std::string::npos;
+    return absl::NotFoundError(
+        pathLike ? fmt::format("{}: cannot read the token file", path)
+                 : "--token-file: no such file (the value is not shown: it may be the token "
+                   "itself; pass the file that holds it, such as the coordinator's <state>/token, "
+                   "or set PBGI_TOKEN)");
+  }
   std::string token;
   std::getline(in, token);
   if (token.empty()) {

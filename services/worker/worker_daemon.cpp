@@ -8,6 +8,7 @@
 
 #include "core/util/log.h"
 #include "services/farm/farm_client.h"
+#include "services/util/cli_checks.h"
 #include "services/util/daemon.h"
 #include "services/worker/worker.h"
 
@@ -44,19 +45,19 @@ int workerDaemonMain(int argc, char** argv) {
   app.add_option("--tls-key", tls.key, "TLS: the key of --tls-cert");
   app.add_option("--id", o.id, "Worker name (default: host:pid)");
   app.add_option("--threads", o.threads, "Render threads (default: all cores)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   app.add_option("--cache-mb", cacheMb, "Tree page cache in MiB (default: the shot's cache_mb)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   app.add_option("--scene-cache-mb", sceneCacheMb,
                  "Memory for the scenes kept between tasks, in MiB (0: keep none)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(nonNegativeNumber())
       ->capture_default_str();
   int diskCacheMb = 4096;
   app.add_option("--cache-dir", o.cacheDir,
                  "Local disk cache of streamed tree pages (default: <temp>/pbgi-worker-<id>)");
   app.add_option("--disk-cache-mb", diskCacheMb,
                  "Disk the streamed pages may take in --cache-dir, in MiB (0: keep none)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(nonNegativeNumber())
       ->capture_default_str();
   addChoice(app, "--tree-source", o.treeSource,
             "auto: the shared job folder when visible, else stream; shared; stream",
@@ -68,7 +69,7 @@ int workerDaemonMain(int argc, char** argv) {
             "results are sent to the coordinator; shared; copy",
             {{"auto", FileSource::kAuto}, {"shared", FileSource::kShared}, {"copy", FileSource::kCopy}});
   app.add_option("--poll-seconds", o.pollSeconds, "Between lease requests while idle")
-      ->check(CLI::PositiveNumber)
+      ->check(positiveNumber())
       ->capture_default_str();
   try {
     app.parse(argc, argv);

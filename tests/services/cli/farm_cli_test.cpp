@@ -107,6 +107,12 @@ TEST_F(FarmCliTest, RefusedWithoutTheTokenAndOutsideTheOutputRoot) {
                              shellQuote((dir_ / "wrong-token").string()));
   EXPECT_EQ(wrong.exitCode, 1) << wrong.output();
   EXPECT_NE(wrong.err.find("token"), std::string::npos) << wrong.err;
+  // The token itself passed where its file goes is never echoed.
+  const std::string secret = "0123456789abcdef0123456789abcdef";
+  const auto pasted = runPbgi("status" + address + " --token-file " + secret);
+  EXPECT_EQ(pasted.exitCode, 2) << pasted.output();
+  EXPECT_EQ(pasted.output().find(secret), std::string::npos) << pasted.output();
+  EXPECT_NE(pasted.err.find("--token-file"), std::string::npos) << pasted.err;
   const auto none = runPbgi("status" + address);
   EXPECT_EQ(none.exitCode, 2) << none.output();
   EXPECT_NE(none.err.find("PBGI_TOKEN"), std::string::npos) << none.err;

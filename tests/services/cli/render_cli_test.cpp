@@ -95,6 +95,20 @@ TEST(RenderCliTest, BadInputExitsTwoWithFileAndLine) {
       "render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() +
       " --integrator nonsense");
   EXPECT_EQ(integrator.exitCode, 2) << integrator.output();
+  // A range error in words, not CLI11's "in range 2.22507e-308 to 1.79769e+308".
+  const Result spp = runPbgi(
+      "render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() +
+      " --spp 0");
+  EXPECT_EQ(spp.exitCode, 2) << spp.output();
+  EXPECT_NE(spp.output().find("expected a number above 0, found 0"), std::string::npos)
+      << spp.output();
+  EXPECT_EQ(spp.output().find("e+308"), std::string::npos) << spp.output();
+  // Global flags after the subcommand too; -q keeps the progress off stderr.
+  const Result quiet = runPbgi(
+      "render " + (testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml").string() +
+      " --integrator path --spp 1 --out " + (dir / "q.exr").string() + " -q");
+  EXPECT_EQ(quiet.exitCode, 0) << quiet.output();
+  EXPECT_EQ(quiet.err.find("tiles"), std::string::npos) << quiet.err;
   std::filesystem::remove_all(dir);
 }
 
