@@ -154,7 +154,11 @@ class FarmService final : public v1::Coordinator::Service {
                            v1::ListWorkersResponse* response) override {
     auto workers = store_.workers();
     if (!workers.ok()) return toGrpc(workers.status());
+    const std::map<std::string, WorkerActivity> heard = activity_.workers();
+    const Seconds now = wallClock();
     for (const WorkerInfo& w : *workers) {
+      const auto it = heard.find(w.id);
+      const WorkerActivity a = it == heard.end() ? WorkerActivity{} : it->second;
       v1::WorkerStatus* out = response->add_workers();
       out->set_worker(w.id);
       out->set_host(w.host);
@@ -162,6 +166,9 @@ class FarmService final : public v1::Coordinator::Service {
       out->set_memory_bytes(w.memoryBytes);
       out->set_cache_bytes(w.cacheBytes);
       out->set_last_seen(w.lastSeen);
+      out->set_last_heard(std::max(a.lastHeard, w.lastSeen));
+      out->set_state(workerState(a, w.lastSeen, now, options_.leaseSeconds));
+      out->set_current(a.current);
     }
     return grpc::Status::OK;
   }

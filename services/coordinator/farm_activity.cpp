@@ -76,6 +76,13 @@ void FarmActivity::taskFinished(const std::string& worker, bool done, uint64_t c
   cv_.notify_all();
 }
 
+std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Seconds now,
+                        Seconds leaseSeconds) {
+  const bool heard = now - std::max(activity.lastHeard, lastSeen) <= leaseSeconds;
+  if (heard) return activity.current.empty() ? "online" : "busy";
+  return activity.current.empty() ? "offline" : "lost";
+}
+
 std::map<std::string, WorkerActivity> FarmActivity::workers() const {
   std::lock_guard lock(mutex_);
   return workers_;

@@ -30,6 +30,13 @@ struct WorkerActivity {
   uint64_t cacheHits = 0, cacheMisses = 0, treeBytesStreamed = 0;
 };
 
+// A worker as operators see it, from when it was last heard (by this coordinator's activity
+// or, `lastSeen`, through the store) against a lease: "busy" (heard, with a task), "online"
+// (heard, idle), "lost" (silent past a lease while it held a task: killed, or cut off), or
+// "offline" (silent past a lease, idle: stopped).
+std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Seconds now,
+                        Seconds leaseSeconds);
+
 class FarmActivity {
  public:
   // A job's tasks changed (submitted, leased, done, failed, expired, cancelled, retried): the

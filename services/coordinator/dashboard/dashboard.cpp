@@ -268,6 +268,7 @@ absl::StatusOr<Json> workersJson(const DashboardParts& p, Seconds now) {
                        {"cacheBytes", w.cacheBytes},
                        {"registered", number(w.lastSeen)},
                        {"lastHeard", number(std::max(a.lastHeard, w.lastSeen))},
+                       {"state", workerState(a, w.lastSeen, now, p.leaseSeconds)},
                        {"held", std::move(held)},
                        {"current", a.current},
                        {"progress", number(a.progress)},

@@ -253,14 +253,21 @@ function renderWorkers(now) {
   body.replaceChildren();
   $('no-workers').hidden = view.workers.length > 0;
   for (const w of view.workers) {
-    const doing = w.current ? `${w.current} (${Math.round(w.progress * 100)} %)` : 'idle';
+    // A lost worker (silent past a lease while it held a task) is no longer working on it.
+    const doing = w.state === 'lost' ? `nothing: lost while on ${w.current}` :
+        w.state === 'offline' ? 'nothing: offline' :
+        w.current             ? `${w.current} (${Math.round(w.progress * 100)} %)` :
+                                'idle';
     const held = w.held.map(([j, f]) => `job ${j} frame ${f}`).join(', ');
     const lookups = w.cacheHits + w.cacheMisses;
-    body.append(el('tr', {dataset: {worker: w.id}}, el('td', {}, w.id), el('td', {}, w.host),
-      el('td', {}, w.cores), el('td', {}, bytes(w.memoryBytes)), el('td', {}, bytes(w.cacheBytes)),
-      el('td', {}, `${duration(Math.max(0, now - w.lastHeard))} ago`), el('td', {}, doing),
-      el('td', {}, held), el('td', {}, `${w.tasksDone} / ${w.tasksFailed}`),
-      el('td', {}, lookups ? `${(100 * w.cacheHits / lookups).toFixed(1)} %` : '')));
+    body.append(
+        el('tr', {dataset: {worker: w.id, state: w.state}},
+           el('td', {}, w.id, ' ', el('span', {class: `state ${w.state}`}, w.state)),
+           el('td', {}, w.host), el('td', {}, w.cores), el('td', {}, bytes(w.memoryBytes)),
+           el('td', {}, bytes(w.cacheBytes)),
+           el('td', {}, `${duration(Math.max(0, now - w.lastHeard))} ago`), el('td', {}, doing),
+           el('td', {}, held), el('td', {}, `${w.tasksDone} / ${w.tasksFailed}`),
+           el('td', {}, lookups ? `${(100 * w.cacheHits / lookups).toFixed(1)} %` : '')));
   }
 }
 

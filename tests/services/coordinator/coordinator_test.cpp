@@ -11,6 +11,7 @@
 #include <fstream>
 #include <memory>
 #include <regex>
+#include <thread>
 
 #include "formats/pbgi/remote_page_file.h"
 #include "services/bake/frame_bake.h"
@@ -232,6 +233,44 @@ TEST_F(CoordinatorTest, AJobNoLiveWorkerMayTakeIsStalledAndRetryLiftsTheBlocklis
   auto empty = client_->retryJob(retry);
   ASSERT_TRUE(empty.ok()) << empty.status();
   EXPECT_EQ(empty->tasks() + empty->audits() + empty->unblocked_workers_size(), 0);
+}
+
+// Workers have a state from when they were last heard against a lease: busy with a task,
+// online when idle, lost when they went silent holding a task, offline when they stopped idle.
+TEST_F(CoordinatorTest, WorkersAreBusyOnlineLostOrOfflineFromWhenTheyWereLastHeard) {
+  options_.leaseSeconds = 0.5;
+  options_.expiryIntervalSeconds = 60;  // the lost worker's lease stays while this looks
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  ASSERT_TRUE(client_->submitJob(request).ok());
+  for (const char* id : {"busy-w", "idle-w"}) {
+    v1::RegisterWorkerRequest r;
+    r.set_worker(id);
+    r.set_host("h");
+    ASSERT_TRUE(client_->registerWorker(r).ok());
+  }
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("busy-w");
+  auto leased = client_->leaseTask(lease);
+  ASSERT_TRUE(leased.ok() && leased->has_task());
+  const auto states = [&] {
+    std::map<std::string, std::pair<std::string, std::string>> out;
+    auto list = client_->listWorkers(v1::ListWorkersRequest());
+    EXPECT_TRUE(list.ok()) << list.status();
+    if (list.ok()) {
+      for (const auto& w : list->workers()) out[w.worker()] = {w.state(), w.current()};
+    }
+    return out;
+  };
+  auto now = states();
+  EXPECT_EQ(now["busy-w"].first, "busy");
+  EXPECT_EQ(now["busy-w"].second, "job 1 frame 1 tile 0");
+  EXPECT_EQ(now["idle-w"].first, "online");
+  std::this_thread::sleep_for(std::chrono::milliseconds(800));  // past a lease, both silent
+  now = states();
+  EXPECT_EQ(now["busy-w"].first, "lost");
+  EXPECT_EQ(now["idle-w"].first, "offline");
 }
 
 TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
