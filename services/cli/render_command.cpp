@@ -1,7 +1,9 @@
 // pbgi render SHOT [--frame N] [--integrator NAME] [--spp N] [--threads N] [--out FILE.exr]
 //                  [--crop X0,Y0,X1,Y1]
 
+#include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
 
 #include <fmt/format.h>
@@ -36,7 +38,39 @@ struct RenderOptions {
   std::string bakeDir;
   bool rebake = false;
   std::string crop;  // X0,Y0,X1,Y1
+  std::string imageSize;  // --resolution W,H: each view's pixels
+  double scale = 0;       // --scale: of the shot's resolution
+  std::optional<uint64_t> seed;
 };
+
+constexpr int kMaxImageSide = 65536;
+
+// --resolution W,H or --scale F (of each view: a camera array keeps its layout) and --seed:
+// the shot as this render sees it. A bake does not depend on them.
+absl::Status applyImageFlags(const RenderOptions& o, ShotDesc* shot) {
+  if (!o.imageSize.empty()) {
+    int w = 0, h = 0;
+    const char* end = o.imageSize.data() + o.imageSize.size();
+    const auto [comma, ec1] = std::from_chars(o.imageSize.data(), end, w);
+    const bool parsed = ec1 == std::errc() && comma != end && *comma == ',' &&
+                        std::from_chars(comma + 1, end, h).ptr == end;
+    if (!parsed || w < 1 || h < 1 || w > kMaxImageSide || h > kMaxImageSide) {
+      return absl::InvalidArgumentError(
+          fmt::format("--resolution '{}': expected W,H (two whole numbers from 1 to {})",
+                      o.imageSize, kMaxImageSide));
+    }
+    shot->width = w;
+    shot->height = h;
+  } else if (o.scale > 0) {
+    const auto scaled = [&](int side) {
+      return static_cast<int>(std::clamp<double>(std::lround(side * o.scale), 1, kMaxImageSide));
+    };
+    shot->width = scaled(shot->width);
+    shot->height = scaled(shot->height);
+  }
+  if (o.seed) shot->render.seed = *o.seed;
+  return absl::OkStatus();
+}
 
 // "X0,Y0,X1,Y1": pixels of the full frame, half-open, origin top left.
 absl::StatusOr<TileRect> parseCrop(const std::string& text) {
@@ -75,6 +109,7 @@ void printTreeReport(const TreeReadReport& t) {
 int runRender(const RenderOptions& o) {
   auto shot = loadShotFile(o.shot);
   if (!shot.ok()) return reportError(shot.status());
+  if (absl::Status s = applyImageFlags(o, &*shot); !s.ok()) return reportError(s);
   FrameRenderRequest request;
   request.frame = o.frame.value_or(shot->firstFrame);
   request.overrides.integrator = o.integrator;
@@ -157,6 +192,14 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
                   "(colour in float), .png/.jpg (8-bit through the OCIO view) (default: the "
                   "shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
+  auto* size = cmd->add_option("--resolution", options->imageSize,
+                               "Image size W,H of each view (default: the shot's resolution)");
+  cmd->add_option("--scale", options->scale,
+                  "Scale the shot's resolution, e.g. 0.5 for a half-size check render")
+      ->check(positiveNumber())
+      ->excludes(size);
+  cmd->add_option("--seed", options->seed,
+                  "Sampling seed (default: the shot's seed); a render is a function of it");
   cmd->add_option("--crop", options->crop,
                   "Render only pixels X0,Y0,X1,Y1 of the full frame (half-open, origin top "
                   "left): the EXR's data window, in the frame's display window, bit for bit "
