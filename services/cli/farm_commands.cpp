@@ -7,7 +7,6 @@
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
-#include <google/protobuf/util/json_util.h>
 #include <CLI/CLI.hpp>
 
 #include "core/util/status.h"
@@ -15,6 +14,7 @@
 #include "services/cli/cli.h"
 #include "services/cli/farm_cli.h"
 #include "services/cli/progress.h"
+#include "services/farm/farm_json.h"
 #include "services/farm/farm_wire.h"
 
 namespace pbgi::cli {
@@ -68,9 +68,7 @@ int runStatus(const StatusOptions& o) {
   auto response = (*client)->getStatus(request);
   if (!response.ok()) return reportError(response.status());
   if (o.json) {
-    std::string json;
-    (void)google::protobuf::util::MessageToJsonString(*response, &json);
-    std::printf("%s\n", json.c_str());
+    std::printf("%s\n", farm::toJson(*response).c_str());
     return kExitOk;
   }
   if (response->jobs().empty()) std::printf("no jobs\n");
@@ -100,6 +98,12 @@ struct JobOptions {
   int64_t job = 0;
   std::optional<int> frame;
   std::optional<int> tile;
+  bool json = false;  // logs
+};
+
+struct WorkersOptions {
+  ConnectionFlags connection;
+  bool json = false;
 };
 
 int runCancel(const JobOptions& o) {
@@ -149,6 +153,10 @@ int runLogs(const JobOptions& o) {
   if (o.tile) request.set_tile(*o.tile);
   auto response = (*client)->getLogs(request);
   if (!response.ok()) return reportError(response.status());
+  if (o.json) {
+    std::printf("%s\n", farm::toJson(*response).c_str());
+    return kExitOk;
+  }
   for (const v1::LogEntry& e : response->entries()) {
     const v1::TaskKind kind = farm::taskKindOf(e);
     const v1::TaskEventKind event = farm::taskEventKindOf(e);
@@ -172,11 +180,15 @@ int runLogs(const JobOptions& o) {
   return kExitOk;
 }
 
-int runWorkers(const ConnectionFlags& connection) {
-  auto client = connect(connection);
+int runWorkers(const WorkersOptions& o) {
+  auto client = connect(o.connection);
   if (!client.ok()) return reportError(client.status());
   auto response = (*client)->listWorkers(v1::ListWorkersRequest());
   if (!response.ok()) return reportError(response.status());
+  if (o.json) {
+    std::printf("%s\n", farm::toJson(*response).c_str());
+    return kExitOk;
+  }
   if (response->workers().empty()) std::printf("no workers\n");
   const double now =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
@@ -211,7 +223,8 @@ void registerFarmCommands(CLI::App& app, CommandAction& action) {
     auto o = std::make_shared<StatusOptions>();
     CLI::App* cmd = app.add_subcommand("status", "Jobs and their progress (one job: frames x tiles)");
     cmd->add_option("JOB", o->job, "A job id (default: every job)");
-    cmd->add_flag("--json", o->json, "Print the status as JSON");
+    cmd->add_flag("--json", o->json,
+                  "Print the status as JSON (every field present, ids and counts as numbers)");
     addConnectionFlags(*cmd, o->connection);
     cmd->callback([o, &action] { action = [o] { return runStatus(*o); }; });
   }
@@ -224,6 +237,9 @@ void registerFarmCommands(CLI::App& app, CommandAction& action) {
       cmd->add_option("--frame", o->frame, "Only this frame");
       cmd->add_option("--tile", o->tile, "Only this tile of the frame");
     }
+    if (std::string_view(name) == "logs") {
+      cmd->add_flag("--json", o->json, "Print the entries as JSON (as status --json)");
+    }
     addConnectionFlags(*cmd, o->connection);
     cmd->callback([o, run, &action] { action = [o, run] { return run(*o); }; });
   };
@@ -232,9 +248,10 @@ void registerFarmCommands(CLI::App& app, CommandAction& action) {
   jobCommand("logs", "A job's task history: leases, completions with their logs, failures",
              true, runLogs);
   {
-    auto o = std::make_shared<ConnectionFlags>();
+    auto o = std::make_shared<WorkersOptions>();
     CLI::App* cmd = app.add_subcommand("workers", "The workers a coordinator knows");
-    addConnectionFlags(*cmd, *o);
+    cmd->add_flag("--json", o->json, "Print the workers as JSON (as status --json)");
+    addConnectionFlags(*cmd, o->connection);
     cmd->callback([o, &action] { action = [o] { return runWorkers(*o); }; });
   }
 }

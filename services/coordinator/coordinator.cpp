@@ -6,7 +6,6 @@
 #include <thread>
 
 #include <fmt/format.h>
-#include <google/protobuf/util/json_util.h>
 #include <grpcpp/grpcpp.h>
 #include <httplib.h>
 
@@ -27,6 +26,7 @@
 #include "services/coordinator/page_service.h"
 #include "services/coordinator/parsed_job_cache.h"
 #include "services/coordinator/status_report.h"
+#include "services/farm/farm_json.h"
 #include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
 #include "services/render/frame_assembly.h"
@@ -624,9 +624,7 @@ absl::Status Coordinator::Impl::serveHttp() {
       res.set_content(std::string(status.status().message()), "text/plain");
       return;
     }
-    std::string json;
-    (void)google::protobuf::util::MessageToJsonString(*status, &json);
-    res.set_content(json, "application/json");
+    res.set_content(toJson(*status), "application/json");
   });
   previews = std::make_unique<FramePreviews>(defaultOcioConfigPath());
   dashboard = std::make_unique<DashboardParts>(

@@ -56,6 +56,12 @@ TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
       << one.out;
   const auto json = runPbgi("status 1 --json" + connection_);
   EXPECT_NE(json.out.find("\"tilesPerFrame\":4"), std::string::npos) << json.out;
+  EXPECT_NE(json.out.find("{\"job\":1,"), std::string::npos) << "ids are numbers: " << json.out;
+  const auto workersJson = runPbgi("workers --json" + connection_);
+  EXPECT_EQ(workersJson.out, "{\"workers\":[]}\n") << workersJson.output();
+  const auto logsJson = runPbgi("logs 1 --json" + connection_);
+  EXPECT_EQ(logsJson.exitCode, 0) << logsJson.output();
+  EXPECT_EQ(logsJson.out.rfind("{\"entries\":[", 0), 0u) << logsJson.out;
   const auto cancelled = runPbgi("cancel 1" + connection_);
   ASSERT_EQ(cancelled.exitCode, 0) << cancelled.output();
   EXPECT_NE(runPbgi("status" + connection_).out.find("cancelled"), std::string::npos);
