@@ -255,6 +255,24 @@ absl::StatusOr<AuditInfo> readAuditRow(const Row& row, std::string_view where) {
   return info;
 }
 
+// An events row of `job`, joined with its task: e.time, e.task, t.kind, t.frame, t.tile,
+// e.attempt, e.worker, e.event, e.text.
+template <typename Row>
+TaskEvent readEventRow(const Row& row, int64_t job) {
+  TaskEvent e;
+  e.time = row.real(0);
+  e.task = row.int64(1);
+  e.ref.job = job;
+  e.ref.kind = static_cast<TaskKind>(row.integer(2));
+  e.ref.frame = row.integer(3);
+  e.ref.tile = row.integer(4);
+  e.attempt = row.integer(5);
+  e.worker = row.text(6);
+  e.event = row.text(7);
+  e.text = row.bytes(8);
+  return e;
+}
+
 // A jobs row (PBGI_JOB_COLUMNS, in order).
 template <typename Row>
 absl::StatusOr<JobInfo> readJobRow(const Row& row, std::string_view where) {

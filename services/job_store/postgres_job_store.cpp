@@ -723,18 +723,7 @@ absl::StatusOr<std::vector<TaskEvent>> PostgresJobStore::events(int64_t job,
                  "AND ($2::integer IS NULL OR t.frame = $2::integer) "
                  "AND ($3::integer IS NULL OR t.tile = $3::integer) ORDER BY e.id",
                  job, nullable(frame), nullable(tile))) {
-      TaskEvent e;
-      e.time = row[0].as<double>();
-      e.task = row[1].as<int64_t>();
-      e.ref.job = job;
-      e.ref.kind = static_cast<TaskKind>(row[2].as<int>());
-      e.ref.frame = row[3].as<int>();
-      e.ref.tile = row[4].as<int>();
-      e.attempt = row[5].as<int>();
-      e.worker = row[6].as<std::string>();
-      e.event = row[7].as<std::string>();
-      e.text = pgBytes(row[8]);
-      out.push_back(std::move(e));
+      out.push_back(readEventRow(PgRow{row}, job));
     }
     return out;
   });

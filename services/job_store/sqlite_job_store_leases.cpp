@@ -264,18 +264,7 @@ absl::StatusOr<std::vector<TaskEvent>> SqliteJobStore::events(int64_t job, std::
     for (;;) {
       PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
       if (!row) return out;
-      TaskEvent e;
-      e.time = q.real(0);
-      e.task = q.int64(1);
-      e.ref.job = job;
-      e.ref.kind = static_cast<TaskKind>(q.integer(2));
-      e.ref.frame = q.integer(3);
-      e.ref.tile = q.integer(4);
-      e.attempt = q.integer(5);
-      e.worker = q.text(6);
-      e.event = q.text(7);
-      e.text = q.text(8);
-      out.push_back(std::move(e));
+      out.push_back(readEventRow(q, job));
     }
   });
 }
