@@ -14,6 +14,7 @@
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
+#include "formats/scene/frame_scene.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/dashboard/dashboard.h"
@@ -366,6 +367,16 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
   for (const int f : request.frames()) {
     PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
     spec.frames.push_back(f);
+  }
+  // The first frame's scene, loaded as a worker will load it: geometry that does not parse, a
+  // texture that is not there, is refused now, naming the file, rather than failing on every
+  // worker until the job stalls. (Frames share their files; keyframes only move them.)
+  if (!spec.frames.empty()) {
+    if (absl::StatusOr<FrameScene> scene = loadFrameScene(shot, spec.frames.front()); !scene.ok()) {
+      return absl::Status(scene.status().code(),
+                          fmt::format("{} frame {}: {}", request.shot_path(), spec.frames.front(),
+                                      scene.status().message()));
+    }
   }
   std::string pattern = shot.output;
   if (!request.output_dir().empty()) {

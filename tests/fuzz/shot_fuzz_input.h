@@ -68,6 +68,8 @@ inline const std::filesystem::path& shotFuzzDir() {
                         fmt::format("pbgi-shot-fuzz-{}", ::getpid())) {
       std::filesystem::create_directories(path() / "shots");
       for (const char* name : kShotFuzzFiles) std::ofstream(path() / "shots" / name).put('\n');
+      // A triangle that loads: the coordinator loads a job's first frame at submission.
+      std::ofstream(path() / "shots" / "tri.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
     }
   };
   static const Folder dir;

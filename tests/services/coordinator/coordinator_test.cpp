@@ -273,6 +273,29 @@ TEST_F(CoordinatorTest, WorkersAreBusyOnlineLostOrOfflineFromWhenTheyWereLastHea
   EXPECT_EQ(now["idle-w"].first, "offline");
 }
 
+// A shot whose geometry file exists but does not parse is refused at submission, naming the
+// file, instead of failing on every worker until the job stalls.
+TEST_F(CoordinatorTest, AShotWhoseGeometryCannotLoadIsRefusedAtSubmission) {
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  std::string text = request.shot_text();
+  const std::string bad = (pbgi::testing::testDataDir() / "meshes/bad_face_index.obj").string();
+  const size_t at = text.find("cornell_box.obj\"");
+  ASSERT_NE(at, std::string::npos) << text;
+  const size_t start = text.rfind('"', at) + 1;
+  text.replace(start, at + std::string("cornell_box.obj").size() - start, bad);
+  request.set_shot_text(text);
+  const auto refused = client_->submitJob(request);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument) << refused.status();
+  EXPECT_NE(refused.status().message().find("bad_face_index.obj"), std::string::npos)
+      << refused.status();
+  EXPECT_NE(refused.status().message().find("Invalid face index"), std::string::npos)
+      << refused.status();
+  auto jobs = coordinator_->store().jobs();
+  ASSERT_TRUE(jobs.ok());
+  EXPECT_TRUE(jobs->empty());
+}
+
 TEST_F(CoordinatorTest, AStaleAttemptCannotCompleteItsTask) {
   options_.leaseSeconds = 0.4;
   options_.expiryIntervalSeconds = 0.05;
