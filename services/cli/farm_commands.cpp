@@ -193,11 +193,14 @@ int runWorkers(const WorkersOptions& o) {
   const double now =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
   for (const v1::WorkerStatus& w : response->workers()) {
+    // A cache of 0: the worker was given no budget, so each job's cache_mb sets it.
+    const std::string cache = w.cache_bytes() > 0
+                                  ? fmt::format("{:.0f} MiB", double(w.cache_bytes()) / (1 << 20))
+                                  : std::string("job's cache_mb");
     std::printf(
-        "%-28s %-7s %-16s %3d cores %6.1f GiB  cache %6.0f MiB  heard %.0f s ago%s\n",
-        w.worker().c_str(), w.state().c_str(), w.host().c_str(), w.cores(),
-        double(w.memory_bytes()) / (1 << 30), double(w.cache_bytes()) / (1 << 20),
-        std::max(0.0, now - std::max(w.last_heard(), w.last_seen())),
+        "%-28s %-7s %-16s %3d cores %6.1f GiB  cache %s  heard %.0f s ago%s\n", w.worker().c_str(),
+        w.state().c_str(), w.host().c_str(), w.cores(), double(w.memory_bytes()) / (1 << 30),
+        cache.c_str(), std::max(0.0, now - std::max(w.last_heard(), w.last_seen())),
         w.current().empty()
             ? ""
             : fmt::format(", {} {}", w.state() == "lost" ? "was on" : "on", w.current()).c_str());

@@ -264,7 +264,8 @@ function renderWorkers(now) {
         el('tr', {dataset: {worker: w.id, state: w.state}},
            el('td', {}, w.id, ' ', el('span', {class: `state ${w.state}`}, w.state)),
            el('td', {}, w.host), el('td', {}, w.cores), el('td', {}, bytes(w.memoryBytes)),
-           el('td', {}, bytes(w.cacheBytes)),
+           // 0: the worker was given no budget, so each job's cache_mb sets it.
+           el('td', {}, w.cacheBytes ? bytes(w.cacheBytes) : 'each job\'s cache_mb'),
            el('td', {}, `${duration(Math.max(0, now - w.lastHeard))} ago`), el('td', {}, doing),
            el('td', {}, held), el('td', {}, `${w.tasksDone} / ${w.tasksFailed}`),
            el('td', {}, lookups ? `${(100 * w.cacheHits / lookups).toFixed(1)} %` : '')));
