@@ -38,13 +38,18 @@ class StabilityFarmTest : public pbgi::testing::WorkerFarmTest {
   };
 
   // Writes the case into a folder of its own under the farm's output root and submits it with
-  // one audited tile at 16 spp (a few hundred milliseconds of path tracing).
-  Submitted submitCase(const StressCase& c, const std::string& gather) {
+  // one audited tile at 16 spp (a few hundred milliseconds of path tracing). A case whose
+  // geometry the coordinator refuses at submission is submitted with a plain room, and its
+  // geometry written after: a file edited under a job, which the worker meets instead.
+  Submitted submitCase(const StressCase& c, const std::string& gather,
+                       bool geometryAfterSubmission = false) {
     Submitted s;
     s.what = c.name + " / " + gather;
     const fs::path dir = dir_ / fmt::format("case-{}", submitted_++);
     fs::create_directories(dir);
-    s.shot = pbgi::testing::writeStressShot(dir, c, "pbgi", gather);
+    StressCase submitted = c;
+    if (geometryAfterSubmission) submitted.obj = pbgi::testing::roomObj(1.0);
+    s.shot = pbgi::testing::writeStressShot(dir, submitted, "pbgi", gather);
     // The case's name in its shot's bytes: the rooms of scale 1 have the same shot text and
     // differ only in their OBJ, which a bake's hash does not cover, so that the renders in this
     // process (all baked into one folder) would take one case's tree for another's.
@@ -57,6 +62,15 @@ class StabilityFarmTest : public pbgi::testing::WorkerFarmTest {
     auto id = client_->submitJob(request);
     EXPECT_TRUE(id.ok()) << s.what << ": " << id.status();
     s.job = id.ok() ? id->job() : 0;
+    if (geometryAfterSubmission) {
+      std::ofstream(dir / "scene.obj", std::ios::trunc) << c.obj;
+      // Submitted as it is now, the coordinator refuses it, naming the file.
+      auto refused = client_->submitJob(request);
+      EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument)
+          << s.what << ": " << refused.status();
+      EXPECT_NE(refused.status().message().find((dir / "scene.obj").string()), std::string::npos)
+          << refused.status();
+    }
     return s;
   }
 
@@ -173,8 +187,8 @@ TEST_F(StabilityFarmTest, HostileScenesRenderAsInProcessOrAreRefusedByNameAndThe
       "v 0 0 0\nv 0.5 0.5 0.5\nv 1 1 1\nf -3 -2 -1\n"
       "v 0.2 0.2 0.2\nf -1 -1 -1\n";
   bad.push_back(submitCase(scene("empty scene", "# vertices, no faces\nv 0 0 0\nv 1 0 0\n"),
-                           "bidirectional"));
-  bad.push_back(submitCase(scene("no usable triangle", unusable), "bidirectional"));
+                           "bidirectional", true));
+  bad.push_back(submitCase(scene("no usable triangle", unusable), "bidirectional", true));
   pbgi::testing::Process& worker = startWorker("w1");
   const auto all = [&] {
     for (const auto* list : {&good, &bad}) {
