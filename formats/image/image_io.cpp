@@ -205,14 +205,18 @@ float srgbToLinear(float v) {
   return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
 }
 
+// InvalidArgument naming `path` for an image without pixels or channels.
+absl::Status checkNotEmpty(const Image& image, const std::string& path) {
+  if (image.width() > 0 && image.height() > 0 && image.channelCount() > 0) return absl::OkStatus();
+  return absl::InvalidArgumentError(
+      absl::StrFormat("%s: cannot write an empty image (%dx%d, %d channels)", path, image.width(),
+                      image.height(), image.channelCount()));
+}
+
 }  // namespace
 
 absl::Status writeExr(const Image& image, const std::string& path) {
-  if (image.width() <= 0 || image.height() <= 0 || image.channelCount() == 0) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: cannot write an empty image (%dx%d, %d channels)", path, image.width(),
-                        image.height(), image.channelCount()));
-  }
+  if (absl::Status s = checkNotEmpty(image, path); !s.ok()) return s;
   PBGI_CHECK_EQ(image.pixels().size(),
                 static_cast<size_t>(image.width()) * image.height() * image.channelCount());
   const auto& channels = image.channels();
@@ -374,11 +378,7 @@ absl::Status writeRender(const Image& image, const std::string& path, const std:
   const FormatByExtension* f = formatOf(path);
   if (f == nullptr) return outputFormatFor(path).status();
   if (f->format == OutputFormat::kExr) return writeExr(image, path);
-  if (image.width() <= 0 || image.height() <= 0 || image.channelCount() == 0) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: cannot write an empty image (%dx%d, %d channels)", path, image.width(),
-                        image.height(), image.channelCount()));
-  }
+  if (absl::Status s = checkNotEmpty(image, path); !s.ok()) return s;
   const std::string dropped =
       image.channelCount() > 3 ? absl::StrFormat(" and %d AOV channels", image.channelCount() - 3)
                                : std::string();
