@@ -9,6 +9,7 @@
 // unit instead of being rendered.
 //
 // Which integrators exist, their parameters, counters and needs: core/render/integrators.h.
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -64,9 +65,16 @@ struct TileSamples {
   // For an integrator with blocks (blockSize() > 0): the unit's blocks, whose pixels follow
   // one another in `pixels`. Work that spans pixels stays within a block. Empty for a tile.
   std::span<const UnitBlock> blocks;
+  // Set while the unit renders when its render is to stop (a cancelled farm task); an
+  // integrator checks it between pixels and returns cancelledError().
+  const std::atomic<bool>* cancel = nullptr;
 
   size_t pixelCount() const { return pixels.size(); }
+  bool cancelled() const { return cancel && cancel->load(std::memory_order_relaxed); }
 };
+
+// What a render stopped by its cancel flag returns.
+absl::Status cancelledError();
 
 // Scratch an integrator keeps per thread between units (buffers, traversal state).
 class IntegratorScratch {

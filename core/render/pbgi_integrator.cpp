@@ -58,6 +58,7 @@ absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const Pbgi
                             RenderCounters* counters, Diffuse&& diffuse) {
   const size_t spp = static_cast<size_t>(samples.spp);
   for (size_t i = firstPixel; i < endPixel; ++i) {
+    if (samples.cancelled()) return cancelledError();
     pixel.newPixel();
     for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
       const Receiver r = traceReceiver(scene, samples.rays[k], samples.rngs[k], settings.pathTracer,

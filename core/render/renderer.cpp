@@ -182,7 +182,8 @@ struct UnitBuffers {
 
 absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                         const RenderSettings& settings, int frame, const RenderUnit& unit,
-                        Raster& raster, UnitBuffers& buf, RenderCounters* counters) {
+                        Raster& raster, UnitBuffers& buf, const std::atomic<bool>* cancel,
+                        RenderCounters* counters) {
   Image& image = raster.image();
   PBGI_CHECK_EQ(image.channelCount(), static_cast<int>(kChannelCount));
   buf.pixels.clear();
@@ -215,6 +216,7 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
   buf.rngs.resize(n);
   buf.samples.assign(n, PathSample{});
   for (size_t i = 0; i < buf.pixels.size(); ++i) {
+    if (cancel && cancel->load(std::memory_order_relaxed)) return cancelledError();
     const Vec2i px = buf.pixels[i];
     const uint64_t pixel = static_cast<uint64_t>(px.y) * camera.imageWidth() + px.x;
     // The position in the pixel and on the lens are stratified over the pixel's samples
@@ -237,7 +239,8 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                             .pixels = buf.pixels,
                             .rays = buf.rays,
                             .rngs = buf.rngs,
-                            .blocks = buf.blocks};
+                            .blocks = buf.blocks,
+                            .cancel = cancel};
   if (absl::Status s = integrator.render(samples, buf.samples, buf.scratch.get(), counters);
       !s.ok()) {
     return absl::Status(s.code(), fmt::format("{}: {}", describe(unit), s.message()));
@@ -355,6 +358,7 @@ absl::Status PixelIntegrator::render(const TileSamples& samples, std::span<PathS
                                      IntegratorScratch* scratch, RenderCounters* counters) const {
   const size_t spp = static_cast<size_t>(samples.spp);
   for (size_t i = 0; i < samples.pixelCount(); ++i) {
+    if (samples.cancelled()) return cancelledError();
     const size_t first = i * spp;
     if (absl::Status s = shadePixel(samples.rays.subspan(first, spp),
                                     samples.rngs.subspan(first, spp), out.subspan(first, spp),
@@ -373,6 +377,8 @@ absl::Status PathIntegrator::shadePixel(std::span<const Ray> rays, std::span<Rng
   for (size_t s = 0; s < rays.size(); ++s) out[s] = tracePath(scene_, rays[s], rngs[s], settings_);
   return absl::OkStatus();
 }
+
+absl::Status cancelledError() { return absl::CancelledError("the render was cancelled"); }
 
 absl::Status checkRegions(const std::vector<TileRect>& regions, int width, int height) {
   for (const TileRect& r : regions) {
@@ -415,8 +421,10 @@ absl::StatusOr<Image> renderFrame(const Integrator& integrator, const Camera& ca
         [&](const tbb::blocked_range<size_t>& range) {
           for (size_t i = range.begin(); i != range.end(); ++i) {
             if (failed.load(std::memory_order_relaxed)) return;
-            errors[i] = renderUnit(integrator, camera, settings, frame, units[i], raster,
-                                   buffers.local(), &perUnit[i]);
+            errors[i] = options.cancel && options.cancel->load()
+                            ? cancelledError()
+                            : renderUnit(integrator, camera, settings, frame, units[i], raster,
+                                         buffers.local(), options.cancel, &perUnit[i]);
             if (!errors[i].ok()) failed = true;
             const int n = ++done;
             if (options.progress) options.progress(n, static_cast<int>(units.size()));

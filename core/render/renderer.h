@@ -15,6 +15,7 @@
 // own (seed, frame, block), so a pixel is bit-identical whatever the tiling, the regions, the
 // thread count or the machine.
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -46,6 +47,8 @@ struct FrameRenderOptions {
   // left-aligned (stackedSize); a single region's image has its window at the region's corner
   // of the frame. Pixels come out as in a render of the whole frame.
   std::vector<TileRect> regions;
+  // Stops the render when set (checked between pixels): renderFrame returns cancelledError().
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 // The channels of a rendered frame: RGBA, then the AOV layers.

@@ -181,20 +181,42 @@ class FarmService final : public v1::Coordinator::Service {
 
   grpc::Status Heartbeat(grpc::ServerContext*, const v1::HeartbeatRequest* request,
                          v1::HeartbeatResponse* response) override {
+    if (request->poll()) return pollLease(*request, response);
     const absl::Status s =
         request->audit()
             ? store_.heartbeatAudit(request->task(), request->attempt(), wallClock(),
                                     options_.leaseSeconds)
             : store_.heartbeat(request->task(), request->attempt(), request->progress(),
                                wallClock(), options_.leaseSeconds);
-    if (s.code() == absl::StatusCode::kFailedPrecondition ||
-        s.code() == absl::StatusCode::kNotFound) {
+    if (s.ok())
+      activity_.heartbeat(request->worker(), clampProgress(request->progress()), wallClock());
+    return answerLease(s, response);
+  }
+
+  // A lost lease (a stale attempt, or a task or audit gone) is an answer, not an error: the
+  // worker stops.
+  static grpc::Status answerLease(const absl::Status& held, v1::HeartbeatResponse* response) {
+    if (held.code() == absl::StatusCode::kFailedPrecondition ||
+        held.code() == absl::StatusCode::kNotFound) {
       response->set_keep_going(false);
       return grpc::Status::OK;
     }
-    response->set_keep_going(s.ok());
-    if (s.ok()) activity_.heartbeat(request->worker(), clampProgress(request->progress()), wallClock());
-    return toGrpc(s);
+    response->set_keep_going(held.ok());
+    return toGrpc(held);
+  }
+
+  // A read: whether the attempt still holds its lease (a cancel or retry took it, or the lease
+  // expired), without extending it.
+  grpc::Status pollLease(const v1::HeartbeatRequest& request, v1::HeartbeatResponse* response) {
+    absl::Status held;
+    if (request.audit()) {
+      const absl::StatusOr<AuditInfo> audit = store_.audit(request.task());
+      held = audit.ok() ? checkCurrentLease(*audit, request.attempt()) : audit.status();
+    } else {
+      const absl::StatusOr<TaskInfo> task = store_.task(request.task());
+      held = task.ok() ? checkCurrentLease(*task, request.attempt()) : task.status();
+    }
+    return answerLease(held, response);
   }
 
   grpc::Status CompleteTask(grpc::ServerContext*, const v1::CompleteTaskRequest* request,
@@ -286,9 +308,7 @@ class FarmService final : public v1::Coordinator::Service {
             continue;
           }
           activity_.leaseAsked(request.worker(), std::move(held),
-                               fmt::format("job {} frame {} audit", audit->job,
-                                           audit->spec.frame),
-                               wallClock());
+                               auditLabel(audit->job, audit->spec.frame), wallClock());
           describeAudit(*audit, **view, response);
           return grpc::Status::OK;
         }
@@ -699,7 +719,10 @@ absl::StatusOr<std::unique_ptr<Coordinator>> Coordinator::start(const Coordinato
   // The lease period of grace after a start begins here, before any worker can call.
   impl->reaper = std::make_unique<LeaseReaper>(
       *impl->store, *impl->metrics->expired, options.leaseSeconds, options.expiryIntervalSeconds,
-      [activity = &impl->activity] { activity->changed(); });
+      [activity = &impl->activity](const std::vector<ExpiredLease>& expired) {
+        for (const ExpiredLease& e : expired) activity->leaseExpired(e.worker, e.what);
+        activity->changed();
+      });
   PBGI_RETURN_IF_ERROR(impl->listen());
   if (!options.httpListen.empty()) {
     if (absl::Status s = impl->serveHttp(); !s.ok()) {

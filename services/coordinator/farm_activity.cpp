@@ -41,6 +41,7 @@ void FarmActivity::leaseAsked(const std::string& worker, std::vector<HeldFrame> 
     WorkerActivity& w = workers_[worker];
     w.held = std::move(held);
     w.lastHeard = now;
+    w.expired.clear();
     if (!leased) return;
     w.current = *std::move(leased);
     w.progress = 0;
@@ -58,6 +59,15 @@ void FarmActivity::heartbeat(const std::string& worker, double progress, Seconds
   }
   // No new version: a farm's heartbeats come many a second, and each would send every page
   // back to the store for the whole job. Progress shows at the next change of state.
+}
+
+void FarmActivity::leaseExpired(const std::string& worker, const std::string& what) {
+  std::lock_guard lock(mutex_);
+  const auto it = workers_.find(worker);
+  if (it == workers_.end() || it->second.current != what) return;
+  it->second.current.clear();
+  it->second.progress = 0;
+  it->second.expired = what;
 }
 
 void FarmActivity::taskFinished(const std::string& worker, bool done, uint64_t cacheHits,
@@ -80,7 +90,7 @@ std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Second
                         Seconds leaseSeconds) {
   const bool heard = now - std::max(activity.lastHeard, lastSeen) <= leaseSeconds;
   if (heard) return activity.current.empty() ? "online" : "busy";
-  return activity.current.empty() ? "offline" : "lost";
+  return activity.current.empty() && activity.expired.empty() ? "offline" : "lost";
 }
 
 std::map<std::string, WorkerActivity> FarmActivity::workers() const {

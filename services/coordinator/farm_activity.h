@@ -24,6 +24,7 @@ struct WorkerActivity {
   std::vector<HeldFrame> held;  // from its latest lease request, most recent first
   Seconds lastHeard = 0;        // its latest call of any kind
   std::string current;          // what it leased last ("job 3 frame 12 tile 7"), until done
+  std::string expired;          // a task whose lease expired on it, until it is heard again
   double progress = 0;          // of the current task, from its heartbeats
   int64_t tasksDone = 0;        // completions accepted from it by this coordinator
   int64_t tasksFailed = 0;
@@ -32,8 +33,8 @@ struct WorkerActivity {
 
 // A worker as operators see it, from when it was last heard (by this coordinator's activity
 // or, `lastSeen`, through the store) against a lease: "busy" (heard, with a task), "online"
-// (heard, idle), "lost" (silent past a lease while it held a task: killed, or cut off), or
-// "offline" (silent past a lease, idle: stopped).
+// (heard, idle), "lost" (silent past a lease while it held a task, or after the task's lease
+// expired on it: killed, or cut off), or "offline" (silent past a lease, idle: stopped).
 std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Seconds now,
                         Seconds leaseSeconds);
 
@@ -53,6 +54,8 @@ class FarmActivity {
   void leaseAsked(const std::string& worker, std::vector<HeldFrame> held,
                   std::optional<std::string> leased, Seconds now);
   void heartbeat(const std::string& worker, double progress, Seconds now);
+  // The lease of `what` expired on the worker: the task is no longer its current one.
+  void leaseExpired(const std::string& worker, const std::string& what);
   // A completion (`done`) or failure the store accepted.
   void taskFinished(const std::string& worker, bool done, uint64_t cacheHits,
                     uint64_t cacheMisses, uint64_t treeBytes, Seconds now);

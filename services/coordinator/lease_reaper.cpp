@@ -12,7 +12,7 @@ Seconds wallClock() {
 }
 
 LeaseReaper::LeaseReaper(JobStore& store, metrics::Counter& expired, Seconds leaseSeconds,
-                         Seconds intervalSeconds, std::function<void()> onExpired)
+                         Seconds intervalSeconds, OnExpired onExpired)
     : store_(store),
       expired_(expired),
       onExpired_(std::move(onExpired)),
@@ -40,13 +40,21 @@ void LeaseReaper::loop() {
     lock.unlock();
     const Seconds now = wallClock();
     if (now >= started_ + leaseSeconds_) {
-      auto n = store_.expireLeases(now);
+      std::vector<ExpiredLease> expired;
+      auto n = store_.expireLeases(now, &expired);
       if (!n.ok()) {
         log::error("reclaiming expired leases: {}", n.status().message());
       } else if (*n > 0) {
         expired_.add(static_cast<uint64_t>(*n));
-        log::warn("{} lease(s) expired; their tasks are retried", *n);
-        if (onExpired_) onExpired_();
+        for (const ExpiredLease& e : expired) {
+          // The lease ran leaseSeconds_ from its last heartbeat (or from the lease itself).
+          log::warn(
+              "lease expired: {} ({} {}, attempt {}) on worker {}, last heard {:.1f} s ago; "
+              "the {} is tried again",
+              e.what, e.audit ? "audit" : "task", e.id, e.attempt, e.worker,
+              std::max(0.0, now - (e.expires - leaseSeconds_)), e.audit ? "audit" : "task");
+        }
+        if (onExpired_) onExpired_(expired);
       }
     }
     lock.lock();

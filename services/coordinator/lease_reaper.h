@@ -16,9 +16,10 @@ namespace pbgi::farm {
 class LeaseReaper {
  public:
   // Starts the thread. `expired` counts the leases reclaimed; `onExpired` runs after a sweep
-  // that reclaimed any.
+  // that reclaimed any, with them. Each is logged: its task, worker and when it was last heard.
+  using OnExpired = std::function<void(const std::vector<ExpiredLease>&)>;
   LeaseReaper(JobStore& store, metrics::Counter& expired, Seconds leaseSeconds,
-              Seconds intervalSeconds, std::function<void()> onExpired = {});
+              Seconds intervalSeconds, OnExpired onExpired = {});
   ~LeaseReaper();  // stop()
   LeaseReaper(const LeaseReaper&) = delete;
   LeaseReaper& operator=(const LeaseReaper&) = delete;
@@ -31,7 +32,7 @@ class LeaseReaper {
 
   JobStore& store_;
   metrics::Counter& expired_;
-  const std::function<void()> onExpired_;
+  const OnExpired onExpired_;
   const Seconds leaseSeconds_;
   const Seconds intervalSeconds_;
   const Seconds started_;

@@ -99,6 +99,10 @@ absl::StatusOr<TaskEventKind> parseTaskEventKind(std::string_view word) {
       fmt::format("event '{}': expected one of {}", escaped, fmt::join(expected, ", ")));
 }
 
+std::string auditLabel(int64_t job, int frame) {
+  return fmt::format("job {} frame {} audit", job, frame);
+}
+
 std::string TaskRef::toString() const {
   if (kind == TaskKind::kTile) return fmt::format("job {} frame {} tile {}", job, frame, tile);
   return fmt::format("job {} frame {} {}", job, frame, farm::toString(kind));

@@ -111,6 +111,8 @@ struct TaskRef {
   int tile = -1;                 // tiles only
   std::string toString() const;  // "job 3 frame 12 tile 7" / "job 3 frame 12 bake"
 };
+// A frame's audit as logs and the activity name it: "job 3 frame 12 audit".
+std::string auditLabel(int64_t job, int frame);
 
 // A frame a worker has loaded (its scene, its tree's pages): where its tiles are cheapest.
 struct HeldFrame {

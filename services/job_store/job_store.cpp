@@ -216,12 +216,29 @@ absl::Status checkCurrentLease(const TaskInfo& info, int attempt) {
       info.ref.toString(), info.id, attempt, toString(info.state), info.attempt));
 }
 
+ExpiredLease expiredLease(const TaskInfo& info, Seconds expires) {
+  return {.id = info.id,
+          .audit = false,
+          .what = info.ref.toString(),
+          .attempt = info.attempt,
+          .worker = info.worker,
+          .expires = expires};
+}
+
+ExpiredLease expiredLease(const AuditInfo& info, Seconds expires) {
+  return {.id = info.id,
+          .audit = true,
+          .what = auditLabel(info.job, info.spec.frame),
+          .attempt = info.attempt,
+          .worker = info.worker,
+          .expires = expires};
+}
+
 absl::Status checkCurrentLease(const AuditInfo& info, int attempt) {
   if (info.state == AuditState::kLeased && info.attempt == attempt) return absl::OkStatus();
   return absl::FailedPreconditionError(fmt::format(
-      "job {} frame {} audit (audit {}): attempt {} no longer holds the lease; the audit is {} at "
-      "attempt {}",
-      info.job, info.spec.frame, info.id, attempt, toString(info.state), info.attempt));
+      "{} (audit {}): attempt {} no longer holds the lease; the audit is {} at attempt {}",
+      auditLabel(info.job, info.spec.frame), info.id, attempt, toString(info.state), info.attempt));
 }
 
 AuditState auditStateAfter(const FailureOutcome& outcome) {

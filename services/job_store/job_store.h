@@ -35,6 +35,16 @@ struct RetryPolicy {
   int blocklistAfter = 3;         // failures of one job on one worker that blocklist the worker
 };
 
+// A lease expireLeases() reclaimed: what the coordinator logs of it.
+struct ExpiredLease {
+  int64_t id = 0;  // the task's, or the audit's
+  bool audit = false;
+  std::string what;  // "job 3 frame 12 tile 7", "job 3 frame 12 audit"
+  int attempt = 0;
+  std::string worker;
+  Seconds expires = 0;  // the lease's end: its last heartbeat (or the lease) plus the lease length
+};
+
 class JobStore {
  public:
   virtual ~JobStore() = default;
@@ -71,8 +81,9 @@ class JobStore {
   virtual absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
                             const std::string& log = {}) = 0;
   // Leases that expired by `now` count as failures ("lease expired: worker W stopped
-  // heartbeating"). Returns how many expired.
-  virtual absl::StatusOr<int> expireLeases(Seconds now) = 0;
+  // heartbeating"). Returns how many expired, and lists them in `expired` when given.
+  virtual absl::StatusOr<int> expireLeases(Seconds now,
+                                           std::vector<ExpiredLease>* expired = nullptr) = 0;
 
   virtual absl::Status cancel(int64_t job) = 0;
   // Dead and cancelled tasks of the job (of one frame, or one tile of it) become ready again
@@ -108,6 +119,8 @@ class JobStore {
                                  Seconds now) = 0;
   // The job's audits by frame.
   virtual absl::StatusOr<std::vector<AuditInfo>> audits(int64_t job) = 0;
+  // One audit by id; NotFound when there is none.
+  virtual absl::StatusOr<AuditInfo> audit(int64_t audit) = 0;
 };
 
 // The embedded store: one SQLite file in WAL mode (created with its schema when missing).
@@ -312,6 +325,9 @@ std::string leaseExpiredError(std::string_view worker);
 // FailedPrecondition, saying which attempt holds the task now, unless `attempt` is the current
 // attempt of the leased task `info`.
 absl::Status checkCurrentLease(const TaskInfo& info, int attempt);
+// What expireLeases() lists of a task or an audit whose lease ended at `expires`.
+ExpiredLease expiredLease(const TaskInfo& info, Seconds expires);
+ExpiredLease expiredLease(const AuditInfo& info, Seconds expires);
 // The same for an audit: FailedPrecondition unless `attempt` is the current attempt of the
 // leased audit `info`.
 absl::Status checkCurrentLease(const AuditInfo& info, int attempt);

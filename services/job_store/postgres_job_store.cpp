@@ -158,6 +158,7 @@ class PostgresJobStore final : public JobStore {
   absl::StatusOr<std::vector<JobInfo>> jobs() override;
   absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
   absl::StatusOr<TaskInfo> task(int64_t task) override;
+  absl::StatusOr<AuditInfo> audit(int64_t audit) override;
   absl::Status registerWorker(const WorkerInfo& worker) override;
   absl::StatusOr<std::vector<WorkerInfo>> workers() override;
   absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
@@ -169,7 +170,7 @@ class PostgresJobStore final : public JobStore {
                                    const std::string& log) override;
   absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
                     const std::string& log) override;
-  absl::StatusOr<int> expireLeases(Seconds now) override;
+  absl::StatusOr<int> expireLeases(Seconds now, std::vector<ExpiredLease>* expired) override;
   absl::Status cancel(int64_t job) override;
   absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                      Seconds now) override;
@@ -450,6 +451,10 @@ absl::StatusOr<TaskInfo> PostgresJobStore::task(int64_t task) {
   return transaction(PgAccess::kRead, [&](PgTx& tx) { return loadTask(tx, task, false); });
 }
 
+absl::StatusOr<AuditInfo> PostgresJobStore::audit(int64_t audit) {
+  return transaction(PgAccess::kRead, [&](PgTx& tx) { return loadAudit(tx, audit); });
+}
+
 absl::StatusOr<std::vector<TaskInfo>> PostgresJobStore::tasks(int64_t job) {
   return transaction(PgAccess::kRead, [&](PgTx& tx) -> absl::StatusOr<std::vector<TaskInfo>> {
     PBGI_RETURN_IF_ERROR(jobState(tx, job).status());
@@ -597,8 +602,9 @@ absl::Status PostgresJobStore::fail(int64_t task, int attempt, const std::string
   });
 }
 
-absl::StatusOr<int> PostgresJobStore::expireLeases(Seconds now) {
+absl::StatusOr<int> PostgresJobStore::expireLeases(Seconds now, std::vector<ExpiredLease>* listed) {
   return transaction(PgAccess::kWrite, [&](PgTx& tx) -> absl::StatusOr<int> {
+    if (listed) listed->clear();
     // The jobs first, in id order (the order every coordinator locks them in), then their
     // expired tasks, read again under the locks: another coordinator's sweep or a late
     // heartbeat may have got there first.
@@ -612,24 +618,29 @@ absl::StatusOr<int> PostgresJobStore::expireLeases(Seconds now) {
     int expired = 0;
     for (const int64_t job : jobs) {
       const pqxx::result r = tx.exec("SELECT " PBGI_TASK_COLUMNS
-                                     " FROM tasks WHERE job = $1 AND state = 2 AND "
+                                     ", expires FROM tasks WHERE job = $1 AND state = 2 AND "
                                      "expires <= $2 ORDER BY id FOR UPDATE",
                                      job, now);
       for (const auto& row : r) {
         const TaskInfo info = readTask(row);
         PBGI_RETURN_IF_ERROR(recordFailure(tx, info, leaseExpiredError(info.worker), now,
                                            TaskEventKind::kExpired, ""));
+        if (listed) {
+          listed->push_back(expiredLease(info, row[row.size() - 1].as<double>()));
+        }
         ++expired;
       }
     }
     // Audits lock no job (they never settle one): their rows only, in id order, each read
     // again under its lock (a late heartbeat may have extended it).
     for (const auto& row : tx.exec("SELECT " PBGI_AUDIT_COLUMNS
-                                   " FROM audits WHERE state = 1 AND expires <= $1 ORDER BY id "
+                                   ", expires FROM audits WHERE state = 1 AND expires <= $1 "
+                                   "ORDER BY id "
                                    "FOR UPDATE",
                                    now)) {
       PBGI_ASSIGN_OR_RETURN(const AuditInfo info, readAudit(row));
       recordAuditFailure(tx, info, leaseExpiredError(info.worker), now);
+      if (listed) listed->push_back(expiredLease(info, row[row.size() - 1].as<double>()));
       ++expired;
     }
     return expired;

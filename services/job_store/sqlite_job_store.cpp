@@ -498,6 +498,10 @@ absl::StatusOr<TaskInfo> SqliteJobStore::task(int64_t task) {
   return transaction(Access::kRead, [&]() { return loadTask(task); });
 }
 
+absl::StatusOr<AuditInfo> SqliteJobStore::audit(int64_t audit) {
+  return transaction(Access::kRead, [&]() { return loadAudit(audit); });
+}
+
 absl::StatusOr<std::vector<TaskInfo>> SqliteJobStore::tasks(int64_t job) {
   return transaction(Access::kRead, [&]() -> absl::StatusOr<std::vector<TaskInfo>> {
     PBGI_RETURN_IF_ERROR(jobState(job).status());

@@ -36,6 +36,7 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<std::vector<JobInfo>> jobs() override;
   absl::StatusOr<std::vector<TaskInfo>> tasks(int64_t job) override;
   absl::StatusOr<TaskInfo> task(int64_t task) override;
+  absl::StatusOr<AuditInfo> audit(int64_t audit) override;
   absl::Status registerWorker(const WorkerInfo& worker) override;
   absl::StatusOr<std::vector<WorkerInfo>> workers() override;
   absl::StatusOr<std::optional<Lease>> lease(const std::string& worker, Seconds now,
@@ -47,7 +48,7 @@ class SqliteJobStore final : public JobStore {
                                    const std::string& log) override;
   absl::Status fail(int64_t task, int attempt, const std::string& error, Seconds now,
                     const std::string& log) override;
-  absl::StatusOr<int> expireLeases(Seconds now) override;
+  absl::StatusOr<int> expireLeases(Seconds now, std::vector<ExpiredLease>* expired) override;
   absl::Status cancel(int64_t job) override;
   absl::Status retry(int64_t job, std::optional<int> frame, std::optional<int> tile,
                      Seconds now) override;

@@ -104,38 +104,42 @@ absl::Status SqliteJobStore::fail(int64_t task, int attempt, const std::string& 
   });
 }
 
-absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now) {
+absl::StatusOr<int> SqliteJobStore::expireLeases(Seconds now, std::vector<ExpiredLease>* listed) {
   return transaction(Access::kWrite, [&]() -> absl::StatusOr<int> {
+    if (listed) listed->clear();
     // Collected first: recordFailure() runs statements of its own on the same table.
-    std::vector<int64_t> expired;
+    std::vector<std::pair<int64_t, Seconds>> expired;
     {
-      Query q = query("SELECT id FROM tasks WHERE state = 2 AND expires <= ?1 ORDER BY id");
+      Query q =
+          query("SELECT id, expires FROM tasks WHERE state = 2 AND expires <= ?1 ORDER BY id");
       q.bind(1, now);
       for (;;) {
         PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
         if (!row) break;
-        expired.push_back(q.int64(0));
+        expired.emplace_back(q.int64(0), q.real(1));
       }
     }
-    for (int64_t id : expired) {
+    for (const auto& [id, expires] : expired) {
       PBGI_ASSIGN_OR_RETURN(const TaskInfo info, loadTask(id));
       PBGI_RETURN_IF_ERROR(
           recordFailure(info, leaseExpiredError(info.worker), now, TaskEventKind::kExpired, ""));
+      if (listed) listed->push_back(expiredLease(info, expires));
     }
-    std::vector<AuditInfo> expiredAudits;
+    std::vector<std::pair<AuditInfo, Seconds>> expiredAudits;
     {
       Query q = query("SELECT " PBGI_AUDIT_COLUMNS
-                      " FROM audits WHERE state = 1 AND expires <= ?1 ORDER BY id");
+                      ", expires FROM audits WHERE state = 1 AND expires <= ?1 ORDER BY id");
       q.bind(1, now);
       for (;;) {
         PBGI_ASSIGN_OR_RETURN(const bool row, q.step());
         if (!row) break;
         PBGI_ASSIGN_OR_RETURN(AuditInfo info, readAudit(q));
-        expiredAudits.push_back(std::move(info));
+        expiredAudits.emplace_back(std::move(info), q.real(q.columns() - 1));
       }
     }
-    for (const AuditInfo& info : expiredAudits) {
+    for (const auto& [info, expires] : expiredAudits) {
       PBGI_RETURN_IF_ERROR(recordAuditFailure(info, leaseExpiredError(info.worker), now));
+      if (listed) listed->push_back(expiredLease(info, expires));
     }
     return static_cast<int>(expired.size() + expiredAudits.size());
   });

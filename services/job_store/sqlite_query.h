@@ -70,6 +70,7 @@ class Query {
   int64_t int64(int column) const { return sqlite3_column_int64(stmt_, column); }
   int integer(int column) const { return sqlite3_column_int(stmt_, column); }
   double real(int column) const { return sqlite3_column_double(stmt_, column); }
+  int columns() const { return sqlite3_column_count(stmt_); }
   bool isNull(int column) const { return sqlite3_column_type(stmt_, column) == SQLITE_NULL; }
   // Text or blob, byte for byte.
   std::string text(int column) const;

@@ -126,6 +126,7 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   options.threads = request.threads;
   options.tileSize = request.tileSize;
   options.progress = request.progress;
+  options.cancel = request.cancel;
   options.regions = request.regions;
 
   // An integrator that needs the frame's tree reads it through a page cache; both outlive the

@@ -2,6 +2,7 @@
 // Renders one frame of a shot in this process and writes its EXR (and PNG preview). The CLI's
 // `pbgi render` and, later, the farm's workers share this.
 
+#include <atomic>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -30,6 +31,8 @@ struct FrameRenderRequest {
   bool preview = true;     // write a PNG preview beside the EXR
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int unitsDone, int unitsTotal)> progress;
+  // Stops the render when set (a farm task whose lease was lost): the request fails Cancelled.
+  const std::atomic<bool>* cancel = nullptr;
   // Render and write only these rectangles of the (mosaic) frame: a farm tile, one rectangle
   // per view of a camera array. The EXR holds them stacked top to bottom, left-aligned, and
   // lists them in its metadata (pbgi/regions: "x0 y0 x1 y1;...").

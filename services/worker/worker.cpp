@@ -137,7 +137,9 @@ void sleepUnlessStopped(double seconds, const std::atomic<bool>& stop) {
   }
 }
 
-// Reports progress and keeps the lease alive while a task runs.
+// Reports progress and keeps the lease alive while a task runs. Between beats it polls (a read
+// at the coordinator) so that a cancel, a retry or an expiry stops the task within a second:
+// lost() is then set, and the renders given cancelFlag() stop at their next pixel.
 class Heartbeat {
  public:
   Heartbeat(FarmClient& client, const std::string& worker, const v1::LeaseTaskResponse& task)
@@ -148,7 +150,7 @@ class Heartbeat {
     request_.set_audit(taskKindOf(task) == v1::TASK_KIND_AUDIT);
     // Four beats per lease: one lost call does not lose the lease.
     const double period = std::clamp(task.lease_seconds() / 4.0, 0.05, 10.0);
-    thread_ = std::thread([this, period] { loop(period); });
+    thread_ = std::thread([this, period] { loop(period, std::min(period, kPollSeconds)); });
   }
   ~Heartbeat() {
     {
@@ -160,19 +162,28 @@ class Heartbeat {
   }
   void progress(double fraction) { progress_.store(fraction); }
   bool lost() const { return lost_.load(); }
+  const std::atomic<bool>* cancelFlag() const { return &lost_; }
 
  private:
-  void loop(double period) {
+  static constexpr double kPollSeconds = 0.4;
+
+  void loop(double period, double pollPeriod) {
     std::unique_lock lock(mutex_);
-    while (!done_) {
-      changed_.wait_for(lock, std::chrono::duration<double>(period));
+    auto nextBeat = Clock::now() + std::chrono::duration<double>(period);
+    while (!done_ && !lost_.load()) {
+      changed_.wait_for(lock, std::chrono::duration<double>(pollPeriod));
       if (done_) break;
       lock.unlock();
+      const bool beat = Clock::now() >= nextBeat;
+      if (beat) nextBeat = Clock::now() + std::chrono::duration<double>(period);
+      request_.set_poll(!beat);
       request_.set_progress(progress_.load());
       auto answer = client_.heartbeat(request_);
       if (answer.ok() && !answer->keep_going() && !lost_.exchange(true)) {
-        log::warn("task={} attempt={}: the lease is lost (expired, or the job was cancelled)",
-                  request_.task(), request_.attempt());
+        log::warn(
+            "task={} attempt={}: the lease is lost (expired, or the job was cancelled or "
+            "retried); stopping the task",
+            request_.task(), request_.attempt());
       }
       lock.lock();
     }
@@ -347,6 +358,7 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
   request.progress = [&beat](int done, int total) {
     if (total > 0) beat.progress(double(done) / double(total));
   };
+  request.cancel = beat.cancelFlag();
   TaskResult result;
   RemoteTree remote;
   bool opened = false;
@@ -463,6 +475,7 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
     request.preview = false;
     request.regions = auditWindows(tiles[static_cast<size_t>(t)]);
     request.scene = scene.get();
+    request.cancel = beat.cancelFlag();
     const int n = task.audit_tiles_size();
     request.progress = [&beat, i, n](int done, int total) {
       if (total > 0) beat.progress((i + double(done) / total) / n);
@@ -733,9 +746,18 @@ int Worker::run(const std::atomic<bool>& stop) {
     }
     const auto started = Clock::now();
     absl::StatusOr<TaskResult> result;
+    bool lost = false;
     {
       Heartbeat beat(client_, id_, *task);
       result = execute(*task, beat);
+      lost = beat.lost();
+    }
+    if (lost) {
+      // Cancelled, retried or expired: the attempt can commit nothing, so nothing is reported.
+      log::info("stopped job={} frame={} {} task={} attempt={} after {:.2f} s: the lease is lost",
+                task->job(), task->frame(), taskLabel(*task), task->task(), task->attempt(),
+                std::chrono::duration<double>(Clock::now() - started).count());
+      continue;
     }
     const v1::TaskKind kind = taskKindOf(*task);
     if (result.ok() && (kind == v1::TASK_KIND_BAKE || kind == v1::TASK_KIND_TILE)) {

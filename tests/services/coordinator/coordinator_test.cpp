@@ -273,6 +273,50 @@ TEST_F(CoordinatorTest, WorkersAreBusyOnlineLostOrOfflineFromWhenTheyWereLastHea
   EXPECT_EQ(now["idle-w"].first, "offline");
 }
 
+// When the lost worker's lease expires, the coordinator logs the task, the worker and when it
+// was last heard, and the worker no longer shows the task: it went back to the queue.
+TEST_F(CoordinatorTest, AnExpiredLeaseIsLoggedWithItsWorkerAndTaskAndLeavesTheLostWorker) {
+  options_.leaseSeconds = 0.5;
+  options_.expiryIntervalSeconds = 0.05;
+  start();
+  v1::SubmitJobRequest request = shotRequest({});
+  request.add_frames(1);
+  ASSERT_TRUE(client_->submitJob(request).ok());
+  v1::RegisterWorkerRequest r;
+  r.set_worker("gone-w");
+  r.set_host("h");
+  ASSERT_TRUE(client_->registerWorker(r).ok());
+  v1::LeaseTaskRequest lease;
+  lease.set_worker("gone-w");
+  ::testing::internal::CaptureStdout();
+  auto leased = client_->leaseTask(lease);
+  ASSERT_TRUE(leased.ok() && leased->has_task());
+  std::string state, current = "unset";
+  const bool cleared = pbgi::testing::waitFor(
+      [&] {
+        auto list = client_->listWorkers(v1::ListWorkersRequest());
+        if (!list.ok() || list->workers_size() != 1) return false;
+        state = list->workers(0).state();
+        current = list->workers(0).current();
+        return current.empty();
+      },
+      10.0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  const std::string log = ::testing::internal::GetCapturedStdout();
+  ASSERT_TRUE(cleared) << state << " " << current << "\n" << log;
+  EXPECT_EQ(state, "lost");
+  EXPECT_NE(log.find(fmt::format("lease expired: job 1 frame 1 tile 0 (task {}, attempt 1) on "
+                                 "worker gone-w, last heard ",
+                                 leased->task())),
+            std::string::npos)
+      << log;
+  // Heard again, it is online (or busy, with the task back after its back-off).
+  ASSERT_TRUE(client_->leaseTask(lease).ok());
+  auto list = client_->listWorkers(v1::ListWorkersRequest());
+  ASSERT_TRUE(list.ok() && list->workers_size() == 1);
+  EXPECT_EQ(list->workers(0).state(), list->workers(0).current().empty() ? "online" : "busy");
+}
+
 // A shot whose geometry file exists but does not parse is refused at submission, naming the
 // file, instead of failing on every worker until the job stalls.
 TEST_F(CoordinatorTest, AShotWhoseGeometryCannotLoadIsRefusedAtSubmission) {

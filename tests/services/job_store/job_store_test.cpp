@@ -472,9 +472,18 @@ TEST_P(JobStoreTest, ExpiredLeasesCountAsFailures) {
   auto none = store_->expireLeases(l->expires);
   ASSERT_TRUE(none.ok()) << none.status();
   EXPECT_EQ(*none, 0) << "the heartbeat extended the lease to 50 s";
-  auto expired = store_->expireLeases(50);
+  std::vector<ExpiredLease> listed;
+  auto expired = store_->expireLeases(50, &listed);
   ASSERT_TRUE(expired.ok()) << expired.status();
   EXPECT_EQ(*expired, 1);
+  // What the coordinator logs of it: the task, its attempt, the worker, the lease's end.
+  ASSERT_EQ(listed.size(), 1u);
+  EXPECT_EQ(listed[0].id, l->task);
+  EXPECT_FALSE(listed[0].audit);
+  EXPECT_EQ(listed[0].what, fmt::format("job {} frame 1 tile 0", id));
+  EXPECT_EQ(listed[0].attempt, l->attempt);
+  EXPECT_EQ(listed[0].worker, "w1");
+  EXPECT_DOUBLE_EQ(listed[0].expires, 20 + kLease);
 
   const TaskInfo info = task(id, TaskKind::kTile, 1, 0);
   EXPECT_EQ(info.state, TaskState::kReady);
@@ -1000,7 +1009,17 @@ TEST_P(JobStoreTest, ExpiredAuditLeasesAreReclaimedWithTheTasks) {
   ASSERT_TRUE(store_->heartbeatAudit(a->audit, a->attempt, 20, kLease).ok());
   ASSERT_TRUE(store_->heartbeat(t->task, t->attempt, 0.5, 20, kLease).ok());
   EXPECT_EQ(store_->expireLeases(a->expires).value_or(-1), 0) << "both were extended to 50 s";
-  EXPECT_EQ(store_->expireLeases(50).value_or(-1), 2) << "the audit's lease and the task's";
+  std::vector<ExpiredLease> listed;
+  EXPECT_EQ(store_->expireLeases(50, &listed).value_or(-1), 2)
+      << "the audit's lease and the task's";
+  ASSERT_EQ(listed.size(), 2u);
+  EXPECT_FALSE(listed[0].audit);
+  EXPECT_EQ(listed[0].worker, "w2");
+  EXPECT_TRUE(listed[1].audit);
+  EXPECT_EQ(listed[1].id, a->audit);
+  EXPECT_EQ(listed[1].what, fmt::format("job {} frame 1 audit", id));
+  EXPECT_EQ(listed[1].worker, "w1");
+  EXPECT_DOUBLE_EQ(listed[1].expires, 20 + kLease);
 
   const AuditInfo expired = audit(id, 1);
   EXPECT_EQ(expired.state, AuditState::kReady);

@@ -108,6 +108,50 @@ TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
   expectFrameEqualsWholeRender(1);
 }
 
+TEST_F(WorkerTest, ACancelStopsTheRunningTileWithinASecond) {
+  // A lease of 30 s, as a farm runs: its heartbeats come 7.5 s apart, so only the polls
+  // between them can bring the cancel sooner. The one tile would take a minute.
+  options_.leaseSeconds = 30.0;
+  options_.tileSize = 64;
+  start();
+  pbgi::testing::SmallShot slow;
+  slow.width = 64;
+  slow.height = 64;
+  slow.spp = 16384;
+  slow.extraRender = "tile_size = 4";  // render units of 4 x 4 pixels: 260,000 samples each
+  const int64_t job = submit(slow, {1});
+  Process& worker = startWorker("busy");
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto s = jobStatus(job);
+        return s.ok() && s->tasks_by_state().count("leased") &&
+               s->tasks_by_state().at("leased") == 1;
+      },
+      30.0))
+      << workerLogs();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  v1::CancelJobRequest cancel;
+  cancel.set_job(job);
+  const auto cancelled = std::chrono::steady_clock::now();
+  ASSERT_TRUE(client_->cancelJob(cancel).ok());
+  ASSERT_TRUE(waitFor([&] { return worker.log().find("stopped job=") != std::string::npos; }, 20.0))
+      << worker.log();
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - cancelled).count();
+  std::printf("the cancel stopped the running tile %.2f s after CancelJob\n", seconds);
+  // Within a second, with room for a loaded test machine; without the polls it is up to the
+  // 7.5 s between beats, and without the render's cancel flag the rest of the tile.
+  EXPECT_LT(seconds, 2.0) << worker.log();
+  EXPECT_NE(worker.log().find("the lease is lost"), std::string::npos) << worker.log();
+  EXPECT_FALSE(fs::exists(farmTilePath(jobWorkDir(options_.stateDir, job), 1, 0)));
+  // The worker goes on: it takes the next job's work.
+  pbgi::testing::SmallShot quick;
+  const int64_t next = submit(quick, {1});
+  std::string state;
+  ASSERT_TRUE(waitFor([&] { return settled(next, &state); }, 60.0)) << worker.log();
+  EXPECT_EQ(state, "done") << worker.log();
+}
+
 TEST_F(WorkerTest, SigtermFinishesAndReportsTheTaskInHandThenExits) {
   options_.tileSize = 64;
   start();
