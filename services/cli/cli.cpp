@@ -4,9 +4,11 @@
 #include <charconv>
 #include <cstdio>
 
-#include <CLI/CLI.hpp>
+#include <absl/strings/numbers.h>
+#include <absl/strings/str_split.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <CLI/CLI.hpp>
 
 #include "core/render/integrators.h"
 #include "core/util/log.h"
@@ -50,6 +52,28 @@ absl::StatusOr<uint64_t> parseByteSize(std::string_view text, std::string_view f
         text));
   }
   return value << shift;
+}
+
+absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
+  std::vector<int> frames;
+  for (const absl::string_view part : absl::StrSplit(text, ',', absl::SkipWhitespace())) {
+    const std::vector<absl::string_view> ends = absl::StrSplit(part, absl::MaxSplits('-', 1));
+    int first = 0;
+    int last = 0;
+    const bool ok = absl::SimpleAtoi(ends[0], &first) &&
+                    (ends.size() == 1 ? (last = first, true) : absl::SimpleAtoi(ends[1], &last)) &&
+                    first <= last && last - first < 1'000'000;
+    if (!ok) {
+      return absl::InvalidArgumentError(
+          fmt::format("--frames {}: '{}' is not a frame or a range (expected e.g. 1-3,7)", text,
+                      std::string(part)));
+    }
+    for (int f = first; f <= last; ++f) frames.push_back(f);
+  }
+  if (frames.empty()) {
+    return absl::InvalidArgumentError(fmt::format("--frames {}: no frames", text));
+  }
+  return frames;
 }
 
 void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::string& gather,
@@ -106,6 +130,7 @@ int run(int argc, char** argv) {
   registerBakeCommand(app, action);
   registerInspectCommand(app, action);
   registerRunCommand(app, action);
+  registerCheckCommand(app, action);
   registerFarmCommands(app, action);
 
   try {

@@ -33,6 +33,7 @@ void registerCompareCommand(CLI::App& app, CommandAction& action);
 void registerBakeCommand(CLI::App& app, CommandAction& action);
 void registerInspectCommand(CLI::App& app, CommandAction& action);
 void registerRunCommand(CLI::App& app, CommandAction& action);
+void registerCheckCommand(CLI::App& app, CommandAction& action);
 // submit, status, cancel, retry, logs, workers.
 void registerFarmCommands(CLI::App& app, CommandAction& action);
 
@@ -56,6 +57,10 @@ void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::
 absl::Status integratorParamFlags(const std::vector<std::string>& set,
                                   const std::vector<std::pair<std::string_view, std::string>>& named,
                                   IntegratorParams* params);
+
+// "1-3,7" -> {1, 2, 3, 7}: the --frames of submit, run, render and check. InvalidArgument
+// naming the text.
+absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text);
 
 int run(int argc, char** argv);
 

@@ -39,28 +39,6 @@ void addJobFlags(CLI::App& cmd, JobFlags& flags) {
       ->check(positiveNumber());
 }
 
-absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
-  std::vector<int> frames;
-  for (const absl::string_view part : absl::StrSplit(text, ',', absl::SkipWhitespace())) {
-    const std::vector<absl::string_view> ends = absl::StrSplit(part, absl::MaxSplits('-', 1));
-    int first = 0;
-    int last = 0;
-    const bool ok = absl::SimpleAtoi(ends[0], &first) &&
-                    (ends.size() == 1 ? (last = first, true) : absl::SimpleAtoi(ends[1], &last)) &&
-                    first <= last && last - first < 1'000'000;
-    if (!ok) {
-      return absl::InvalidArgumentError(fmt::format(
-          "--frames {}: '{}' is not a frame or a range (expected e.g. 1-3,7)", text,
-          std::string(part)));
-    }
-    for (int f = first; f <= last; ++f) frames.push_back(f);
-  }
-  if (frames.empty()) {
-    return absl::InvalidArgumentError(fmt::format("--frames {}: no frames", text));
-  }
-  return frames;
-}
-
 absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
                                                          const JobFlags& flags) {
   farm::v1::SubmitJobRequest request;

@@ -49,9 +49,6 @@ std::string auditSummary(const farm::v1::JobStatus& job);
 absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
                                                          const JobFlags& flags);
 
-// "1-3,7" -> {1, 2, 3, 7}; InvalidArgument naming the text.
-absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text);
-
 // --coordinator (default: $PBGI_COORDINATOR, else 127.0.0.1:7411), --token-file, and TLS:
 // --tls-ca, --tls-cert, --tls-key (default: $PBGI_TLS_CA, $PBGI_TLS_CERT, $PBGI_TLS_KEY).
 struct ConnectionFlags {

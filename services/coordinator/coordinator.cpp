@@ -14,7 +14,6 @@
 #include "core/util/status.h"
 #include "formats/image/image_io.h"
 #include "formats/image/ocio_config.h"
-#include "formats/scene/frame_scene.h"
 #include "pbgi/farm/v1/farm.grpc.pb.h"
 #include "services/coordinator/coordinator_metrics.h"
 #include "services/coordinator/dashboard/dashboard.h"
@@ -31,6 +30,7 @@
 #include "services/farm/farm_wire.h"
 #include "services/farm/job_rules.h"
 #include "services/render/frame_assembly.h"
+#include "services/render/shot_check.h"
 
 namespace pbgi::farm {
 
@@ -388,16 +388,11 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
     PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
     spec.frames.push_back(f);
   }
-  // The first frame's scene, loaded as a worker will load it: geometry that does not parse, a
-  // texture that is not there, is refused now, naming the file, rather than failing on every
-  // worker until the job stalls. (Frames share their files; keyframes only move them.)
-  if (!spec.frames.empty()) {
-    if (absl::StatusOr<FrameScene> scene = loadFrameScene(shot, spec.frames.front()); !scene.ok()) {
-      return absl::Status(scene.status().code(),
-                          fmt::format("{} frame {}: {}", request.shot_path(), spec.frames.front(),
-                                      scene.status().message()));
-    }
-  }
+  // The first frame checked as `pbgi check` does, its scene loaded as a worker will load it:
+  // geometry that does not parse, a texture that is not there, is refused now, naming the
+  // file, rather than failing on every worker until the job stalls. (Frames share their
+  // files; keyframes only move them.)
+  if (!spec.frames.empty()) PBGI_RETURN_IF_ERROR(checkShot(shot, {spec.frames.front()}).status());
   std::string pattern = shot.output;
   if (!request.output_dir().empty()) {
     const fs::path dir = fs::path(request.output_dir()).is_absolute()

@@ -1,0 +1,62 @@
+#include "services/render/shot_check.h"
+
+#include <fmt/format.h>
+
+#include "core/render/integrators.h"
+#include "core/util/status.h"
+#include "formats/scene/frame_scene.h"
+
+namespace pbgi {
+
+std::string toString(OutputFormat format) {
+  switch (format) {
+    case OutputFormat::kExr:
+      return "exr";
+    case OutputFormat::kFloatRgb:
+      return "float RGB";
+    case OutputFormat::kDisplay8:
+      return "8-bit";
+  }
+  return "unknown";
+}
+
+absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames) {
+  ShotCheck check;
+  std::vector<int> wanted = frames;
+  if (wanted.empty()) {
+    for (int f = shot.firstFrame; f <= shot.lastFrame; ++f) wanted.push_back(f);
+  }
+  for (const int f : wanted) PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
+  PBGI_ASSIGN_OR_RETURN(const IntegratorInfo* integrator, findIntegrator(shot.render.integrator));
+  if (integrator->validate) PBGI_RETURN_IF_ERROR(integrator->validate(shot.render));
+  check.integrator = integrator->name;
+  check.needsTree = integrator->needsTree;
+  check.output = outputPathForFrame(shot.output, wanted.front(), shot.lastFrame > shot.firstFrame);
+  absl::StatusOr<OutputFormat> format = outputFormatFor(check.output);
+  if (!format.ok()) {
+    return absl::Status(format.status().code(),
+                        fmt::format("{}: output: {}", shot.path, format.status().message()));
+  }
+  check.format = *format;
+  for (const int f : wanted) {
+    absl::StatusOr<FrameScene> loaded = loadFrameScene(shot, f);
+    if (!loaded.ok()) {
+      return absl::Status(loaded.status().code(),
+                          fmt::format("{} frame {}: {}", shot.path, f, loaded.status().message()));
+    }
+    FrameCheck frame{.frame = f,
+                     .stats = loaded->scene->stats(),
+                     .materials = loaded->scene->materials().size(),
+                     .bounds = loaded->scene->bounds(),
+                     .warnings = loaded->warnings};
+    if (frame.stats.lights == 0) {
+      frame.warnings.push_back(
+          "nothing emits light (no light, emissive surface or environment): the frame renders "
+          "black");
+    }
+    check.frames.push_back(std::move(frame));
+  }
+  return check;
+}
+
+}  // namespace pbgi

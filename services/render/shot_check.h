@@ -1,0 +1,41 @@
+#pragma once
+// What `pbgi check` and the coordinator's submission verify before anything renders: the
+// frames asked for, the integrator, the output's format, and each frame's scene loaded as a
+// worker loads it (geometry parsed, materials merged, textures and environment maps decoded).
+
+#include <string>
+#include <vector>
+
+#include <absl/status/statusor.h>
+
+#include "core/math/vec.h"
+#include "core/scene/scene.h"
+#include "core/scene/shot.h"
+#include "formats/image/image_io.h"
+
+namespace pbgi {
+
+struct FrameCheck {
+  int frame = 0;
+  SceneStats stats;
+  size_t materials = 0;
+  Bounds3f bounds;
+  std::vector<std::string> warnings;  // the loader's, and a frame with nothing that emits
+};
+
+struct ShotCheck {
+  std::string integrator;
+  bool needsTree = false;  // the frames bake a PBGI tree first
+  std::string output;      // the first frame's image
+  OutputFormat format = OutputFormat::kExr;
+  std::vector<FrameCheck> frames;
+};
+
+// Checks `frames` of the shot (empty: every frame) as a render of them would meet them.
+// Errors name the shot, the frame and the file at fault.
+absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames);
+
+// "exr", "float RGB", "8-bit".
+std::string toString(OutputFormat format);
+
+}  // namespace pbgi

@@ -1,0 +1,69 @@
+// `pbgi check` as users run it: the real binary on the sample and on crafted bad shots.
+
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include "tests/support/run_pbgi.h"
+#include "tests/support/test_paths.h"
+
+namespace pbgi {
+namespace {
+
+using testing::runPbgi;
+using testing::shellQuote;
+
+std::string shotArg(const std::string& name) {
+  return shellQuote((testing::testDataDir() / "shots" / name).string());
+}
+
+TEST(CheckCliTest, TheSampleChecksFrameByFrameAsTextAndJson) {
+  const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
+  const auto text = runPbgi("check " + shellQuote(shot.string()));
+  ASSERT_EQ(text.exitCode, 0) << text.output();
+  for (const char* line : {"frame 1: 3 meshes, 30 triangles, 1 light",
+                           "frame 3:", "ok: 3 frames can render", "(exr)"}) {
+    EXPECT_NE(text.out.find(line), std::string::npos) << line << "\n" << text.output();
+  }
+  const auto json = runPbgi("check " + shellQuote(shot.string()) + " --frames 2 --json");
+  ASSERT_EQ(json.exitCode, 0) << json.output();
+  const auto parsed = nlohmann::json::parse(json.out);
+  EXPECT_EQ(parsed["integrator"], "pbgi");
+  EXPECT_EQ(parsed["output_format"], "exr");
+  EXPECT_TRUE(parsed["bakes_tree"].get<bool>());
+  ASSERT_EQ(parsed["frames"].size(), 1u);
+  EXPECT_EQ(parsed["frames"][0]["frame"], 2);
+  EXPECT_EQ(parsed["frames"][0]["triangles"], 30);
+  EXPECT_TRUE(parsed["frames"][0]["warnings"].empty());
+}
+
+// What the shot file parses but a frame cannot load: the geometry's own file and line.
+TEST(CheckCliTest, GeometryThatDoesNotParseIsRefusedNamingTheFile) {
+  const auto r = runPbgi("check " + shotArg("unparsable_geometry.toml"));
+  EXPECT_EQ(r.exitCode, 2) << r.output();
+  EXPECT_NE(r.err.find("unparsable_geometry.toml frame 1"), std::string::npos) << r.output();
+  EXPECT_NE(r.err.find("bad_face_index.obj"), std::string::npos) << r.output();
+  EXPECT_EQ(r.out.find("ok:"), std::string::npos) << r.output();
+}
+
+TEST(CheckCliTest, AMissingTextureAnUnknownOutputAndAFrameOutsideTheShotAreRefused) {
+  const auto texture = runPbgi("check " + shotArg("missing_albedo_texture.toml"));
+  EXPECT_EQ(texture.exitCode, 2) << texture.output();
+  EXPECT_NE(texture.err.find("nowhere.png"), std::string::npos) << texture.output();
+  const auto output = runPbgi("check " + shotArg("unknown_output_format.toml"));
+  EXPECT_EQ(output.exitCode, 2) << output.output();
+  EXPECT_NE(output.err.find("unknown image format '.bmp'"), std::string::npos) << output.output();
+  const auto frame = runPbgi("check " + shotArg("minimal.shot.toml") + " --frames 8");
+  EXPECT_EQ(frame.exitCode, 2) << frame.output();
+  EXPECT_NE(frame.err.find("8"), std::string::npos) << frame.output();
+}
+
+// A shot that loads but has nothing that emits renders black: said, not refused.
+TEST(CheckCliTest, AShotWithNoLightIsWarnedOf) {
+  const auto r = runPbgi("check " + shotArg("minimal.shot.toml"));
+  EXPECT_EQ(r.exitCode, 0) << r.output();
+  EXPECT_NE(r.err.find("warning: frame 7: nothing emits light"), std::string::npos) << r.output();
+}
+
+}  // namespace
+}  // namespace pbgi
