@@ -4,6 +4,7 @@
 #include <atomic>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -300,6 +301,48 @@ const std::vector<std::string>& frameChannels() {
       "direct.R", "direct.G", "direct.B",
       "indirect.R", "indirect.G", "indirect.B"};
   return channels;
+}
+
+const std::vector<std::string>& frameAovs() {
+  static const std::vector<std::string> layers = {"albedo", "normal", "depth", "direct",
+                                                  "indirect"};
+  return layers;
+}
+
+absl::Status checkAovs(const std::vector<std::string>& aovs) {
+  for (const std::string& a : aovs) {
+    if (std::find(frameAovs().begin(), frameAovs().end(), a) == frameAovs().end()) {
+      return absl::InvalidArgumentError(
+          fmt::format("AOV '{}': expected one of {}", a, fmt::join(frameAovs(), ", ")));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Image> keepAovs(const Image& image, const std::vector<std::string>& aovs) {
+  PBGI_RETURN_IF_ERROR(checkAovs(aovs));
+  std::vector<int> kept;
+  std::vector<std::string> names;
+  for (int c = 0; c < image.channelCount(); ++c) {
+    const std::string& name = image.channels()[static_cast<size_t>(c)];
+    const size_t dot = name.find('.');
+    const bool keep = dot == std::string::npos ||
+                      std::find(aovs.begin(), aovs.end(), name.substr(0, dot)) != aovs.end();
+    if (keep) {
+      kept.push_back(c);
+      names.push_back(name);
+    }
+  }
+  Image out(image.width(), image.height(), names);
+  out.setWindow(image.window());
+  out.metadata() = image.metadata();
+  for (int y = 0; y < image.height(); ++y) {
+    for (int x = 0; x < image.width(); ++x) {
+      for (size_t k = 0; k < kept.size(); ++k)
+        out.at(x, y, static_cast<int>(k)) = image.at(x, y, kept[k]);
+    }
+  }
+  return out;
 }
 
 Vec2i stackedSize(const std::vector<TileRect>& regions) {

@@ -53,6 +53,13 @@ struct FrameRenderOptions {
 
 // The channels of a rendered frame: RGBA, then the AOV layers.
 const std::vector<std::string>& frameChannels();
+// The AOV layers of a rendered frame, in order: albedo, normal, depth, direct, indirect.
+const std::vector<std::string>& frameAovs();
+// InvalidArgument naming the first of `aovs` that frameAovs() does not hold.
+absl::Status checkAovs(const std::vector<std::string>& aovs);
+// The image with RGBA and only the AOV layers named (each one of frameAovs()); the metadata
+// and window kept. InvalidArgument naming an unknown layer.
+absl::StatusOr<Image> keepAovs(const Image& image, const std::vector<std::string>& aovs);
 
 // Tiles covering width x height, in Morton (Z) order of their grid positions.
 std::vector<TileRect> makeTiles(int width, int height, int tileSize);

@@ -24,8 +24,10 @@
 #include <absl/strings/match.h>
 #include <absl/strings/str_cat.h>
 #include <absl/strings/str_format.h>
+#include <absl/strings/str_join.h>
 #include <absl/strings/strip.h>
 
+#include "core/util/status.h"
 #include "formats/image/rgb_channels.h"
 
 namespace pbgi {
@@ -215,7 +217,21 @@ absl::Status checkNotEmpty(const Image& image, const std::string& path) {
 
 }  // namespace
 
-absl::Status writeExr(const Image& image, const std::string& path) {
+const std::vector<std::string>& exrCompressions() {
+  static const std::vector<std::string> names = {"none",  "rle", "zips", "zip",  "piz",
+                                                 "pxr24", "b44", "b44a", "dwaa", "dwab"};
+  return names;
+}
+
+absl::Status checkExrCompression(const std::string& name, const std::string& where) {
+  const auto& names = exrCompressions();
+  if (std::find(names.begin(), names.end(), name) != names.end()) return absl::OkStatus();
+  return absl::InvalidArgumentError(
+      absl::StrCat(where, " '", name, "': expected one of ", absl::StrJoin(names, ", ")));
+}
+
+absl::Status writeExr(const Image& image, const std::string& path, const std::string& compression) {
+  PBGI_RETURN_IF_ERROR(checkExrCompression(compression, path + ": compression"));
   if (absl::Status s = checkNotEmpty(image, path); !s.ok()) return s;
   PBGI_CHECK_EQ(image.pixels().size(),
                 static_cast<size_t>(image.width()) * image.height() * image.channelCount());
@@ -251,8 +267,9 @@ absl::Status writeExr(const Image& image, const std::string& path) {
     }
     std::visit([&](const auto& v) { spec.attribute(entry.name, v); }, entry.value);
   }
-  // ZIP compresses rendered images well and losslessly, and decodes fast in every EXR reader.
-  spec.attribute("compression", "zip");
+  // ZIP (the default) compresses rendered images well and losslessly, and decodes fast in every
+  // EXR reader.
+  spec.attribute("compression", compression);
   return writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, image.pixels().data());
 }
 
@@ -374,10 +391,10 @@ absl::StatusOr<OutputFormat> outputFormatFor(const std::string& path) {
 }
 
 absl::Status writeRender(const Image& image, const std::string& path, const std::string& ocioConfig,
-                         std::vector<std::string>* warnings) {
+                         std::vector<std::string>* warnings, const std::string& exrCompression) {
   const FormatByExtension* f = formatOf(path);
   if (f == nullptr) return outputFormatFor(path).status();
-  if (f->format == OutputFormat::kExr) return writeExr(image, path);
+  if (f->format == OutputFormat::kExr) return writeExr(image, path, exrCompression);
   if (absl::Status s = checkNotEmpty(image, path); !s.ok()) return s;
   const std::string dropped =
       image.channelCount() > 3 ? absl::StrFormat(" and %d AOV channels", image.channelCount() - 3)

@@ -15,7 +15,14 @@ namespace pbgi {
 // Writes every channel of `image` as 32-bit float into one OpenEXR part, with the image's
 // metadata as EXR attributes and its window as the data window inside the display window.
 // Channel names are EXR layer names ("albedo.R").
-absl::Status writeExr(const Image& image, const std::string& path);
+// `compression` is one of exrCompressions() (OpenEXR's names); ZIP by default.
+absl::Status writeExr(const Image& image, const std::string& path,
+                      const std::string& compression = "zip");
+// OpenEXR's compressions as OIIO names them: none, rle, zips, zip, piz, pxr24, b44, b44a,
+// dwaa, dwab.
+const std::vector<std::string>& exrCompressions();
+// InvalidArgument naming `where` (a flag) and the known names unless `name` is one of them.
+absl::Status checkExrCompression(const std::string& name, const std::string& where);
 
 // What a render's output path asks for, by its extension (any case): OpenEXR (.exr: every
 // channel as float, with the metadata), the beauty's colour in float (.tif, .tiff, .hdr), or
@@ -26,7 +33,8 @@ absl::StatusOr<OutputFormat> outputFormatFor(const std::string& path);
 // Writes a render to `path` in the format its extension names; what that format cannot hold
 // (AOVs, metadata, the high dynamic range) is said in `warnings`.
 absl::Status writeRender(const Image& image, const std::string& path, const std::string& ocioConfig,
-                         std::vector<std::string>* warnings);
+                         std::vector<std::string>* warnings,
+                         const std::string& exrCompression = "zip");
 
 // Reads any image OIIO can read (EXR, PNG, JPEG, ...) into float channels with its metadata;
 // its pixels are the data window's, whose place in the display window is the image's window.

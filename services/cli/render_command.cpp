@@ -1,14 +1,20 @@
-// pbgi render SHOT [--frame N] [--integrator NAME] [--spp N] [--threads N] [--out FILE.exr]
-//                  [--crop X0,Y0,X1,Y1]
+// pbgi render SHOT [--frame N | --frames LIST] [--integrator NAME] [--spp N] [--threads N]
+//                  [--out FILE.exr] [--crop X0,Y0,X1,Y1] [--aovs LIST] [--exr-compression C]
+//                  [--json]
 
 #include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
 
+#include <absl/strings/str_split.h>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
+#include "core/util/status.h"
+#include "formats/image/image_io.h"
 #include "formats/shot/shot_file.h"
 #include "services/cli/cli.h"
 #include "services/cli/progress.h"
@@ -22,6 +28,7 @@ namespace {
 struct RenderOptions {
   std::string shot;
   std::optional<int> frame;
+  std::string frames;  // --frames 1-3,7
   std::string integrator;
   int spp = 0;
   int threads = 0;
@@ -41,6 +48,9 @@ struct RenderOptions {
   std::string imageSize;  // --resolution W,H: each view's pixels
   double scale = 0;       // --scale: of the shot's resolution
   std::optional<uint64_t> seed;
+  std::optional<std::string> aovs;  // --aovs albedo,depth | all | none
+  std::string exrCompression = "zip";
+  bool json = false;
 };
 
 constexpr int kMaxImageSide = 65536;
@@ -106,69 +116,157 @@ void printTreeReport(const TreeReadReport& t) {
       static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
 }
 
-int runRender(const RenderOptions& o) {
-  auto shot = loadShotFile(o.shot);
-  if (!shot.ok()) return reportError(shot.status());
-  if (absl::Status s = applyImageFlags(o, &*shot); !s.ok()) return reportError(s);
+// --aovs: "all" (unset), "none" (empty) or layers by name.
+absl::StatusOr<std::optional<std::vector<std::string>>> parseAovs(
+    const std::optional<std::string>& text) {
+  if (!text || *text == "all") return std::nullopt;
+  std::vector<std::string> layers;
+  if (*text != "none") {
+    for (const absl::string_view part : absl::StrSplit(*text, ',', absl::SkipWhitespace())) {
+      layers.emplace_back(part);
+    }
+  }
+  if (absl::Status s = checkAovs(layers); !s.ok()) {
+    return absl::InvalidArgumentError(
+        fmt::format("--aovs {}: {} (or all, or none)", *text, std::string(s.message())));
+  }
+  return layers;
+}
+
+// The frames asked for: --frames, --frame, or the shot's first.
+absl::StatusOr<std::vector<int>> renderFrames(const RenderOptions& o, const ShotDesc& shot) {
+  std::vector<int> frames = {o.frame.value_or(shot.firstFrame)};
+  if (!o.frames.empty()) {
+    PBGI_ASSIGN_OR_RETURN(frames, parseFrameList(o.frames));
+  }
+  for (const int f : frames) PBGI_RETURN_IF_ERROR(checkShotFrame(shot, f));
+  if (frames.size() > 1 && !o.out.empty() && o.out.find('#') == std::string::npos) {
+    return absl::InvalidArgumentError(
+        fmt::format("--out {}: {} frames would write one file; put #### in it for the frame number",
+                    o.out, frames.size()));
+  }
+  return frames;
+}
+
+absl::StatusOr<FrameRenderRequest> baseRequest(const RenderOptions& o, const ShotDesc& shot) {
   FrameRenderRequest request;
-  request.frame = o.frame.value_or(shot->firstFrame);
   request.overrides.integrator = o.integrator;
   request.overrides.integratorWhere = {"--integrator"};
   request.overrides.spp = o.spp;
   request.threads = o.threads;
   request.tileSize = o.tileSize;
-  request.outPath = o.out;
   request.preview = !o.noPreview;
-  if (absl::Status s = integratorParamFlags(o.set,
+  PBGI_RETURN_IF_ERROR(integratorParamFlags(o.set,
                                             {{"gather", o.gather},
                                              {"quality", o.quality},
                                              {"max_solid_angle", o.maxSolidAngle},
                                              {"microbuffer_resolution", o.resolution},
                                              {"cache_mb", o.cacheMb}},
-                                            &request.overrides.params);
-      !s.ok()) {
-    return reportError(s);
-  }
+                                            &request.overrides.params));
   request.treePath = o.tree;
   request.bakeDir = o.bakeDir;
   request.rebake = o.rebake;
+  PBGI_ASSIGN_OR_RETURN(request.aovs, parseAovs(o.aovs));
+  PBGI_RETURN_IF_ERROR(checkExrCompression(o.exrCompression, "--exr-compression"));
+  request.exrCompression = o.exrCompression;
   if (!o.crop.empty()) {
-    auto crop = parseCrop(o.crop);
-    if (!crop.ok()) return reportError(crop.status());
-    const int width = shot->width * shot->camera.views.x;
-    const int height = shot->height * shot->camera.views.y;
-    if (absl::Status s = checkRegions({*crop}, width, height); !s.ok()) {
-      return reportError(absl::OutOfRangeError(fmt::format(
-          "--crop {}: {} (the frame of {})", o.crop, std::string(s.message()), shot->path)));
+    PBGI_ASSIGN_OR_RETURN(const TileRect crop, parseCrop(o.crop));
+    const int width = shot.width * shot.camera.views.x;
+    const int height = shot.height * shot.camera.views.y;
+    if (absl::Status s = checkRegions({crop}, width, height); !s.ok()) {
+      return absl::OutOfRangeError(fmt::format("--crop {}: {} (the frame of {})", o.crop,
+                                               std::string(s.message()), shot.path));
     }
-    request.regions = {*crop};
+    request.regions = {crop};
   }
-  Progress progress(fmt::format("render {} frame {}", shot->name, request.frame));
-  Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, request.frame));
-  request.bakeProgress = [&](const std::string& stage, uint64_t done, uint64_t total) {
-    bakeProgress.update(stage, done, total);
-  };
-  request.progress = [&](int done, int total) {
-    if (done == 1) bakeProgress.finish();
-    progress.update("tiles", done, total);
-  };
+  return request;
+}
 
-  auto report = renderShotFrame(*shot, request);
-  progress.finish();
-  if (!report.ok()) return reportError(report.status());
-  for (const std::string& w : report->warnings)
+void printReport(const FrameRenderReport& report) {
+  for (const std::string& w : report.warnings)
     std::fprintf(stderr, "pbgi: warning: %s\n", w.c_str());
-  std::printf("wrote %s\n", report->imagePath.c_str());
-  if (!report->previewPath.empty()) std::printf("preview %s\n", report->previewPath.c_str());
-  std::printf("%s", formatStages(report->stages).c_str());
-  if (report->tree) printTreeReport(*report->tree);
-  std::printf("%s", formatCounters(*report).c_str());
-  const RenderCounters& c = report->counters;
+  std::printf("wrote %s\n", report.imagePath.c_str());
+  if (!report.previewPath.empty()) std::printf("preview %s\n", report.previewPath.c_str());
+  std::printf("%s", formatStages(report.stages).c_str());
+  if (report.tree) printTreeReport(*report.tree);
+  std::printf("%s", formatCounters(report).c_str());
+  const RenderCounters& c = report.counters;
   std::printf("  samples %llu, discarded (NaN/Inf) %llu, pixels that see nothing %llu\n",
               static_cast<unsigned long long>(c.cameraSamples),
               static_cast<unsigned long long>(c.discardedSamples),
               static_cast<unsigned long long>(c.pixelsWithoutHit));
-  std::printf("wall time %.3f s\n", report->wallSeconds);
+  std::printf("wall time %.3f s\n", report.wallSeconds);
+}
+
+// One frame's statistics for --json: every field always present (null where it does not
+// apply), integers as numbers.
+nlohmann::ordered_json reportJson(int frame, const FrameRenderReport& report) {
+  nlohmann::ordered_json stages = nlohmann::ordered_json::object();
+  for (const StageTime& st : report.stages) stages[st.stage] = st.seconds;
+  nlohmann::ordered_json counters = nlohmann::ordered_json::object();
+  for (size_t i = 0; i < report.counterSpecs.size() && i < report.counters.values.size(); ++i) {
+    counters[std::string(report.counterSpecs[i].name)] = report.counters.values[i];
+  }
+  nlohmann::ordered_json tree = nullptr;
+  if (report.tree) {
+    const TreeReadReport& t = *report.tree;
+    tree = {{"path", t.treePath},
+            {"baked", t.baked},
+            {"gather", t.integratorDescription},
+            {"cache_budget_bytes", t.cacheBudget},
+            {"cache_hits", t.cache.hits},
+            {"cache_misses", t.cache.misses},
+            {"pages_read", t.pagesRead},
+            {"pages_in_file", t.pagesInFile},
+            {"file_bytes", t.fileBytes}};
+  }
+  return {{"frame", frame},
+          {"integrator", report.integrator},
+          {"image", report.imagePath},
+          {"preview", report.previewPath.empty() ? nlohmann::ordered_json(nullptr)
+                                                 : nlohmann::ordered_json(report.previewPath)},
+          {"wall_seconds", report.wallSeconds},
+          {"stages", stages},
+          {"samples", report.counters.cameraSamples},
+          {"discarded_samples", report.counters.discardedSamples},
+          {"pixels_without_hit", report.counters.pixelsWithoutHit},
+          {"counters", counters},
+          {"tree", tree},
+          {"warnings", report.warnings}};
+}
+
+int runRender(const RenderOptions& o) {
+  auto shot = loadShotFile(o.shot);
+  if (!shot.ok()) return reportError(shot.status());
+  if (absl::Status s = applyImageFlags(o, &*shot); !s.ok()) return reportError(s);
+  const absl::StatusOr<std::vector<int>> frames = renderFrames(o, *shot);
+  if (!frames.ok()) return reportError(frames.status());
+  absl::StatusOr<FrameRenderRequest> base = baseRequest(o, *shot);
+  if (!base.ok()) return reportError(base.status());
+  nlohmann::ordered_json json = {{"shot", shot->path}, {"frames", nlohmann::ordered_json::array()}};
+  for (const int frame : *frames) {
+    FrameRenderRequest request = *base;
+    request.frame = frame;
+    if (!o.out.empty()) request.outPath = outputPathForFrame(o.out, frame, frames->size() > 1);
+    Progress progress(fmt::format("render {} frame {}", shot->name, frame));
+    Progress bakeProgress(fmt::format("bake {} frame {}", shot->name, frame));
+    request.bakeProgress = [&](const std::string& stage, uint64_t done, uint64_t total) {
+      bakeProgress.update(stage, done, total);
+    };
+    request.progress = [&](int done, int total) {
+      if (done == 1) bakeProgress.finish();
+      progress.update("tiles", done, total);
+    };
+    auto report = renderShotFrame(*shot, request);
+    progress.finish();
+    if (!report.ok()) return reportError(report.status());
+    if (o.json) {
+      json["frames"].push_back(reportJson(frame, *report));
+    } else {
+      printReport(*report);
+    }
+  }
+  if (o.json) std::printf("%s\n", json.dump(2).c_str());
   return kExitOk;
 }
 
@@ -179,7 +277,11 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
   CLI::App* cmd = app.add_subcommand(
       "render", "Render one frame of a shot in this process and write an OpenEXR");
   cmd->add_option("SHOT", options->shot, "Shot file (TOML)")->required();
-  cmd->add_option("--frame", options->frame, "Frame to render (default: the shot's first)");
+  auto* frame =
+      cmd->add_option("--frame", options->frame, "Frame to render (default: the shot's first)");
+  cmd->add_option("--frames", options->frames,
+                  "Frames to render one after another, e.g. 1-3,7 (--out then needs ####)")
+      ->excludes(frame);
   cmd->add_option("--integrator", options->integrator, "Integrator (default: the shot's)");
   cmd->add_option("--spp", options->spp, "Camera samples per pixel (default: the shot's)")
       ->check(positiveNumber());
@@ -192,6 +294,15 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
                   "(colour in float), .png/.jpg (8-bit through the OCIO view) (default: the "
                   "shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
+  cmd->add_option("--aovs", options->aovs,
+                  fmt::format("AOV layers the EXR keeps besides RGBA: a list of {}, or all "
+                              "(default) or none",
+                              fmt::join(frameAovs(), ", ")));
+  cmd->add_option(
+      "--exr-compression", options->exrCompression,
+      fmt::format("EXR compression: {} (default zip)", fmt::join(exrCompressions(), ", ")));
+  cmd->add_flag("--json", options->json,
+                "Print each frame's statistics (stages, counters, tree, cache) as JSON");
   auto* size = cmd->add_option("--resolution", options->imageSize,
                                "Image size W,H of each view (default: the shot's resolution)");
   cmd->add_option("--scale", options->scale,

@@ -102,6 +102,8 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   // Before a bake: a region the frame cannot hold fails now, not minutes later.
   PBGI_RETURN_IF_ERROR(checkRegions(request.regions, shot.width * shot.camera.views.x,
                                     shot.height * shot.camera.views.y));
+  if (request.aovs) PBGI_RETURN_IF_ERROR(checkAovs(*request.aovs));
+  PBGI_RETURN_IF_ERROR(checkExrCompression(request.exrCompression, "EXR compression"));
   report.imagePath = request.outPath.empty() ? outputPathForFrame(shot.output, request.frame,
                                                                   shot.lastFrame > shot.firstFrame)
                                              : request.outPath;
@@ -176,7 +178,11 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
 
   const std::string ocio =
       request.ocioConfig.empty() ? defaultOcioConfigPath() : request.ocioConfig;
-  PBGI_RETURN_IF_ERROR(writeRender(*image, report.imagePath, ocio, &report.warnings));
+  if (request.aovs) {
+    PBGI_ASSIGN_OR_RETURN(*image, keepAovs(*image, *request.aovs));
+  }
+  PBGI_RETURN_IF_ERROR(
+      writeRender(*image, report.imagePath, ocio, &report.warnings, request.exrCompression));
   if (request.preview) {
     report.previewPath =
         writePreviewBeside(*image, report.imagePath, request.ocioConfig, &report.warnings);

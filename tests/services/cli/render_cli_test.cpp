@@ -7,6 +7,9 @@
 #include <cstring>
 #include <fstream>
 
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
 #include "formats/image/image_io.h"
 #include "tests/support/run_pbgi.h"
 #include "tests/support/test_paths.h"
@@ -106,6 +109,60 @@ TEST(RenderCliTest, ResolutionScaleAndSeedFlagsShapeTheRender) {
   const Result bad = runPbgi(args + "--resolution 40");
   EXPECT_EQ(bad.exitCode, 2) << bad.output();
   EXPECT_NE(bad.err.find("expected W,H"), std::string::npos) << bad.err;
+  std::filesystem::remove_all(dir);
+}
+
+// The EXR header's compression attribute (OpenEXR's enum: 3 ZIP, 4 PIZ), read from the bytes.
+int exrCompressionByte(const std::filesystem::path& path) {
+  const std::string bytes = testing::slurpFile(path);
+  const std::string key("compression\0compression\0", 24);
+  const size_t at = bytes.find(key);
+  if (at == std::string::npos || at + key.size() + 5 > bytes.size()) return -1;
+  return static_cast<unsigned char>(bytes[at + key.size() + 4]);
+}
+
+// --frames renders a list of frames into a #### pattern; --aovs chooses the layers the EXR
+// keeps; --exr-compression its compression; --json the statistics, one object per frame.
+TEST(RenderCliTest, FramesAovsCompressionAndJsonStatistics) {
+  const auto dir = testing::makeTempDir("render-frames");
+  const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
+  const std::string common = "render " + shot.string() +
+                             " --integrator path --spp 1 --scale 0.125 --threads 2 --no-preview";
+  const Result r = runPbgi(common + " --frames 1-2 --aovs albedo,depth --exr-compression piz " +
+                           "--json --out " + (dir / "f.####.exr").string());
+  ASSERT_EQ(r.exitCode, 0) << r.output();
+  const auto json = nlohmann::json::parse(r.out);
+  ASSERT_EQ(json["frames"].size(), 2u) << r.out;
+  for (int i = 0; i < 2; ++i) {
+    const auto& f = json["frames"][i];
+    EXPECT_EQ(f["frame"], i + 1);
+    EXPECT_EQ(f["image"], (dir / fmt::format("f.{:04d}.exr", i + 1)).string());
+    EXPECT_EQ(f["samples"], 32 * 32);
+    EXPECT_TRUE(f["stages"].contains("render")) << f;
+    EXPECT_TRUE(f["tree"].is_null()) << "the path tracer reads no tree";
+    EXPECT_TRUE(f["preview"].is_null());
+    auto image = readImage(f["image"].get<std::string>());
+    ASSERT_TRUE(image.ok()) << image.status();
+    EXPECT_EQ(image->channels(), (std::vector<std::string>{"R", "G", "B", "A", "albedo.R",
+                                                           "albedo.G", "albedo.B", "depth.Z"}));
+    EXPECT_EQ(exrCompressionByte(f["image"].get<std::string>()), 4) << "PIZ";
+  }
+  const Result plain = runPbgi(common + " --aovs none --out " + (dir / "plain.exr").string());
+  ASSERT_EQ(plain.exitCode, 0) << plain.output();
+  auto image = readImage((dir / "plain.exr").string());
+  ASSERT_TRUE(image.ok()) << image.status();
+  EXPECT_EQ(image->channelCount(), 4);
+  EXPECT_EQ(exrCompressionByte(dir / "plain.exr"), 3) << "ZIP by default";
+  // Refused before anything renders, naming the flag.
+  for (const auto& [flags, says] : std::vector<std::pair<std::string, std::string>>{
+           {"--frames 1-2 --out " + (dir / "one.exr").string(), "put #### in it"},
+           {"--aovs albedo,specular", "--aovs albedo,specular: AOV 'specular'"},
+           {"--exr-compression lzma", "--exr-compression 'lzma'"},
+           {"--frames 1-9", "frame 4 is outside the shot's frames [1, 3]"}}) {
+    const Result bad = runPbgi(common + " " + flags);
+    EXPECT_EQ(bad.exitCode, 2) << flags << "\n" << bad.output();
+    EXPECT_NE(bad.err.find(says), std::string::npos) << flags << "\n" << bad.output();
+  }
   std::filesystem::remove_all(dir);
 }
 
