@@ -10,6 +10,7 @@
 #include "core/bake/surfel_bounce.h"
 #include "core/render/pbgi_integrator.h"
 #include "core/render/pbgi_receiver.h"
+#include "core/render/renderer.h"
 #include "core/util/status.h"
 
 namespace pbgi {
@@ -338,6 +339,21 @@ absl::Status applyRenderOverrides(RenderSettings& settings, const RenderOverride
     PBGI_RETURN_IF_ERROR(setParamValue(settings.params, key, value));
   }
   return validateRenderSettings(settings);
+}
+
+absl::Status applyShotOverrides(ShotDesc& shot, const RenderOverrides& overrides) {
+  if (overrides.width > 0 || overrides.height > 0) {
+    PBGI_RETURN_IF_ERROR(checkImageSize(overrides.width, overrides.height, shot.camera.views,
+                                        "resolution override"));
+    shot.width = overrides.width;
+    shot.height = overrides.height;
+  }
+  if (overrides.seed) shot.render.seed = *overrides.seed;
+  if (overrides.output) {
+    if (overrides.output->aovs) PBGI_RETURN_IF_ERROR(checkAovs(*overrides.output->aovs));
+    shot.outputOptions = *overrides.output;
+  }
+  return applyRenderOverrides(shot.render, overrides);
 }
 
 }  // namespace pbgi

@@ -93,6 +93,8 @@ absl::Status validateRenderSettings(const RenderSettings& settings,
 // `overrides` applied to `settings`, then the full check above. The parameters' values were
 // checked against their declarations when they were set.
 absl::Status applyRenderOverrides(RenderSettings& settings, const RenderOverrides& overrides);
+// The same for a shot: its render settings, and its resolution, seed and output options.
+absl::Status applyShotOverrides(ShotDesc& shot, const RenderOverrides& overrides);
 
 // The PBGI integrator's counters (core/render/pbgi_receiver.h indexes them).
 std::span<const CounterSpec> pbgiCounterSpecs();

@@ -79,6 +79,20 @@ std::string outputPathForFrame(const std::string& pattern, int frame, bool multi
   return out;
 }
 
+absl::Status checkImageSize(int width, int height, Vec2i views, std::string_view where) {
+  if (width < 1 || height < 1 || width > kMaxShotResolution || height > kMaxShotResolution) {
+    return absl::InvalidArgumentError(fmt::format("{}: {} x {}: each side must be from 1 to {}",
+                                                  where, width, height, kMaxShotResolution));
+  }
+  const int64_t pixels = int64_t{width} * height * views.x * views.y;
+  if (pixels > kMaxShotPixels) {
+    return absl::InvalidArgumentError(
+        fmt::format("{}: {} x {} in {} x {} views is {} pixels; at most {} (2^26) are allowed",
+                    where, width, height, views.x, views.y, pixels, kMaxShotPixels));
+  }
+  return absl::OkStatus();
+}
+
 absl::Status checkShotFrame(const ShotDesc& shot, int frame) {
   if (frame >= shot.firstFrame && frame <= shot.lastFrame) return absl::OkStatus();
   return absl::OutOfRangeError(fmt::format("{}: frame {} is outside the shot's frames [{}, {}]",

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <absl/status/status.h>
@@ -133,15 +134,29 @@ struct RenderSettings {
 // What a command line or a farm job changes of a shot's [render] settings. Typed: values are
 // parsed once, where they were written (a flag, a job's submission), and carried as values
 // from there, through the farm's wire and its store, to the render.
+// What a frame's image keeps: the AOV layers (frameAovs() names them) and the EXR compression.
+struct OutputOptions {
+  std::optional<std::vector<std::string>> aovs;  // unset: every layer; empty: none
+  std::string exrCompression = "zip";            // OpenEXR's names (exrCompressions())
+  bool operator==(const OutputOptions&) const = default;
+};
+
 struct RenderOverrides {
   std::string integrator;  // empty: the shot's
   SourceLocation integratorWhere;
   int spp = 0;  // 0: the shot's
   IntegratorParams params;
+  int width = 0, height = 0;            // each view's pixels; 0: the shot's resolution
+  std::optional<uint64_t> seed;         // unset: the shot's
+  std::optional<OutputOptions> output;  // unset: the shot's (every layer, ZIP)
 
-  bool empty() const { return integrator.empty() && spp == 0 && params.empty(); }
+  bool empty() const {
+    return integrator.empty() && spp == 0 && params.empty() && width == 0 && height == 0 && !seed &&
+           !output;
+  }
   bool operator==(const RenderOverrides& o) const {
-    return integrator == o.integrator && spp == o.spp && params == o.params;
+    return integrator == o.integrator && spp == o.spp && params == o.params && width == o.width &&
+           height == o.height && seed == o.seed && output == o.output;
   }
 };
 
@@ -161,6 +176,7 @@ struct ShotDesc {
   std::vector<MaterialDesc> materials;
   std::vector<LightDesc> lights;
   RenderSettings render;
+  OutputOptions outputOptions;  // a job's or a command's choice; the shot file sets none
   // Things the parser accepted but the user may not mean (a parameter of another integrator).
   std::vector<std::string> warnings;
 };
@@ -168,6 +184,13 @@ struct ShotDesc {
 // OkStatus when `frame` is one of the shot's; OutOfRange naming the shot file and its frames
 // otherwise.
 absl::Status checkShotFrame(const ShotDesc& shot, int frame);
+
+// The largest image a shot may ask for: each side, and the pixels of every view together
+// (8192 x 8192, 1 GiB as RGBA floats: a typo in a resolution cannot exhaust a worker).
+constexpr int kMaxShotResolution = 16384;
+constexpr int64_t kMaxShotPixels = int64_t{1} << 26;
+// InvalidArgument, naming `where`, unless width x height views of `views` fit the limits above.
+absl::Status checkImageSize(int width, int height, Vec2i views, std::string_view where);
 
 // Keyframe evaluation. The table's own values act as a key at the shot's first frame;
 // explicit keys override it. Each value interpolates linearly between the keys that set it

@@ -40,9 +40,8 @@ using strict_toml::Source;
 using strict_toml::Variants;
 
 constexpr int64_t kSupportedVersion = 1;
-constexpr int kMaxResolution = 16384;
-// 8192 x 8192, 1 GiB as RGBA floats: a typo in a resolution cannot exhaust a worker.
-constexpr int64_t kMaxPixels = int64_t{1} << 26;
+constexpr int kMaxResolution = kMaxShotResolution;
+constexpr int64_t kMaxPixels = kMaxShotPixels;
 // Hand-written and generated shots are kilobytes; anything this big is not a shot file.
 constexpr std::uintmax_t kMaxShotFileBytes = std::uintmax_t{16} << 20;
 // Degeneracy checks run on every frame of ranges up to this long, on the keys beyond it.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
 
 #include <absl/strings/numbers.h>
@@ -11,7 +12,12 @@
 #include <CLI/CLI.hpp>
 
 #include "core/render/integrators.h"
+#include "core/render/renderer.h"
+#include "core/scene/shot.h"
 #include "core/util/log.h"
+#include "core/util/status.h"
+#include "formats/image/image_io.h"
+#include "services/util/cli_checks.h"
 
 namespace pbgi::cli {
 
@@ -74,6 +80,75 @@ absl::StatusOr<std::vector<int>> parseFrameList(const std::string& text) {
     return absl::InvalidArgumentError(fmt::format("--frames {}: no frames", text));
   }
   return frames;
+}
+
+void addImageFlags(CLI::App& cmd, ImageFlags& flags) {
+  auto* size = cmd.add_option("--resolution", flags.resolution,
+                              "Image size W,H of each view (default: the shot's resolution)");
+  cmd.add_option("--scale", flags.scale,
+                 "Scale the shot's resolution, e.g. 0.5 for a half-size check render")
+      ->check(positiveNumber())
+      ->excludes(size);
+  cmd.add_option("--seed", flags.seed,
+                 "Sampling seed (default: the shot's seed); a render is a function of it");
+  cmd.add_option("--aovs", flags.aovs,
+                 fmt::format("AOV layers the EXR keeps besides RGBA: a list of {}, or all "
+                             "(default) or none",
+                             fmt::join(frameAovs(), ", ")));
+  cmd.add_option(
+      "--exr-compression", flags.exrCompression,
+      fmt::format("EXR compression: {} (default zip)", fmt::join(exrCompressions(), ", ")));
+}
+
+absl::Status imageOverrides(const ImageFlags& flags, const ShotDesc& shot,
+                            RenderOverrides* overrides) {
+  if (!flags.resolution.empty()) {
+    int w = 0, h = 0;
+    const char* end = flags.resolution.data() + flags.resolution.size();
+    const auto [comma, ec1] = std::from_chars(flags.resolution.data(), end, w);
+    const bool parsed = ec1 == std::errc() && comma != end && *comma == ',' &&
+                        std::from_chars(comma + 1, end, h).ptr == end;
+    if (!parsed) {
+      return absl::InvalidArgumentError(
+          fmt::format("--resolution '{}': expected W,H (two whole numbers from 1 to {})",
+                      flags.resolution, kMaxShotResolution));
+    }
+    overrides->width = w;
+    overrides->height = h;
+  } else if (flags.scale > 0) {
+    const auto scaled = [&](int side) {
+      return static_cast<int>(
+          std::clamp<double>(std::lround(side * flags.scale), 1, kMaxShotResolution));
+    };
+    overrides->width = scaled(shot.width);
+    overrides->height = scaled(shot.height);
+  }
+  if (overrides->width > 0) {
+    PBGI_RETURN_IF_ERROR(checkImageSize(overrides->width, overrides->height, shot.camera.views,
+                                        flags.resolution.empty() ? "--scale" : "--resolution"));
+  }
+  overrides->seed = flags.seed;
+  if (flags.aovs || !flags.exrCompression.empty()) {
+    OutputOptions& output = overrides->output.emplace();
+    if (flags.aovs && *flags.aovs != "all") {
+      output.aovs.emplace();
+      if (*flags.aovs != "none") {
+        for (const absl::string_view part :
+             absl::StrSplit(*flags.aovs, ',', absl::SkipWhitespace())) {
+          output.aovs->emplace_back(part);
+        }
+      }
+      if (absl::Status s = checkAovs(*output.aovs); !s.ok()) {
+        return absl::InvalidArgumentError(
+            fmt::format("--aovs {}: {} (or all, or none)", *flags.aovs, std::string(s.message())));
+      }
+    }
+    if (!flags.exrCompression.empty()) {
+      PBGI_RETURN_IF_ERROR(checkExrCompression(flags.exrCompression, "--exr-compression"));
+      output.exrCompression = flags.exrCompression;
+    }
+  }
+  return absl::OkStatus();
 }
 
 void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::string& gather,

@@ -2,7 +2,9 @@
 // The `pbgi` command line (README, "Commands"). Exit status: 0 success, 1 the work failed,
 // 2 bad usage or bad input. Errors go to stderr as "pbgi: error: ...".
 
+#include <cstdint>
 #include <functional>
+#include <optional>
 
 #include <string>
 #include <string_view>
@@ -18,6 +20,8 @@ class App;
 
 namespace pbgi {
 class IntegratorParams;
+struct RenderOverrides;
+struct ShotDesc;
 }
 
 namespace pbgi::cli {
@@ -57,6 +61,21 @@ void addIntegratorParamFlags(CLI::App& cmd, std::vector<std::string>& set, std::
 absl::Status integratorParamFlags(const std::vector<std::string>& set,
                                   const std::vector<std::pair<std::string_view, std::string>>& named,
                                   IntegratorParams* params);
+
+// The image flags of render, run and submit: --resolution W,H or --scale F (of each view),
+// --seed, --aovs and --exr-compression.
+struct ImageFlags {
+  std::string resolution;
+  double scale = 0;
+  std::optional<uint64_t> seed;
+  std::optional<std::string> aovs;  // a list of frameAovs(), all or none
+  std::string exrCompression;       // empty: zip
+};
+void addImageFlags(CLI::App& cmd, ImageFlags& flags);
+// The flags as overrides of `shot`: its resolution, seed and output options. Errors name the
+// flag.
+absl::Status imageOverrides(const ImageFlags& flags, const ShotDesc& shot,
+                            RenderOverrides* overrides);
 
 // "1-3,7" -> {1, 2, 3, 7}: the --frames of submit, run, render and check. InvalidArgument
 // naming the text.

@@ -37,6 +37,7 @@ void addJobFlags(CLI::App& cmd, JobFlags& flags) {
   cmd.add_option("--audit-threshold", flags.auditThreshold,
                  "Accuracy audit: the relMSE beyond which a frame is flagged (default 0.05)")
       ->check(positiveNumber());
+  addImageFlags(cmd, flags.image);
 }
 
 absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
@@ -57,9 +58,10 @@ absl::StatusOr<farm::v1::SubmitJobRequest> submitRequest(const ShotDesc& shot,
       flags.set,
       {{"gather", flags.gather}, {"quality", flags.quality}, {"cache_mb", flags.cacheMb}},
       &overrides.params));
+  PBGI_RETURN_IF_ERROR(imageOverrides(flags.image, shot, &overrides));
   // The coordinator checks the same, but bad input is better caught before anything starts.
   ShotDesc overridden = shot;
-  PBGI_RETURN_IF_ERROR(applyRenderOverrides(overridden.render, overrides));
+  PBGI_RETURN_IF_ERROR(applyShotOverrides(overridden, overrides));
   *request.mutable_render() = farm::toWire(overrides);
   if (!flags.frames.empty()) {
     PBGI_ASSIGN_OR_RETURN(const std::vector<int> frames, parseFrameList(flags.frames));

@@ -10,6 +10,7 @@
 #include <absl/status/statusor.h>
 
 #include "core/scene/shot.h"
+#include "services/cli/cli.h"
 #include "services/farm/farm_client.h"
 
 namespace CLI {
@@ -32,6 +33,7 @@ struct JobFlags {
   std::optional<int> auditTiles;
   int auditSpp = 0;
   double auditThreshold = 0;
+  ImageFlags image;  // --resolution / --scale, --seed, --aovs, --exr-compression
 };
 void addJobFlags(CLI::App& cmd, JobFlags& flags);
 // The job's state as users read it: the store's word, or "stalled" / "waiting" for an active

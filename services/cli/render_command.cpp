@@ -7,14 +7,13 @@
 #include <cmath>
 #include <cstdio>
 
-#include <absl/strings/str_split.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include "core/render/integrators.h"
 #include "core/util/status.h"
-#include "formats/image/image_io.h"
 #include "formats/shot/shot_file.h"
 #include "services/cli/cli.h"
 #include "services/cli/progress.h"
@@ -45,42 +44,9 @@ struct RenderOptions {
   std::string bakeDir;
   bool rebake = false;
   std::string crop;  // X0,Y0,X1,Y1
-  std::string imageSize;  // --resolution W,H: each view's pixels
-  double scale = 0;       // --scale: of the shot's resolution
-  std::optional<uint64_t> seed;
-  std::optional<std::string> aovs;  // --aovs albedo,depth | all | none
-  std::string exrCompression = "zip";
+  ImageFlags image;  // --resolution / --scale, --seed, --aovs, --exr-compression
   bool json = false;
 };
-
-constexpr int kMaxImageSide = 65536;
-
-// --resolution W,H or --scale F (of each view: a camera array keeps its layout) and --seed:
-// the shot as this render sees it. A bake does not depend on them.
-absl::Status applyImageFlags(const RenderOptions& o, ShotDesc* shot) {
-  if (!o.imageSize.empty()) {
-    int w = 0, h = 0;
-    const char* end = o.imageSize.data() + o.imageSize.size();
-    const auto [comma, ec1] = std::from_chars(o.imageSize.data(), end, w);
-    const bool parsed = ec1 == std::errc() && comma != end && *comma == ',' &&
-                        std::from_chars(comma + 1, end, h).ptr == end;
-    if (!parsed || w < 1 || h < 1 || w > kMaxImageSide || h > kMaxImageSide) {
-      return absl::InvalidArgumentError(
-          fmt::format("--resolution '{}': expected W,H (two whole numbers from 1 to {})",
-                      o.imageSize, kMaxImageSide));
-    }
-    shot->width = w;
-    shot->height = h;
-  } else if (o.scale > 0) {
-    const auto scaled = [&](int side) {
-      return static_cast<int>(std::clamp<double>(std::lround(side * o.scale), 1, kMaxImageSide));
-    };
-    shot->width = scaled(shot->width);
-    shot->height = scaled(shot->height);
-  }
-  if (o.seed) shot->render.seed = *o.seed;
-  return absl::OkStatus();
-}
 
 // "X0,Y0,X1,Y1": pixels of the full frame, half-open, origin top left.
 absl::StatusOr<TileRect> parseCrop(const std::string& text) {
@@ -116,23 +82,6 @@ void printTreeReport(const TreeReadReport& t) {
       static_cast<unsigned long long>(t.pagesInFile), percent(t.pagesRead, t.pagesInFile).c_str());
 }
 
-// --aovs: "all" (unset), "none" (empty) or layers by name.
-absl::StatusOr<std::optional<std::vector<std::string>>> parseAovs(
-    const std::optional<std::string>& text) {
-  if (!text || *text == "all") return std::nullopt;
-  std::vector<std::string> layers;
-  if (*text != "none") {
-    for (const absl::string_view part : absl::StrSplit(*text, ',', absl::SkipWhitespace())) {
-      layers.emplace_back(part);
-    }
-  }
-  if (absl::Status s = checkAovs(layers); !s.ok()) {
-    return absl::InvalidArgumentError(
-        fmt::format("--aovs {}: {} (or all, or none)", *text, std::string(s.message())));
-  }
-  return layers;
-}
-
 // The frames asked for: --frames, --frame, or the shot's first.
 absl::StatusOr<std::vector<int>> renderFrames(const RenderOptions& o, const ShotDesc& shot) {
   std::vector<int> frames = {o.frame.value_or(shot.firstFrame)};
@@ -166,9 +115,6 @@ absl::StatusOr<FrameRenderRequest> baseRequest(const RenderOptions& o, const Sho
   request.treePath = o.tree;
   request.bakeDir = o.bakeDir;
   request.rebake = o.rebake;
-  PBGI_ASSIGN_OR_RETURN(request.aovs, parseAovs(o.aovs));
-  PBGI_RETURN_IF_ERROR(checkExrCompression(o.exrCompression, "--exr-compression"));
-  request.exrCompression = o.exrCompression;
   if (!o.crop.empty()) {
     PBGI_ASSIGN_OR_RETURN(const TileRect crop, parseCrop(o.crop));
     const int width = shot.width * shot.camera.views.x;
@@ -238,7 +184,10 @@ nlohmann::ordered_json reportJson(int frame, const FrameRenderReport& report) {
 int runRender(const RenderOptions& o) {
   auto shot = loadShotFile(o.shot);
   if (!shot.ok()) return reportError(shot.status());
-  if (absl::Status s = applyImageFlags(o, &*shot); !s.ok()) return reportError(s);
+  // The image's size, seed and output options become the shot's, as a farm job's do.
+  RenderOverrides image;
+  if (absl::Status s = imageOverrides(o.image, *shot, &image); !s.ok()) return reportError(s);
+  if (absl::Status s = applyShotOverrides(*shot, image); !s.ok()) return reportError(s);
   const absl::StatusOr<std::vector<int>> frames = renderFrames(o, *shot);
   if (!frames.ok()) return reportError(frames.status());
   absl::StatusOr<FrameRenderRequest> base = baseRequest(o, *shot);
@@ -294,23 +243,9 @@ void registerRenderCommand(CLI::App& app, CommandAction& action) {
                   "(colour in float), .png/.jpg (8-bit through the OCIO view) (default: the "
                   "shot's output pattern)");
   cmd->add_flag("--no-preview", options->noPreview, "Do not write the PNG preview");
-  cmd->add_option("--aovs", options->aovs,
-                  fmt::format("AOV layers the EXR keeps besides RGBA: a list of {}, or all "
-                              "(default) or none",
-                              fmt::join(frameAovs(), ", ")));
-  cmd->add_option(
-      "--exr-compression", options->exrCompression,
-      fmt::format("EXR compression: {} (default zip)", fmt::join(exrCompressions(), ", ")));
   cmd->add_flag("--json", options->json,
                 "Print each frame's statistics (stages, counters, tree, cache) as JSON");
-  auto* size = cmd->add_option("--resolution", options->imageSize,
-                               "Image size W,H of each view (default: the shot's resolution)");
-  cmd->add_option("--scale", options->scale,
-                  "Scale the shot's resolution, e.g. 0.5 for a half-size check render")
-      ->check(positiveNumber())
-      ->excludes(size);
-  cmd->add_option("--seed", options->seed,
-                  "Sampling seed (default: the shot's seed); a render is a function of it");
+  addImageFlags(*cmd, options->image);
   cmd->add_option("--crop", options->crop,
                   "Render only pixels X0,Y0,X1,Y1 of the full frame (half-open, origin top "
                   "left): the EXR's data window, in the frame's display window, bit for bit "

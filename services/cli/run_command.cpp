@@ -20,6 +20,7 @@
 #include "services/cli/farm_cli.h"
 #include "services/cli/progress.h"
 #include "services/farm/farm_client.h"
+#include "services/farm/farm_json.h"
 #include "services/farm/farm_wire.h"
 #include "services/local_farm/local_farm.h"
 #include "services/util/cli_checks.h"
@@ -39,6 +40,7 @@ struct RunOptions {
   std::string outputRoot;
   int tileSize = 0;
   double leaseSeconds = 30.0;
+  bool json = false;
   JobFlags job;
 };
 
@@ -93,14 +95,18 @@ int waitForJob(farm::LocalFarm& farm, farm::FarmClient& client, int64_t job,
 }
 
 // The job's final state, after the workers have reported, with every task and output.
-int reportJob(farm::FarmClient& client, int64_t job, const std::string& logDir) {
+int reportJob(farm::FarmClient& client, int64_t job, const std::string& logDir, bool json) {
   farm::v1::GetStatusRequest ask;
   ask.set_job(job);
   ask.set_with_tasks(true);
   const absl::StatusOr<farm::v1::GetStatusResponse> status = client.getStatus(ask);
   if (!status.ok()) return reportError(status.status());
   const farm::v1::JobStatus& js = status->jobs(0);
-  std::printf("%s", describeJob(js).c_str());
+  if (json) {
+    std::printf("%s\n", farm::toJson(js).c_str());
+  } else {
+    std::printf("%s", describeJob(js).c_str());
+  }
   if (farm::jobStateOf(js) != farm::v1::JOB_STATE_DONE) {
     std::fprintf(stderr, "pbgi: error: job %lld %s; the workers' logs are in %s\n",
                  static_cast<long long>(job), farm::wireWord(farm::jobStateOf(js)).c_str(),
@@ -130,8 +136,10 @@ int runEmbedded(const RunOptions& o) {
   bool resumed = false;
   auto job = (*farm)->findOrSubmit(*request, &resumed);
   if (!job.ok()) return reportError(job.status());
-  std::printf("%s job %lld of %s (state %s)\n", resumed ? "resuming" : "submitted",
-              static_cast<long long>(*job), o.shot.c_str(), options.stateDir.c_str());
+  // With --json, stdout holds only the JSON.
+  std::fprintf(o.json ? stderr : stdout, "%s job %lld of %s (state %s)\n",
+               resumed ? "resuming" : "submitted", static_cast<long long>(*job), o.shot.c_str(),
+               options.stateDir.c_str());
   std::fflush(stdout);
 
   const int hardware = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
@@ -153,7 +161,7 @@ int runEmbedded(const RunOptions& o) {
     return kExitFailed;
   }
   if (exitCode != kExitOk) return exitCode;
-  return reportJob(client, *job, (*farm)->logDir());
+  return reportJob(client, *job, (*farm)->logDir(), o.json);
 }
 
 }  // namespace
@@ -177,6 +185,9 @@ void registerRunCommand(CLI::App& app, CommandAction& action) {
       ->check(CLI::Range(16, 8192));
   cmd->add_option("--lease-seconds", options->leaseSeconds, "Task lease length (default 30)")
       ->check(positiveNumber());
+  cmd->add_flag("--json", options->json,
+                "Print the finished job (its tasks' times, workers, cache figures, audits) as "
+                "the JSON of pbgi status --json");
   addJobFlags(*cmd, options->job);
   cmd->callback([options, &action] { action = [options] { return runEmbedded(*options); }; });
 }

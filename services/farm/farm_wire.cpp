@@ -7,7 +7,9 @@
 #include <google/protobuf/util/json_util.h>
 
 #include "core/render/integrators.h"
+#include "core/render/renderer.h"
 #include "core/util/status.h"
+#include "formats/image/image_io.h"
 #include "services/farm/job_rules.h"
 
 namespace pbgi::farm {
@@ -184,6 +186,17 @@ v1::RenderOverrides toWire(const RenderOverrides& overrides) {
       value.set_choice(std::get<std::string>(param.value));
     }
   }
+  out.set_width(overrides.width);
+  out.set_height(overrides.height);
+  if (overrides.seed) out.set_seed(*overrides.seed);
+  if (overrides.output) {
+    v1::OutputOptions* o = out.mutable_output();
+    o->set_all_aovs(!overrides.output->aovs);
+    if (overrides.output->aovs) {
+      for (const std::string& a : *overrides.output->aovs) o->add_aovs(a);
+    }
+    o->set_exr_compression(overrides.output->exrCompression);
+  }
   return out;
 }
 
@@ -214,6 +227,24 @@ absl::StatusOr<RenderOverrides> fromWire(const v1::RenderOverrides& overrides) {
             "job override {}: no value (expected an integer, a number or a name)", key));
     }
     PBGI_RETURN_IF_ERROR(setParamValue(out.params, key, std::move(param)));
+  }
+  if (overrides.width() != 0 || overrides.height() != 0) {
+    PBGI_RETURN_IF_ERROR(
+        checkImageSize(overrides.width(), overrides.height(), {1, 1}, "job override resolution"));
+  }
+  out.width = overrides.width();
+  out.height = overrides.height();
+  if (overrides.has_seed()) out.seed = overrides.seed();
+  if (overrides.has_output()) {
+    OutputOptions& o = out.output.emplace();
+    if (!overrides.output().all_aovs()) {
+      o.aovs.emplace(overrides.output().aovs().begin(), overrides.output().aovs().end());
+      PBGI_RETURN_IF_ERROR(checkAovs(*o.aovs));
+    }
+    if (!overrides.output().exr_compression().empty()) {
+      o.exrCompression = overrides.output().exr_compression();
+    }
+    PBGI_RETURN_IF_ERROR(checkExrCompression(o.exrCompression, "job override EXR compression"));
   }
   return out;
 }

@@ -82,7 +82,7 @@ std::vector<std::string> overrideLines(const RenderOverrides& overrides) {
 absl::StatusOr<ShotDesc> jobShot(std::string_view shotText, const std::string& shotPath,
                                  const RenderOverrides& overrides) {
   PBGI_ASSIGN_OR_RETURN(ShotDesc shot, parseShot(shotText, shotPath));
-  PBGI_RETURN_IF_ERROR(applyRenderOverrides(shot.render, overrides));
+  PBGI_RETURN_IF_ERROR(applyShotOverrides(shot, overrides));
   return shot;
 }
 

@@ -75,8 +75,8 @@ absl::StatusOr<TileRect> parseRegion(const std::string& text) {
 
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
-                                    const std::string& outPath,
-                                    std::vector<std::string>* warnings) {
+                                    const std::string& outPath, std::vector<std::string>* warnings,
+                                    const OutputOptions& output) {
   if (tilePaths.size() != tiles.size() || tiles.empty()) {
     return absl::InvalidArgumentError(fmt::format(
         "assemble {}: {} tile files for {} tiles", outPath, tilePaths.size(), tiles.size()));
@@ -132,9 +132,12 @@ absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
     }
   }
   frame.setMetadata("pbgi/assembledTiles", static_cast<int>(tiles.size()));
+  if (output.aovs) {
+    PBGI_ASSIGN_OR_RETURN(frame, keepAovs(frame, *output.aovs));
+  }
   std::vector<std::string> dropped;
-  PBGI_RETURN_IF_ERROR(
-      writeRender(frame, outPath, defaultOcioConfigPath(), warnings ? warnings : &dropped));
+  PBGI_RETURN_IF_ERROR(writeRender(frame, outPath, defaultOcioConfigPath(),
+                                   warnings ? warnings : &dropped, output.exrCompression));
   return frame;
 }
 

@@ -44,9 +44,11 @@ absl::StatusOr<Image> cropRegions(const Image& frame, const std::vector<TileRect
 
 // Writes the frame to `outPath` in the format its extension names (writeRender: .exr keeps
 // every AOV; what another format drops is said in `warnings`).
+// `output` chooses the AOV layers kept and the EXR compression.
 absl::StatusOr<Image> assembleFrame(const std::vector<std::string>& tilePaths,
                                     const std::vector<FarmTile>& tiles, int width, int height,
                                     const std::string& outPath,
-                                    std::vector<std::string>* warnings = nullptr);
+                                    std::vector<std::string>* warnings = nullptr,
+                                    const OutputOptions& output = {});
 
 }  // namespace pbgi

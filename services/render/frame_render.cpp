@@ -102,8 +102,9 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
   // Before a bake: a region the frame cannot hold fails now, not minutes later.
   PBGI_RETURN_IF_ERROR(checkRegions(request.regions, shot.width * shot.camera.views.x,
                                     shot.height * shot.camera.views.y));
-  if (request.aovs) PBGI_RETURN_IF_ERROR(checkAovs(*request.aovs));
-  PBGI_RETURN_IF_ERROR(checkExrCompression(request.exrCompression, "EXR compression"));
+  const OutputOptions& output = request.output ? *request.output : shot.outputOptions;
+  if (output.aovs) PBGI_RETURN_IF_ERROR(checkAovs(*output.aovs));
+  PBGI_RETURN_IF_ERROR(checkExrCompression(output.exrCompression, "EXR compression"));
   report.imagePath = request.outPath.empty() ? outputPathForFrame(shot.output, request.frame,
                                                                   shot.lastFrame > shot.firstFrame)
                                              : request.outPath;
@@ -178,11 +179,11 @@ absl::StatusOr<FrameRenderReport> renderShotFrame(const ShotDesc& shot,
 
   const std::string ocio =
       request.ocioConfig.empty() ? defaultOcioConfigPath() : request.ocioConfig;
-  if (request.aovs) {
-    PBGI_ASSIGN_OR_RETURN(*image, keepAovs(*image, *request.aovs));
+  if (output.aovs) {
+    PBGI_ASSIGN_OR_RETURN(*image, keepAovs(*image, *output.aovs));
   }
   PBGI_RETURN_IF_ERROR(
-      writeRender(*image, report.imagePath, ocio, &report.warnings, request.exrCompression));
+      writeRender(*image, report.imagePath, ocio, &report.warnings, output.exrCompression));
   if (request.preview) {
     report.previewPath =
         writePreviewBeside(*image, report.imagePath, request.ocioConfig, &report.warnings);

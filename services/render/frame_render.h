@@ -29,9 +29,9 @@ struct FrameRenderRequest {
   int tileSize = 0;        // 0: the shot's
   std::string outPath;     // empty: the shot's output pattern for this frame
   bool preview = true;     // write a PNG preview beside the EXR
-  // The AOV layers the image keeps (frameAovs() names them; empty: none); unset: every one.
-  std::optional<std::vector<std::string>> aovs;
-  std::string exrCompression = "zip";  // exrCompressions()
+  // The AOV layers and compression the image is written with; unset: the shot's. (A farm
+  // tile keeps every layer, losslessly: the frame's assembly applies the job's.)
+  std::optional<OutputOptions> output;
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int unitsDone, int unitsTotal)> progress;
   // Stops the render when set (a farm task whose lease was lost): the request fails Cancelled.

@@ -352,6 +352,7 @@ absl::StatusOr<TaskResult> Worker::tile(const ShotDesc& shot, const v1::LeaseTas
   request.threads = options_.threads;
   request.outPath = task.output_path();
   request.preview = false;
+  request.output = OutputOptions{};  // every layer, losslessly: the assembly applies the job's
   request.regions = regions;
   request.cacheBytes = options_.cacheBytes;
   request.bakeDir = jobBakeDir(task.work_dir());
@@ -428,10 +429,10 @@ absl::StatusOr<TaskResult> Worker::assemble(const ShotDesc& shot,
     paths.push_back(farmTilePath(task.work_dir(), task.frame(), static_cast<int>(t)));
   }
   std::vector<std::string> warnings;
-  PBGI_ASSIGN_OR_RETURN(
-      const Image frame,
-      assembleFrame(paths, tiles, shot.width * shot.camera.views.x,
-                    shot.height * shot.camera.views.y, task.output_path(), &warnings));
+  PBGI_ASSIGN_OR_RETURN(const Image frame,
+                        assembleFrame(paths, tiles, shot.width * shot.camera.views.x,
+                                      shot.height * shot.camera.views.y, task.output_path(),
+                                      &warnings, shot.outputOptions));
   TaskResult result;
   result.log = fmt::format("assembled {} tiles into {}\n", tiles.size(), task.output_path());
   const std::string preview = writePreviewBeside(frame, task.output_path(), "", &warnings);
@@ -473,6 +474,7 @@ absl::StatusOr<TaskResult> Worker::audit(const ShotDesc& shot, const v1::LeaseTa
                        fmt::format("frame.{:04d}.tile.{:04d}.exr", task.frame(), t))
                           .string();
     request.preview = false;
+    request.output = OutputOptions{};
     request.regions = auditWindows(tiles[static_cast<size_t>(t)]);
     request.scene = scene.get();
     request.cancel = beat.cancelFlag();

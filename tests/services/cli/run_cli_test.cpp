@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include "formats/image/image_io.h"
 #include "tests/support/farm_fixtures.h"
@@ -49,6 +50,44 @@ TEST(RunCliTest, TwoFramesOnTwoWorkersEqualPbgiRender) {
                                            shellQuote((dir / "state").string()));
   ASSERT_EQ(again.exitCode, 0) << again.output();
   EXPECT_NE(again.output().find("submitted job 2"), std::string::npos) << again.output();
+  fs::remove_all(dir);
+}
+
+// The image flags travel with the job, typed: the farm's frame is `pbgi render`'s with the
+// same flags, bit for bit, and --json prints the finished job as status --json does.
+TEST(RunCliTest, ResolutionSeedAovsAndCompressionReachTheFarmsFrame) {
+  const fs::path dir = testing::makeTempDir("run-cli-image");
+  testing::SmallShot small;
+  small.lastFrame = 1;
+  const fs::path shot = testing::writeSmallShot(dir, small);
+  const std::string flags = " --scale 0.75 --seed 99 --aovs depth --exr-compression piz";
+  const testing::RunResult run =
+      runPbgi("run " + shellQuote(shot.string()) + flags + " --tile-size 16 --json --state " +
+              shellQuote((dir / "state").string()));
+  ASSERT_EQ(run.exitCode, 0) << run.output();
+  const auto json = nlohmann::json::parse(run.out);
+  EXPECT_EQ(json["state"], "done") << run.out;
+  EXPECT_EQ(json["job"], 1) << run.out;
+  const fs::path farmFrame = dir / "out/small.0001.exr";
+  const fs::path alone = dir / "alone.exr";
+  const testing::RunResult render = runPbgi("render " + shellQuote(shot.string()) + flags +
+                                            " --no-preview --out " + shellQuote(alone.string()));
+  ASSERT_EQ(render.exitCode, 0) << render.output();
+  auto a = readImage(farmFrame.string());
+  auto b = readImage(alone.string());
+  ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
+  EXPECT_EQ(a->width(), 48);
+  EXPECT_EQ(a->channels(), (std::vector<std::string>{"R", "G", "B", "A", "depth.Z"}));
+  std::string why;
+  EXPECT_TRUE(testing::samePixels(*a, *b, &why)) << why;
+  // Another seed, other pixels: the seed reached the workers.
+  const testing::RunResult other = runPbgi("render " + shellQuote(shot.string()) +
+                                           " --scale 0.75 --seed 98 --no-preview --out " +
+                                           shellQuote((dir / "other.exr").string()));
+  ASSERT_EQ(other.exitCode, 0) << other.output();
+  auto c = readImage((dir / "other.exr").string());
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_NE(c->pixels()[0], a->pixels()[0]);
   fs::remove_all(dir);
 }
 

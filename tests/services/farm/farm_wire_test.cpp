@@ -137,6 +137,20 @@ TEST(FarmWire, OverridesKeepTheirTypesOnTheWireAndInTheStore) {
   auto none = fromStoreText(toStoreText({}));
   ASSERT_TRUE(none.ok()) << none.status();
   EXPECT_TRUE(none->empty());
+
+  // The image's size, seed and output options, on the wire and in the store.
+  RenderOverrides image = o;
+  image.width = 640;
+  image.height = 360;
+  image.seed = 0;  // set, and zero: not the shot's
+  image.output = OutputOptions{.aovs = std::vector<std::string>{"depth"}, .exrCompression = "piz"};
+  auto imageBack = fromStoreText(toStoreText(image));
+  ASSERT_TRUE(imageBack.ok()) << imageBack.status();
+  EXPECT_EQ(*imageBack, image);
+  image.output->aovs.reset();  // every layer
+  imageBack = fromWire(toWire(image));
+  ASSERT_TRUE(imageBack.ok()) << imageBack.status();
+  EXPECT_EQ(*imageBack, image);
 }
 
 TEST(FarmWire, AStoreOrClientFromBeforeTypedOverridesIsReadTheSame) {
@@ -184,6 +198,17 @@ TEST(FarmWire, ATypedValueIsCheckedAgainstItsDeclaration) {
   v1::RenderOverrides negativeSpp;
   negativeSpp.set_spp(-1);
   refused(negativeSpp, "spp");
+  v1::RenderOverrides hugeImage;
+  hugeImage.set_width(100000);
+  hugeImage.set_height(10);
+  refused(hugeImage, "resolution");
+  v1::RenderOverrides badAov;
+  badAov.mutable_output()->add_aovs("specular");
+  refused(badAov, "AOV 'specular'");
+  v1::RenderOverrides badCompression;
+  badCompression.mutable_output()->set_all_aovs(true);
+  badCompression.mutable_output()->set_exr_compression("lzma");
+  refused(badCompression, "lzma");
   const auto damaged = fromStoreText("{\"params\": 3}");
   EXPECT_EQ(damaged.status().code(), absl::StatusCode::kDataLoss) << damaged.status();
 }
