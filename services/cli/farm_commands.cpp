@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cstdio>
 #include <ctime>
+#include <map>
+#include <thread>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -98,7 +100,9 @@ struct JobOptions {
   int64_t job = 0;
   std::optional<int> frame;
   std::optional<int> tile;
-  bool json = false;  // logs
+  bool json = false;    // logs
+  bool follow = false;  // logs
+  bool full = false;    // logs
 };
 
 struct WorkersOptions {
@@ -144,6 +148,71 @@ int runRetry(const JobOptions& o) {
   return kExitOk;
 }
 
+// A job's log as attempts: one line each, "frame 2 tile 1 attempt 1 on w1: done in 3.2 s"
+// with the task's own log beneath it (--full), or its error's first line when it failed.
+class AttemptPrinter {
+ public:
+  explicit AttemptPrinter(bool full) : full_(full) {}
+
+  // `follow`: a lease is said when it starts, not only when it ends.
+  void add(const v1::LogEntry& e, bool follow) {
+    const std::pair<int64_t, int> key{e.task(), e.attempt()};
+    if (farm::taskEventKindOf(e) == v1::TASK_EVENT_KIND_LEASED) {
+      running_[key] = e;
+      if (follow) std::printf("%s started\n", head(e).c_str());
+      return;
+    }
+    const auto started = running_.find(key);
+    std::string took;
+    if (started != running_.end()) {
+      took = fmt::format(" {} {:.1f} s",
+                         farm::taskEventKindOf(e) == v1::TASK_EVENT_KIND_DONE ? "in" : "after",
+                         std::max(0.0, e.time() - started->second.time()));
+      running_.erase(started);
+    }
+    const std::string firstLine = e.text().substr(0, e.text().find('\n'));
+    std::printf("%s %s%s%s\n", head(e).c_str(), eventWord(e).c_str(), took.c_str(),
+                farm::taskEventKindOf(e) == v1::TASK_EVENT_KIND_DONE || firstLine.empty()
+                    ? ""
+                    : (": " + firstLine).c_str());
+    if (full_ && !e.text().empty()) {
+      std::string text = e.text();
+      if (text.back() != '\n') text += '\n';
+      for (size_t start = 0; start < text.size();) {
+        const size_t end = text.find('\n', start);
+        std::printf("    %s\n", text.substr(start, end - start).c_str());
+        start = end + 1;
+      }
+    }
+  }
+  // The attempts leased and not ended, as of `now`.
+  void running(double now) const {
+    for (const auto& [key, e] : running_) {
+      std::printf("%s running for %.1f s\n", head(e).c_str(), std::max(0.0, now - e.time()));
+    }
+  }
+
+ private:
+  static std::string head(const v1::LogEntry& e) {
+    const v1::TaskKind kind = farm::taskKindOf(e);
+    return fmt::format(
+        "{} frame {} {}{} attempt {} on {}:", timeText(e.time()), e.frame(), farm::wireWord(kind),
+        kind == v1::TASK_KIND_TILE ? fmt::format(" {}", e.tile()) : "", e.attempt(), e.worker());
+  }
+  // An event this build does not know (a newer coordinator's) shows the word it came with.
+  static std::string eventWord(const v1::LogEntry& e) {
+    const v1::TaskEventKind event = farm::taskEventKindOf(e);
+    return farm::fromWire(event) || e.event().empty() ? farm::wireWord(event) : e.event();
+  }
+
+  const bool full_;
+  std::map<std::pair<int64_t, int>, v1::LogEntry> running_;
+};
+
+double nowSeconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
 int runLogs(const JobOptions& o) {
   auto client = connect(o.connection);
   if (!client.ok()) return reportError(client.status());
@@ -157,27 +226,34 @@ int runLogs(const JobOptions& o) {
     std::printf("%s\n", farm::toJson(*response).c_str());
     return kExitOk;
   }
-  for (const v1::LogEntry& e : response->entries()) {
-    const v1::TaskKind kind = farm::taskKindOf(e);
-    const v1::TaskEventKind event = farm::taskEventKindOf(e);
-    // An event this build does not know (a newer coordinator's) shows the word it came with.
-    const std::string eventWord =
-        farm::fromWire(event) || e.event().empty() ? farm::wireWord(event) : e.event();
-    std::printf("%s frame %d %s%s attempt %d %s on %s\n", timeText(e.time()).c_str(), e.frame(),
-                farm::wireWord(kind).c_str(),
-                kind == v1::TASK_KIND_TILE ? fmt::format(" {}", e.tile()).c_str() : "", e.attempt(),
-                eventWord.c_str(), e.worker().c_str());
-    if (!e.text().empty()) {
-      std::string text = e.text();
-      if (text.back() != '\n') text += '\n';
-      for (size_t start = 0; start < text.size();) {
-        const size_t end = text.find('\n', start);
-        std::printf("    %s\n", text.substr(start, end - start).c_str());
-        start = end + 1;
-      }
-    }
+  AttemptPrinter printer(o.full);
+  for (const v1::LogEntry& e : response->entries()) printer.add(e, false);
+  if (!o.follow) {
+    printer.running(nowSeconds());
+    return kExitOk;
   }
-  return kExitOk;
+  printer.running(nowSeconds());
+  std::fflush(stdout);
+  // Follow: poll for the events after those printed until the job is no longer active.
+  int seen = response->entries_size();
+  v1::GetStatusRequest ask;
+  ask.set_job(o.job);
+  for (;;) {
+    auto status = (*client)->getStatus(ask);
+    if (!status.ok()) return reportError(status.status());
+    const bool active = farm::jobStateOf(status->jobs(0)) == v1::JOB_STATE_ACTIVE;
+    response = (*client)->getLogs(request);
+    if (!response.ok()) return reportError(response.status());
+    for (int i = seen; i < response->entries_size(); ++i) printer.add(response->entries(i), true);
+    seen = response->entries_size();
+    std::fflush(stdout);
+    if (!active) {
+      std::printf("job %lld %s\n", static_cast<long long>(o.job),
+                  jobStateWord(status->jobs(0)).c_str());
+      return kExitOk;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
 }
 
 int runWorkers(const WorkersOptions& o) {
@@ -242,14 +318,17 @@ void registerFarmCommands(CLI::App& app, CommandAction& action) {
     }
     if (std::string_view(name) == "logs") {
       cmd->add_flag("--json", o->json, "Print the entries as JSON (as status --json)");
+      cmd->add_flag("--follow,-f", o->follow,
+                    "Print attempts as they start and end until the job is no longer active");
+      cmd->add_flag("--full", o->full, "Print each attempt's own log (stages, counters) too");
     }
     addConnectionFlags(*cmd, o->connection);
     cmd->callback([o, run, &action] { action = [o, run] { return run(*o); }; });
   };
   jobCommand("cancel", "Cancel a job's unfinished tasks", false, runCancel);
   jobCommand("retry", "Run a job's dead or cancelled tasks again (a frame, a tile)", true, runRetry);
-  jobCommand("logs", "A job's task history: leases, completions with their logs, failures",
-             true, runLogs);
+  jobCommand("logs", "A job's task history: a line per attempt (worker, outcome, time)", true,
+             runLogs);
   {
     auto o = std::make_shared<WorkersOptions>();
     CLI::App* cmd = app.add_subcommand("workers", "The workers a coordinator knows");

@@ -3,6 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <regex>
+#include <thread>
+
 #include "services/cli/farm_cli.h"
 #include "tests/support/farm_fixtures.h"
 
@@ -83,21 +87,30 @@ TEST_F(FarmCliTest, SubmitStatusCancelRetryLogsWorkers) {
   token = token.substr(0, token.find('\n'));
   std::string address = testing::slurpFile(dir_ / "state/coordinator.addr");
   address = address.substr(0, address.find('\n'));
+  // Followed from before the worker starts until the job is no longer active: each attempt as
+  // it starts and as it ends.
+  testing::Process follow({testing::pbgiBinary().string(), "logs", "1", "--follow", "--coordinator",
+                           address, "--token-file", (dir_ / "state/token").string()},
+                          dir_ / "follow.log");
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
   testing::Process worker({testing::binary("pbgi-worker").string(), "--coordinator", address,
                            "--id", "cli-worker", "--threads", "1", "--poll-seconds", "0.05"},
                           dir_ / "worker.log", {"PBGI_TOKEN=" + token});
-  testing::RunResult logs;
-  ASSERT_TRUE(testing::waitFor(
-      [&] {
-        logs = runPbgi("logs 1 --frame 2 --tile 1" + connection_);
-        return logs.out.find(" done on cli-worker") != std::string::npos;
-      },
-      60.0))
-      << logs.output() << worker.log();
+  EXPECT_EQ(follow.wait(60.0), 0) << follow.log() << worker.log();
+  const std::string followed = follow.log();
+  const std::regex done(R"(frame 2 tile 1 attempt 1 on cli-worker: done in [0-9.]+ s\n)");
+  EXPECT_TRUE(std::regex_search(followed, done)) << followed;
+  EXPECT_NE(followed.find("frame 2 tile 1 attempt 1 on cli-worker: started\n"), std::string::npos)
+      << followed;
+  // The frame's other tiles stay cancelled, so the job settles so once the tile is done.
+  EXPECT_NE(followed.find("job 1 cancelled\n"), std::string::npos) << followed;
+  // Afterwards: a line per attempt, and with --full each attempt's own log beneath it.
+  const auto logs = runPbgi("logs 1 --frame 2 --tile 1" + connection_);
   EXPECT_EQ(logs.exitCode, 0) << logs.output();
-  EXPECT_NE(logs.out.find("frame 2 tile 1 attempt 1 leased on cli-worker"), std::string::npos)
-      << logs.out;
-  EXPECT_NE(logs.out.find("    wrote "), std::string::npos) << logs.out;  // the worker's own log
+  EXPECT_TRUE(std::regex_search(logs.out, done)) << logs.out;
+  EXPECT_EQ(std::count(logs.out.begin(), logs.out.end(), '\n'), 1) << logs.out;
+  const auto full = runPbgi("logs 1 --frame 2 --tile 1 --full" + connection_);
+  EXPECT_NE(full.out.find("    wrote "), std::string::npos) << full.out;  // the worker's own log
   EXPECT_EQ(runPbgi("logs 1 --frame 1" + connection_).out, "");  // nothing ran on frame 1
   EXPECT_NE(runPbgi("workers" + connection_).out.find("cli-worker"), std::string::npos);
   const auto unknown = runPbgi("status 7" + connection_);
