@@ -92,11 +92,17 @@ void addConnectionFlags(CLI::App& cmd, ConnectionFlags& flags) {
       ->envname("PBGI_TLS_KEY");
 }
 
-absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags) {
-  PBGI_ASSIGN_OR_RETURN(std::string token, farm::loadClientToken(flags.tokenFile));
+absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags,
+                                                          bool readsOnly) {
+  absl::StatusOr<std::string> token = farm::loadClientToken(flags.tokenFile);
+  // A coordinator's reads are open by default (--read-access): no token, no refusal here.
+  if (!token.ok() && !(readsOnly && token.status().code() == absl::StatusCode::kNotFound &&
+                       flags.tokenFile.empty())) {
+    return token.status();
+  }
   PBGI_ASSIGN_OR_RETURN(std::optional<farm::TlsPem> tls, farm::readClientTls(flags.tls));
-  return std::make_unique<farm::FarmClient>(flags.coordinator, std::move(token), 30.0,
-                                            std::move(tls));
+  return std::make_unique<farm::FarmClient>(
+      flags.coordinator, token.ok() ? *std::move(token) : std::string(), 30.0, std::move(tls));
 }
 
 JobProgress jobProgress(const farm::v1::JobStatus& job) {

@@ -59,7 +59,10 @@ struct ConnectionFlags {
   farm::TlsFiles tls;
 };
 void addConnectionFlags(CLI::App& cmd, ConnectionFlags& flags);
-absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags);
+// `readsOnly` (status, logs, workers): no token is needed where none is given, for a
+// coordinator whose reads are open (--read-access open, its default).
+absl::StatusOr<std::unique_ptr<farm::FarmClient>> connect(const ConnectionFlags& flags,
+                                                          bool readsOnly = false);
 
 // Tasks done of all tasks, over the job's frames.
 struct JobProgress {

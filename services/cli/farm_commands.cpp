@@ -62,7 +62,7 @@ struct StatusOptions {
 };
 
 int runStatus(const StatusOptions& o) {
-  auto client = connect(o.connection);
+  auto client = connect(o.connection, /*readsOnly=*/true);
   if (!client.ok()) return reportError(client.status());
   v1::GetStatusRequest request;
   request.set_job(o.job);
@@ -214,7 +214,7 @@ double nowSeconds() {
 }
 
 int runLogs(const JobOptions& o) {
-  auto client = connect(o.connection);
+  auto client = connect(o.connection, /*readsOnly=*/true);
   if (!client.ok()) return reportError(client.status());
   v1::GetLogsRequest request;
   request.set_job(o.job);
@@ -257,7 +257,7 @@ int runLogs(const JobOptions& o) {
 }
 
 int runWorkers(const WorkersOptions& o) {
-  auto client = connect(o.connection);
+  auto client = connect(o.connection, /*readsOnly=*/true);
   if (!client.ok()) return reportError(client.status());
   auto response = (*client)->listWorkers(v1::ListWorkersRequest());
   if (!response.ok()) return reportError(response.status());

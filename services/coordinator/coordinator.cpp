@@ -618,7 +618,7 @@ absl::Status Coordinator::Impl::listen() {
   int port = 0;
   builder.AddListeningPort(
       options.listen,
-      coordinatorCredentials(tls, options.token,
+      coordinatorCredentials(tls, options.token, !options.readsNeedToken,
                              std::shared_ptr<metrics::Counter>(metrics, metrics->refused)),
       &port);
   builder.RegisterService(service.get());
@@ -655,7 +655,7 @@ absl::Status Coordinator::Impl::serveHttp() {
   previews = std::make_unique<FramePreviews>(defaultOcioConfigPath());
   dashboard = std::make_unique<DashboardParts>(
       DashboardParts{*store, *jobs, activity, *previews, *metrics->refused, options.token,
-                     isPostgresUri(options.store), options.leaseSeconds});
+                     isPostgresUri(options.store), options.leaseSeconds, options.readsNeedToken});
   addDashboard(http, *dashboard);
   const size_t colon = options.httpListen.rfind(':');
   const std::string httpHost = options.httpListen.substr(0, colon);

@@ -24,6 +24,7 @@ int coordinatorDaemonMain(int argc, char** argv) {
   o.listen = kDefaultCoordinatorAddress;
   std::string stateDir = "pbgi-state";
   std::string tokenFile;
+  std::string readAccess = "open";
   std::string addressFile;
   app.add_option("--listen", o.listen, "gRPC address (port 0 picks a free one)")
       ->capture_default_str();
@@ -37,6 +38,12 @@ int coordinatorDaemonMain(int argc, char** argv) {
                  "Every job's frames must lie under this folder (default: <state>/output)");
   app.add_option("--token-file", tokenFile,
                  "The farm token; created with a random token when missing (default: <state>/token)");
+  app.add_option("--read-access", readAccess,
+                 "Who may read jobs, logs and workers, over gRPC and on the HTTP dashboard, "
+                 "/status and /metrics: open (anyone who reaches the ports) or token (the farm "
+                 "token: Authorization: Bearer, or the page opened once at /?token=TOKEN)")
+      ->check(CLI::IsMember({"open", "token"}))
+      ->capture_default_str();
   app.add_option("--tls-cert", o.tls.cert,
                  "TLS: the coordinator's certificate (PEM; default: plaintext)");
   app.add_option("--tls-key", o.tls.key, "TLS: the key of --tls-cert");
@@ -95,6 +102,7 @@ int coordinatorDaemonMain(int argc, char** argv) {
     return 2;
   }
   o.token = *token;
+  o.readsNeedToken = readAccess == "token";
   blockStopSignals();
   auto coordinator = Coordinator::start(o);
   if (!coordinator.ok()) {

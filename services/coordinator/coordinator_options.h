@@ -15,7 +15,10 @@ struct CoordinatorOptions {
   // The job store: a SQLite file or a postgresql:// URI (openJobStore); empty: <stateDir>/jobs.db.
   std::string store;
   std::string outputRoot;              // every job's frames must lie under it
-  std::string token;                   // required on every RPC (not empty)
+  std::string token;                   // required on every RPC that changes or works (not empty)
+  // Reads (GetStatus, GetLogs, ListWorkers over gRPC; the dashboard, /status and /metrics over
+  // HTTP) are one policy: open to whoever reaches the ports, or only with the token.
+  bool readsNeedToken = false;
   // TLS: cert and key, the coordinator's certificate; ca, the CA that must have signed every
   // client's certificate (empty: none asked). All empty: plaintext.
   TlsFiles tls;

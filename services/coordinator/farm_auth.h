@@ -27,11 +27,18 @@ namespace pbgi::farm {
 // "authorization: Bearer <token>" with this token; tokens of equal length compare in a time
 // that does not depend on where they differ.
 bool bearsToken(std::string_view authorization, std::string_view token);
+// `token` equal to `expected`, in a time that does not depend on where they differ.
+bool sameToken(std::string_view token, std::string_view expected);
+
+// The calls that only read (GetStatus, GetLogs, ListWorkers), by their gRPC path.
+bool isReadCall(std::string_view path);
 
 // The coordinator's listening credentials: TLS with `tls` (client certificates required when
-// it names a CA), plaintext without; either way every call must bear `token`. A refused call
-// adds one to `refused` (shared: gRPC may hold the credentials after the coordinator).
+// it names a CA), plaintext without; either way every call must bear `token`, but reads
+// (isReadCall) when `openReads`. A refused call adds one to `refused` (shared: gRPC may hold
+// the credentials after the coordinator).
 std::shared_ptr<grpc::ServerCredentials> coordinatorCredentials(
-    const std::optional<TlsPem>& tls, std::string token, std::shared_ptr<metrics::Counter> refused);
+    const std::optional<TlsPem>& tls, std::string token, bool openReads,
+    std::shared_ptr<metrics::Counter> refused);
 
 }  // namespace pbgi::farm

@@ -52,7 +52,8 @@ class CoordinatorTest : public ::testing::Test {
   }
   std::string metrics() {
     httplib::Client http("http://" + coordinator_->httpAddress());
-    auto res = http.Get("/metrics");
+    // The token as a scraper sends it: /metrics reads need it under --read-access token.
+    auto res = http.Get("/metrics", {{"Authorization", "Bearer " + options_.token}});
     return res ? res->body : std::string();
   }
 

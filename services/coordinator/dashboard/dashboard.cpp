@@ -10,6 +10,8 @@
 #include <optional>
 #include <thread>
 
+#include <absl/strings/ascii.h>
+#include <absl/strings/str_split.h>
 #include <fmt/format.h>
 #include <httplib.h>
 #include <nlohmann/json.hpp>
@@ -354,8 +356,40 @@ void streamEvents(const DashboardParts& p, std::shared_ptr<std::atomic<int>> str
 
 }  // namespace
 
+// With --read-access token: every request bears the token (header or cookie), or brings it
+// once in the query (?token=...), which sets the cookie and sends the browser on without it.
+void requireTokenForReads(httplib::Server& http, const DashboardParts* p) {
+  constexpr std::string_view kCookie = "pbgi_token=";
+  http.set_pre_routing_handler([p, kCookie](const httplib::Request& req, httplib::Response& res) {
+    using Handled = httplib::Server::HandlerResponse;
+    if (bearsToken(req.get_header_value("Authorization"), p->token)) return Handled::Unhandled;
+    const std::string cookies = req.get_header_value("Cookie");
+    for (const absl::string_view c : absl::StrSplit(cookies, ';', absl::SkipWhitespace())) {
+      const absl::string_view trimmed = absl::StripLeadingAsciiWhitespace(c);
+      const std::string_view cookie(trimmed.data(), trimmed.size());
+      if (cookie.starts_with(kCookie) && sameToken(cookie.substr(kCookie.size()), p->token)) {
+        return Handled::Unhandled;
+      }
+    }
+    if (req.has_param("token") && sameToken(req.get_param_value("token"), p->token)) {
+      res.set_header("Set-Cookie",
+                     fmt::format("{}{}; Path=/; HttpOnly; SameSite=Strict", kCookie, p->token));
+      res.set_redirect(req.path);
+      return Handled::Handled;
+    }
+    p->refused.add();
+    log::warn("dashboard: refused {} {} from {}: no farm token (--read-access token)", req.method,
+              req.path, req.remote_addr);
+    replyError(res, absl::UnauthenticatedError(
+                        "this coordinator's pages need the farm token: open /?token=TOKEN once, "
+                        "or send Authorization: Bearer TOKEN"));
+    return Handled::Handled;
+  });
+}
+
 void addDashboard(httplib::Server& http, const DashboardParts& parts) {
   const DashboardParts* p = &parts;
+  if (p->readsNeedToken) requireTokenForReads(http, p);
   // Each page holds one connection open for its event stream.
   http.new_task_queue = [] { return new httplib::ThreadPool(64); };
   // Small responses go out at once: with Nagle's algorithm each waited on the browser's

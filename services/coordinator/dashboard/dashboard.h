@@ -18,8 +18,10 @@
 //   POST /api/jobs/J/cancel              needs "Authorization: Bearer <farm token>"
 //   POST /api/jobs/J/retry?frame=F&tile=T   likewise; dead and cancelled tasks run again
 //
-// Reading is open to whoever reaches the HTTP port, as /metrics and /status are; changing a
-// job needs the farm token, like every gRPC call (refusals are counted with theirs).
+// Reading is open to whoever reaches the HTTP port, as /metrics and /status are, unless the
+// coordinator runs with --read-access token (DashboardParts::readsNeedToken), the same policy
+// as its gRPC reads. Changing a job needs the farm token in the Authorization header, like
+// every gRPC call (a cookie never does: refusals are counted with theirs).
 #include <string>
 
 #include "services/coordinator/dashboard/frame_previews.h"
@@ -47,6 +49,9 @@ struct DashboardParts {
   // A worker not heard from for longer than a lease is not live (a job whose only live
   // workers are blocklisted is stalled).
   Seconds leaseSeconds = 30;
+  // Every request (the page, the API, /status, /metrics) needs the token: the Authorization
+  // header, or the cookie the page gets when opened once at /?token=TOKEN.
+  bool readsNeedToken = false;
 };
 
 // Adds the page, its files and the API to `http`. The parts outlive the server.

@@ -2,6 +2,7 @@
 // pbgi-coordinator process, and the daemons' command lines.
 
 #include <gtest/gtest.h>
+#include <httplib.h>
 
 #include <algorithm>
 #include <regex>
@@ -122,7 +123,7 @@ TEST_F(FarmCliTest, RefusedWithoutTheTokenAndOutsideTheOutputRoot) {
   const fs::path shot = testing::writeSmallShot(dir_, {});
   std::ofstream(dir_ / "wrong-token") << "nope\n";
   const std::string address = connection_.substr(0, connection_.find(" --token-file"));
-  const auto wrong = runPbgi("status" + address + " --token-file " +
+  const auto wrong = runPbgi("cancel 1" + address + " --token-file " +
                              shellQuote((dir_ / "wrong-token").string()));
   EXPECT_EQ(wrong.exitCode, 1) << wrong.output();
   EXPECT_NE(wrong.err.find("token"), std::string::npos) << wrong.err;
@@ -132,14 +133,83 @@ TEST_F(FarmCliTest, RefusedWithoutTheTokenAndOutsideTheOutputRoot) {
   EXPECT_EQ(pasted.exitCode, 2) << pasted.output();
   EXPECT_EQ(pasted.output().find(secret), std::string::npos) << pasted.output();
   EXPECT_NE(pasted.err.find("--token-file"), std::string::npos) << pasted.err;
-  const auto none = runPbgi("status" + address);
+  const auto none = runPbgi("submit " + shellQuote(shot.string()) + address);
   EXPECT_EQ(none.exitCode, 2) << none.output();
   EXPECT_NE(none.err.find("PBGI_TOKEN"), std::string::npos) << none.err;
+  // Reads are open by default (--read-access open), as the dashboard's are: no token needed.
+  for (const char* read : {"status", "workers", "logs 1"}) {
+    const auto open = runPbgi(std::string(read) + address);
+    EXPECT_NE(open.exitCode, 1) << read << ": " << open.output();
+    EXPECT_EQ(open.err.find("token"), std::string::npos) << read << ": " << open.output();
+  }
   const auto outside = runPbgi("submit " + shellQuote(shot.string()) + " --output-dir /tmp" + connection_);
   EXPECT_EQ(outside.exitCode, 2) << outside.output();
   EXPECT_NE(outside.err.find("outside the coordinator's output root"), std::string::npos)
       << outside.err;
   EXPECT_NE(daemon_.log().find("refused peer="), std::string::npos);
+}
+
+// --read-access token: reads need the token over gRPC and HTTP alike (one policy); the page
+// takes it once in its address and keeps it in a cookie; writes still need the header.
+TEST(FarmCliReadAccess, TokenOnlyReadsAreRefusedWithoutTheTokenOverGrpcAndHttp) {
+  const fs::path dir = testing::makeTempDir("farm-cli-read");
+  testing::Process daemon({testing::binary("pbgi-coordinator").string(), "--state",
+                           (dir / "state").string(), "--listen", "127.0.0.1:0", "--http",
+                           "127.0.0.1:0", "--output-root", dir.string(), "--read-access", "token"},
+                          dir / "coordinator.log");
+  std::string http;
+  ASSERT_TRUE(testing::waitFor(
+      [&] {
+        const std::string log = daemon.log();
+        const size_t at = log.find("dashboard on http://");
+        if (at == std::string::npos || !fs::exists(dir / "state/coordinator.addr")) return false;
+        const size_t start = at + std::string("dashboard on http://").size();
+        http = log.substr(start, log.find('/', start) - start);
+        return true;
+      },
+      20.0))
+      << daemon.log();
+  std::string address = testing::slurpFile(dir / "state/coordinator.addr");
+  address = " --coordinator " + address.substr(0, address.find('\n'));
+  const std::string tokenFile = " --token-file " + shellQuote((dir / "state/token").string());
+  std::string token = testing::slurpFile(dir / "state/token");
+  token = token.substr(0, token.find('\n'));
+
+  const auto refused = runPbgi("status" + address);
+  EXPECT_EQ(refused.exitCode, 1) << refused.output();
+  EXPECT_NE(refused.err.find("--read-access token"), std::string::npos) << refused.err;
+  EXPECT_EQ(runPbgi("workers" + address + tokenFile).exitCode, 0);
+
+  httplib::Client client("http://" + http);
+  for (const char* path : {"/", "/api/jobs", "/status", "/metrics"}) {
+    const auto res = client.Get(path);
+    ASSERT_TRUE(res) << path;
+    EXPECT_EQ(res->status, 401) << path << ": " << res->body;
+  }
+  const httplib::Headers bearer = {{"Authorization", "Bearer " + token}};
+  const auto metrics = client.Get("/metrics", bearer);
+  ASSERT_TRUE(metrics);
+  EXPECT_EQ(metrics->status, 200);
+  // The page opened once with the token: a cookie, and the address without it.
+  const auto opened = client.Get("/?token=" + token);
+  ASSERT_TRUE(opened);
+  EXPECT_EQ(opened->status, 302);
+  const std::string cookie = opened->get_header_value("Set-Cookie");
+  EXPECT_NE(cookie.find("HttpOnly"), std::string::npos) << cookie;
+  const auto api = client.Get("/api/jobs", {{"Cookie", cookie.substr(0, cookie.find(';'))}});
+  ASSERT_TRUE(api);
+  EXPECT_EQ(api->status, 200) << api->body;
+  const auto wrongQuery = client.Get("/?token=nope");
+  ASSERT_TRUE(wrongQuery);
+  EXPECT_EQ(wrongQuery->status, 401);
+  // A cookie reads; it never changes a job.
+  const auto cancel =
+      client.Post("/api/jobs/1/cancel", {{"Cookie", cookie.substr(0, cookie.find(';'))}}, "", "");
+  ASSERT_TRUE(cancel);
+  EXPECT_EQ(cancel->status, 401);
+  daemon.signal(SIGTERM);
+  EXPECT_EQ(daemon.wait(20.0), 0) << daemon.log();
+  fs::remove_all(dir);
 }
 
 TEST(FarmCliText, AuditsSayTheirNumbersAndFlagTheFramesBeyondTheirThreshold) {

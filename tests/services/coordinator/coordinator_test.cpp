@@ -31,6 +31,7 @@ namespace fs = std::filesystem;
 using pbgi::testing::CoordinatorTest;
 
 TEST_F(CoordinatorTest, EveryCallWithoutTheTokenIsRefusedAndCounted) {
+  options_.readsNeedToken = true;  // --read-access token; open reads are below
   start();
   FarmClient wrong(coordinator_->address(), "not-the-token", 10.0);
   FarmClient none(coordinator_->address(), "", 10.0);
@@ -49,6 +50,20 @@ TEST_F(CoordinatorTest, EveryCallWithoutTheTokenIsRefusedAndCounted) {
   ASSERT_TRUE(status.ok()) << status.status();
   EXPECT_EQ(status->jobs_size(), 0);
   EXPECT_NE(metrics().find("pbgi_rpc_refused_total 5"), std::string::npos) << metrics();
+}
+
+// By default reads are open, as the dashboard's are (--read-access open); anything else still
+// needs the token.
+TEST_F(CoordinatorTest, ReadsAreOpenByDefaultAndNothingElseIs) {
+  start();
+  FarmClient none(coordinator_->address(), "", 10.0);
+  EXPECT_TRUE(none.getStatus(v1::GetStatusRequest()).ok());
+  EXPECT_TRUE(none.listWorkers(v1::ListWorkersRequest()).ok());
+  EXPECT_EQ(none.submitJob(shotRequest({})).status().code(), absl::StatusCode::kUnauthenticated);
+  v1::CancelJobRequest cancel;
+  cancel.set_job(1);
+  EXPECT_EQ(none.cancelJob(cancel).status().code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(none.openTree(1, 1).status().code(), absl::StatusCode::kUnauthenticated);
 }
 
 TEST_F(CoordinatorTest, OutputsOutsideTheOutputRootAreRejected) {

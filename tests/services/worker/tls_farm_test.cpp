@@ -126,8 +126,8 @@ TEST_F(TlsFarmTest, RefusedConnectionsSayWhyAndAreCounted) {
   const std::string tls = " --tls-ca " + cert("ca.crt") + " --tls-cert " + cert("worker.crt") +
                           " --tls-key " + cert("worker.key");
   std::ofstream(dir_ / "wrong-token") << "not-the-token\n";
-  const auto wrong = runPbgi("status --coordinator " + coordinator_->address() + " --token-file " +
-                             shellQuote((dir_ / "wrong-token").string()) + tls);
+  const auto wrong = runPbgi("cancel 1 --coordinator " + coordinator_->address() +
+                             " --token-file " + shellQuote((dir_ / "wrong-token").string()) + tls);
   EXPECT_EQ(wrong.exitCode, 1) << wrong.output();
   EXPECT_NE(wrong.err.find("farm token"), std::string::npos) << wrong.err;
   EXPECT_EQ(metricValue(coordinator_->metricsText(), "pbgi_rpc_refused_total"), 1u);
