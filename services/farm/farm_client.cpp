@@ -29,6 +29,15 @@ namespace {
 absl::Status fromGrpc(const grpc::Status& s, const std::string& address, const char* call) {
   if (s.ok()) return absl::OkStatus();
   std::string message = s.error_message();
+  // An HTTP/1 server at the address (the coordinator's dashboard port, say) answers every
+  // connection the same way: not a coordinator that will come back, so not worth waiting for.
+  if (message.find("http1.x server") != std::string::npos) {
+    return absl::FailedPreconditionError(fmt::format(
+        "{} is an HTTP/1 server, not a coordinator's gRPC port (the dashboard's --http "
+        "address?): give --coordinator the coordinator's --listen address (its state folder's "
+        "coordinator.addr)",
+        address));
+  }
   if (s.error_code() == grpc::StatusCode::UNAVAILABLE ||
       s.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED) {
     message = fmt::format("coordinator {} did not answer {}: {}", address, call, message);

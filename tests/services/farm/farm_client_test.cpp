@@ -6,7 +6,9 @@
 
 #include <gtest/gtest.h>
 
+#include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
+#include <httplib.h>
 
 #include <atomic>
 #include <chrono>
@@ -161,6 +163,28 @@ TEST_F(FarmClientFiles, AStalledDownloadIsCancelledAndLeavesNoFile) {
   EXPECT_EQ(received.code(), absl::StatusCode::kDeadlineExceeded) << received;
   EXPECT_NE(received.message().find("GetFile: nothing moved"), std::string::npos) << received;
   EXPECT_FALSE(fs::exists(got));
+}
+
+// A client pointed at an HTTP/1 server (the dashboard's port) is told so at once, not left
+// retrying: the error is not transient and names the address to use instead.
+TEST(FarmClientAddress, AnHttpServerIsNotTakenForACoordinatorThatWillComeBack) {
+  httplib::Server http;
+  http.Get("/", [](const httplib::Request&, httplib::Response& res) {
+    res.set_content("hi", "text/plain");
+  });
+  const int port = http.bind_to_any_port("127.0.0.1");
+  ASSERT_GT(port, 0);
+  std::thread serving([&] { http.listen_after_bind(); });
+  FarmClient client(fmt::format("127.0.0.1:{}", port), "token", 10.0);
+  const auto status = client.getStatus(v1::GetStatusRequest());
+  http.stop();
+  serving.join();
+  EXPECT_EQ(status.status().code(), absl::StatusCode::kFailedPrecondition) << status.status();
+  EXPECT_FALSE(isTransient(status.status()));
+  EXPECT_NE(status.status().message().find("HTTP/1 server, not a coordinator's gRPC port"),
+            std::string::npos)
+      << status.status();
+  EXPECT_NE(status.status().message().find("--listen"), std::string::npos) << status.status();
 }
 
 }  // namespace
