@@ -343,6 +343,7 @@ class FarmService final : public v1::Coordinator::Service {
     metrics_.cacheMisses->add(request.cache_misses());
     metrics_.treeBytesStreamed->add(request.tree_bytes_streamed());
     metrics_.taskSeconds->observe(toString(done->kind), request.seconds());
+    activity_.taskTook(done->job, done->kind, request.seconds());
     activity_.taskFinished(request.worker(), true, request.cache_hits(), request.cache_misses(),
                            request.tree_bytes_streamed(), wallClock());
     return grpc::Status::OK;

@@ -1,5 +1,7 @@
 #include "services/coordinator/farm_activity.h"
 
+#include <cmath>
+
 namespace pbgi::farm {
 
 void FarmActivity::changed() {
@@ -91,6 +93,38 @@ std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Second
   const bool heard = now - std::max(activity.lastHeard, lastSeen) <= leaseSeconds;
   if (heard) return activity.current.empty() ? "online" : "busy";
   return activity.current.empty() && activity.expired.empty() ? "offline" : "lost";
+}
+
+void FarmActivity::taskTook(int64_t job, TaskKind kind, double seconds) {
+  const auto k = static_cast<size_t>(kind);
+  if (k >= 3 || !std::isfinite(seconds) || seconds < 0) return;
+  std::lock_guard lock(mutex_);
+  TaskDurations& d = durations_[job];
+  d.seconds[k] += seconds;
+  d.count[k] += 1;
+}
+
+TaskDurations FarmActivity::durations(int64_t job) const {
+  std::lock_guard lock(mutex_);
+  const auto it = durations_.find(job);
+  return it == durations_.end() ? TaskDurations{} : it->second;
+}
+
+std::optional<double> estimatedSecondsLeft(const TaskDurations& d,
+                                           const std::array<int, 3>& remaining, int running) {
+  double allSeconds = 0;
+  int allCount = 0;
+  for (size_t k = 0; k < 3; ++k) {
+    allSeconds += d.seconds[k];
+    allCount += d.count[k];
+  }
+  if (allCount == 0) return std::nullopt;
+  double work = 0;
+  for (size_t k = 0; k < 3; ++k) {
+    const double mean = d.count[k] > 0 ? d.seconds[k] / d.count[k] : allSeconds / allCount;
+    work += remaining[k] * mean;
+  }
+  return work / std::max(1, running);
 }
 
 std::map<std::string, WorkerActivity> FarmActivity::workers() const {

@@ -7,6 +7,7 @@
 // The store stays the truth: the version only says "look again". With a store shared by
 // several coordinators (PostgreSQL), changes made through another one move no version here;
 // a waiter then wakes on its timeout and looks anyway.
+#include <array>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -38,6 +39,19 @@ struct WorkerActivity {
 std::string workerState(const WorkerActivity& activity, Seconds lastSeen, Seconds now,
                         Seconds leaseSeconds);
 
+// How long a job's finished tasks took, by kind (TaskKind), as their workers reported.
+struct TaskDurations {
+  std::array<double, 3> seconds{};  // summed, by kind: bake, tile, assemble
+  std::array<int, 3> count{};
+};
+
+// The time a job has left: each kind's remaining tasks at that kind's mean duration (a kind
+// none of whose tasks has finished: the mean over all finished tasks), over the tasks running
+// at once (at least one). Null without a finished task. Depends on what finished, not on the
+// time since submission: a job of uniform tiles keeps its estimate as it goes.
+std::optional<double> estimatedSecondsLeft(const TaskDurations& durations,
+                                           const std::array<int, 3>& remaining, int running);
+
 class FarmActivity {
  public:
   // A job's tasks changed (submitted, leased, done, failed, expired, cancelled, retried): the
@@ -60,6 +74,9 @@ class FarmActivity {
   void taskFinished(const std::string& worker, bool done, uint64_t cacheHits,
                     uint64_t cacheMisses, uint64_t treeBytes, Seconds now);
   std::map<std::string, WorkerActivity> workers() const;
+  // A completion of the job's task of `kind` that took `seconds` (the worker's measure).
+  void taskTook(int64_t job, TaskKind kind, double seconds);
+  TaskDurations durations(int64_t job) const;
 
  private:
   mutable std::mutex mutex_;
@@ -67,6 +84,7 @@ class FarmActivity {
   uint64_t version_ = 1;
   bool stopped_ = false;
   std::map<std::string, WorkerActivity> workers_;
+  std::map<int64_t, TaskDurations> durations_;
 };
 
 }  // namespace pbgi::farm

@@ -107,10 +107,35 @@ Json auditJson(const AuditInfo& a) {
           {"error", a.lastError}};
 }
 
-// A job as the list shows it: state, counts, progress and the time left at the rate so far,
-// and how many of its frames' audits are done and flagged.
+// The job's time left from its finished tasks' durations (estimatedSecondsLeft): its tasks
+// left (the store's count) shared among the kinds as this coordinator has seen them finish.
+std::optional<double> jobEta(const JobInfo& job, const TaskDurations& durations) {
+  const int frames = static_cast<int>(job.spec.frames.size());
+  const std::array<int, 3> totals = {job.spec.needsBake ? frames : 0, frames * job.spec.tileCount,
+                                     frames};
+  std::array<int, 3> remaining{};
+  int sum = 0;
+  for (size_t k = 0; k < 3; ++k) {
+    remaining[k] = std::max(0, totals[k] - durations.count[k]);
+    sum += remaining[k];
+  }
+  // Completions before this coordinator started are in the store's count, not in ours.
+  const int left = totalTasks(job) - job.tasksByState[static_cast<int>(TaskState::kDone)];
+  if (sum > left && sum > 0) {
+    int assigned = 0;
+    for (size_t k = 0; k < 3; ++k) {
+      remaining[k] = k == 2 ? left - assigned : remaining[k] * left / sum;
+      assigned += remaining[k];
+    }
+  }
+  return estimatedSecondsLeft(durations, remaining,
+                              job.tasksByState[static_cast<int>(TaskState::kLeased)]);
+}
+
+// A job as the list shows it: state, counts, progress and the time left (jobEta), and how
+// many of its frames' audits are done and flagged.
 Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, const JobStall& stall,
-                    Seconds now) {
+                    const TaskDurations& durations, Seconds now) {
   int audited = 0, flagged = 0;
   for (const AuditInfo& a : audits) {
     audited += a.result.has_value();
@@ -120,8 +145,8 @@ Json jobSummaryJson(const JobInfo& job, const std::vector<AuditInfo>& audits, co
   const int done = job.tasksByState[static_cast<int>(TaskState::kDone)];
   const double progress = total > 0 ? double(done) / total : 0.0;
   Json eta = nullptr;
-  if (job.state == JobState::kActive && done > 0 && now > job.submitted) {
-    eta = number((now - job.submitted) * (total - done) / done);
+  if (job.state == JobState::kActive) {
+    if (const std::optional<double> left = jobEta(job, durations)) eta = number(*left);
   }
   Json states = Json::object();
   for (int s = 0; s < kTaskStateCount; ++s) {
@@ -213,7 +238,7 @@ absl::StatusOr<Json> jobDetailJson(const DashboardParts& p, int64_t id, Seconds 
   PBGI_ASSIGN_OR_RETURN(
       const JobStall stall,
       jobStall(p.store, info, liveWorkers(p.store, p.activity, now, p.leaseSeconds)));
-  return Json{{"job", jobSummaryJson(info, audits, stall, now)},
+  return Json{{"job", jobSummaryJson(info, audits, stall, p.activity.durations(id), now)},
               {"tileSize", tileSize},
               {"width", view->shot.width},
               {"height", view->shot.height},
@@ -413,7 +438,7 @@ void addDashboard(httplib::Server& http, const DashboardParts& parts) {
       if (!audits.ok()) return replyError(res, audits.status());
       auto stall = jobStall(p->store, j, live);
       if (!stall.ok()) return replyError(res, stall.status());
-      list.push_back(jobSummaryJson(j, *audits, *stall, now));
+      list.push_back(jobSummaryJson(j, *audits, *stall, p->activity.durations(j.id), now));
     }
     replyJson(res, dump(Json{{"version", p->activity.version()},
                              {"now", number(now)},
