@@ -170,9 +170,12 @@ function renderJob() {
         const t = tileAt(view.job, canvas, e);
         if (t >= 0) selectTask(Number(fig.dataset.frame), t, 'tile');
       });
+      const preview = el('img', {class: 'preview', alt: `frame ${f.frame} so far`, hidden: '',
+        title: 'click for full size'});
+      preview.addEventListener('click', () => openFull(preview,
+        `job ${view.job.job.id} frame ${preview.closest('figure').dataset.frame}`));
       fig = el('figure', {class: 'frame', dataset: {frame: f.frame}},
-        el('figcaption'), el('div', {class: 'pictures'}, canvas,
-          el('img', {class: 'preview', alt: `frame ${f.frame} so far`, hidden: ''})));
+        el('figcaption'), el('div', {class: 'pictures'}, canvas, preview));
     }
     const caption = fig.querySelector('figcaption');
     caption.replaceChildren(`frame ${f.frame}: ${f.done} / ${f.tiles.length} tiles`);
@@ -204,6 +207,16 @@ function renderJob() {
     }
     frames.append(fig);
   }
+}
+
+// A preview at its full size (one image pixel per screen pixel), in a dialog that scrolls
+// when the frame is larger than the window; a click or Escape closes it.
+function openFull(img, what) {
+  const box = $('lightbox');
+  const full = $('lightbox-img');
+  full.src = img.src;
+  $('lightbox-caption').textContent = `${what} (${img.naturalWidth} x ${img.naturalHeight})`;
+  if (!box.open) box.showModal();
 }
 
 // ---- one task ----
@@ -254,7 +267,8 @@ function renderWorkers(now) {
   $('no-workers').hidden = view.workers.length > 0;
   for (const w of view.workers) {
     // A lost worker (silent past a lease while it held a task) is no longer working on it.
-    const doing = w.state === 'lost' ? `nothing: lost while on ${w.current}` :
+    const doing = w.state === 'lost' ? (w.current ? `nothing: lost while on ${w.current}`
+                                                  : 'nothing: lost; its task went back to the queue') :
         w.state === 'offline' ? 'nothing: offline' :
         w.current             ? `${w.current} (${Math.round(w.progress * 100)} %)` :
                                 'idle';
@@ -348,8 +362,12 @@ function start() {
   };
   view.selectedJob = fromHash();
   window.addEventListener('hashchange', () => { if (fromHash() != null) selectJob(fromHash()); });
+  $('lightbox').addEventListener('click', () => $('lightbox').close());
   refresh();
   follow();
+  // Time alone moves some things (a worker silent past its lease is lost): look again now and
+  // then, even when nothing has changed in the store.
+  setInterval(refresh, 5000);
 }
 
 document.addEventListener('DOMContentLoaded', start);

@@ -1,7 +1,10 @@
 // End to end in headless Chromium: a real coordinator (--http) and a real worker render a job
 // while the dashboard shows it. The page loads; the frames' tile grids fill as tiles finish;
-// a tile that cannot be written goes dead and shows its error; a Retry click (with the farm
-// token) revives it and the job completes; a cancel from the command line reaches the page.
+// a tile that cannot be written goes dead and shows its error, and its one worker, now
+// blocklisted for the job, leaves the job stalled, which the page says with the error and the
+// worker; a Retry click (with the farm token) revives it and the job completes; a preview
+// opens at full size; a worker killed mid-tile shows as lost, and its task goes back; a cancel
+// from the command line reaches the page.
 // Prints what a user waits for: the page's load time for a job of 4,096 tiles, and how long a
 // change takes to show. Times are reported, never asserted (these machines are noisy).
 import {spawn, execFileSync} from 'node:child_process';
@@ -97,6 +100,7 @@ async function main() {
   start('coordinator', [bin('pbgi-coordinator'), '--state', state, '--listen', '127.0.0.1:0',
     '--http', `127.0.0.1:${httpPort}`, '--token-file', path.join(dir, 'token'),
     '--output-root', dir, '--tile-size', '16', '--max-attempts', '1', '--backoff-base', '0',
+    '--blocklist-after', '1',
     '--lease-seconds', '5', '--expiry-interval', '0.2']);
   const addressFile = path.join(state, 'coordinator.addr');
   const address = await waitFor('the coordinator', () =>
@@ -134,18 +138,19 @@ async function main() {
   start('worker', [bin('pbgi-worker'), '--coordinator', address, '--id', 'w1', '--threads', '1',
     '--poll-seconds', '0.05', '--cache-dir', path.join(dir, 'cache')]);
   const seenDone = new Set();
-  await waitFor('job 1 to settle on the page', async () => {
+  const watch = async () => {
     s = await pageState(page);
     for (const f of s.frames) seenDone.add(count(f.states, '3'));
-    return s.jobs['1'] === 'failed';
-  }, 180);
-  const partial = [...seenDone].filter((n) => n > 0 && n < 63);
-  check(partial.length > 0, `the grid never showed a partly done frame: done counts ${[...seenDone]}`);
+    return s;
+  };
+  // Frame 1's tile 2 dies at its first failure, which blocklists w1, the only worker, for the
+  // job: its other tiles are ready and nobody may take them. The page says stalled, and why.
+  await waitFor('job 1 to stall on the page', async () => (await watch()).jobs['1'] === 'stalled', 180);
   const f1 = s.frames.find((f) => f.frame === 1).states;
-  check(f1[2] === '4' && count(f1, '3') === 63, `frame 1: tile 2 dead, the rest done: ${f1}`);
-  await waitFor('frame 2\'s preview', async () =>
-    (await pageState(page)).frames.find((f) => f.frame === 2).previewLoaded, 30);
-  console.log(`grid filled live: ${partial.length} part-done views of a frame seen`);
+  check(f1[2] === '4', `frame 1: tile 2 dead: ${f1}`);
+  const stalledRow = await page.textContent('#jobs tbody tr[data-job="1"]');
+  check(stalledRow.includes('blocklisted: w1') && stalledRow.includes('tile.0002.exr'),
+    `the stalled job names the blocklisted worker and the last error: ${stalledRow}`);
 
   // The dead tile: click it, read why, then retry it once its folder is gone.
   const detail = await page.evaluate(() => fetch('api/jobs/1').then((r) => r.json()));
@@ -166,11 +171,14 @@ async function main() {
   await page.click('#task-retry');
   await waitFor('the refusal', async () => (await page.textContent('#message')).includes('refused'), 10);
   check(await page.evaluate(() => fetch('api/jobs/1').then((r) => r.json()).then((j) => j.job.state))
-    === 'failed', 'a wrong token changed nothing');
+    === 'stalled', 'a wrong token changed nothing');
   await page.fill('#token', token);
   await page.click('#task-retry');
-  await waitFor('job 1 done after the retry', async () => (await pageState(page)).jobs['1'] === 'done', 60);
-  s = await pageState(page);
+  // The retry lifts the blocklist: w1 takes the job's tiles again, and the grids fill live.
+  await waitFor('job 1 done after the retry', async () => (await watch()).jobs['1'] === 'done', 180);
+  const partial = [...seenDone].filter((n) => n > 0 && n < 63);
+  check(partial.length > 0, `the grid never showed a partly done frame: done counts ${[...seenDone]}`);
+  console.log(`grid filled live: ${partial.length} part-done views of a frame seen`);
   check(s.frames.every((f) => f.states === '3'.repeat(64)), `every tile done: ${JSON.stringify(s.frames)}`);
   check(fs.existsSync(path.join(dir, 'out', 'small.0001.exr')), 'frame 1 was assembled');
   await waitFor('frame 1\'s preview', async () =>
@@ -178,9 +186,39 @@ async function main() {
   const workers = await page.textContent('#workers tbody');
   check(workers.includes('w1'), `the worker is listed: ${workers}`);
 
+  // A preview opens at full size: the frame's own pixels, one to one.
+  await page.click('#frames figure[data-frame="1"] img.preview');
+  await page.waitForSelector('#lightbox[open]');
+  const full = await waitFor('the full-size preview', () => page.evaluate(() => {
+    const i = document.querySelector('#lightbox-img');
+    return i.complete && i.naturalWidth > 0 &&
+      {natural: i.naturalWidth, shown: i.getBoundingClientRect().width,
+       small: document.querySelector('#frames figure[data-frame="1"] img.preview').getBoundingClientRect().width};
+  }), 10);
+  check(full.natural === 128 && Math.abs(full.shown - 128) < 1,
+    `the preview opens at its full 128 px: ${JSON.stringify(full)}`);
+  await page.keyboard.press('Escape');
+  await page.waitForSelector('#lightbox:not([open])', {state: 'attached'});
+
+  // A worker killed in the middle of a tile: lost on the page, and once its lease expires
+  // (5 s) its task is no longer shown as its own.
+  const slow = writeShot('slow', {width: 64, height: 64, frames: [1, 1], spp: 65536});
+  const slowJob = pbgi('submit', slow, '--coordinator', address);
+  const rowState = () => page.evaluate(() => {
+    const r = document.querySelector('#workers tbody tr[data-worker="w1"]');
+    return r && {state: r.dataset.state, text: r.textContent};
+  });
+  await waitFor('w1 busy on the slow job', async () => (await rowState())?.state === 'busy', 60);
+  children.find((c) => c.spawnargs.includes('w1')).kill('SIGKILL');
+  const lost = await waitFor('w1 lost on the page', async () => {
+    const r = await rowState();
+    return r && r.state === 'lost' && r.text.includes('went back to the queue') && r;
+  }, 30);
+  console.log(`the killed worker shows as lost: ${lost.text}`);
+  pbgi('cancel', slowJob, '--coordinator', address);
+
   // A job of 4,096 tiles (1024x1024 in tiles of 16), never rendered: how fast the page loads it,
   // and how soon a cancel from the command line shows.
-  children.find((c) => c.spawnargs.includes('w1')).kill('SIGKILL');
   const big = writeShot('big', {width: 1024, height: 1024, frames: [1, 1], spp: 1});
   const bigJob = pbgi('submit', big, '--coordinator', address);
   const loads = [];
