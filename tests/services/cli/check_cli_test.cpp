@@ -16,6 +16,10 @@ using testing::shellQuote;
 std::string shotArg(const std::string& name) {
   return shellQuote((testing::testDataDir() / "shots" / name).string());
 }
+// The crafted shots that parse but cannot render.
+std::string checkArg(const std::string& name) {
+  return shellQuote((testing::testDataDir() / "check" / name).string());
+}
 
 TEST(CheckCliTest, TheSampleChecksFrameByFrameAsTextAndJson) {
   const auto shot = testing::sourceDir() / "config/scenes/cornell/cornell.shot.toml";
@@ -39,7 +43,7 @@ TEST(CheckCliTest, TheSampleChecksFrameByFrameAsTextAndJson) {
 
 // What the shot file parses but a frame cannot load: the geometry's own file and line.
 TEST(CheckCliTest, GeometryThatDoesNotParseIsRefusedNamingTheFile) {
-  const auto r = runPbgi("check " + shotArg("unparsable_geometry.toml"));
+  const auto r = runPbgi("check " + checkArg("unparsable_geometry.toml"));
   EXPECT_EQ(r.exitCode, 2) << r.output();
   EXPECT_NE(r.err.find("unparsable_geometry.toml frame 1"), std::string::npos) << r.output();
   EXPECT_NE(r.err.find("bad_face_index.obj"), std::string::npos) << r.output();
@@ -50,7 +54,7 @@ TEST(CheckCliTest, AMissingTextureAnUnknownOutputAndAFrameOutsideTheShotAreRefus
   const auto texture = runPbgi("check " + shotArg("missing_albedo_texture.toml"));
   EXPECT_EQ(texture.exitCode, 2) << texture.output();
   EXPECT_NE(texture.err.find("nowhere.png"), std::string::npos) << texture.output();
-  const auto output = runPbgi("check " + shotArg("unknown_output_format.toml"));
+  const auto output = runPbgi("check " + checkArg("unknown_output_format.toml"));
   EXPECT_EQ(output.exitCode, 2) << output.output();
   EXPECT_NE(output.err.find("unknown image format '.bmp'"), std::string::npos) << output.output();
   const auto frame = runPbgi("check " + shotArg("minimal.shot.toml") + " --frames 8");
