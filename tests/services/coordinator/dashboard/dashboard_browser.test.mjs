@@ -109,7 +109,7 @@ async function main() {
 
   // Job 1: 2 frames of 8x8 tiles. Frame 1's tile 2 cannot be written (a folder stands where its
   // file goes), so it dies at its first failure.
-  const shot = writeShot('small', {width: 128, height: 128, frames: [1, 2], spp: 256});
+  const shot = writeShot('small', {width: 128, height: 128, frames: [1, 2], spp: 64});
   const job = Number(pbgi('submit', shot, '--coordinator', address));
   check(job === 1, `the first job is job 1, not ${job}`);
   const blocked = path.join(state, 'jobs', '1', 'frame.0001', 'tile.0002.exr');
