@@ -76,6 +76,9 @@ absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats) {
   double sum[3] = {0.0, 0.0, 0.0};
   PBGI_CHECK(request.batchSurfels > 0 && request.batchSurfels % kBounceChunkSurfels == 0);
   for (uint64_t done = 0; done < request.surfels;) {
+    if (request.cancel && request.cancel->load(std::memory_order_relaxed)) {
+      return absl::CancelledError(fmt::format("bounce {} was cancelled", request.bounce));
+    }
     const size_t n =
         static_cast<size_t>(std::min<uint64_t>(request.surfels - done, request.batchSurfels));
     if (auto s = readSurfels(*request.sorted, n, bytes, batch); !s.ok()) return s;

@@ -14,6 +14,7 @@
 //
 // The caller owns the files: it opens the tree a bounce reads (through a page cache) and
 // builds the trees from what the sinks receive.
+#include <atomic>
 #include <cstdint>
 #include <functional>
 
@@ -54,6 +55,8 @@ struct BounceRequest {
   size_t groupsTogether = 1;       // groups whose cuts sweep the tree together
   size_t batchSurfels = kBounceBatchSurfels;  // read at a time: a multiple of the group's size
   std::function<void(uint64_t done, uint64_t total)> progress;
+  // Stops the bounce between batches when set (a cancelled farm task): Cancelled.
+  const std::atomic<bool>* cancel = nullptr;
   uint64_t* shutSides = nullptr;  // adds the records' sides not gathered: shut (BounceGatherer)
 };
 

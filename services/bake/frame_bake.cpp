@@ -72,6 +72,14 @@ absl::StatusOr<FrameBakeRequest> shotBakeRequest(const ShotDesc& shot, int frame
 
 namespace {
 
+// Cancelled once the request's cancel flag is set (checked between chunks of every stage).
+absl::Status bakeCancelled(const FrameBakeRequest& request) {
+  if (request.cancel && request.cancel->load(std::memory_order_relaxed)) {
+    return absl::CancelledError("the bake was cancelled");
+  }
+  return absl::OkStatus();
+}
+
 // What the bake reads besides the shot: each geometry file and what it names (an OBJ's
 // material libraries and their textures), the shot's textures and environment maps, as size
 // and modification time. Editing a mesh or a texture must bake again, as editing the shot
@@ -178,6 +186,7 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
     bounce.added = [w = writer.get()](const SortedSurfel& s) { return w->add(s); };
   }
   bounce.from = &cache;
+  bounce.cancel = request.cancel;
   bounce.receiverSpacing = bounceReceiverSpacing(request.bounceSpacing, bounce.bounce);
   bounce.shutSides = &report->bounceShutSides;
   bounce.groupsTogether = groupsSweepingTogether(request.memoryBudget, bounce.receiverSpacing);
@@ -333,7 +342,7 @@ absl::StatusOr<std::vector<Surfel>> sampleAndShade(const Scene& scene, const Sho
     shadedSoFar += chunk.size();
     chunk.clear();
     if (request.progress) request.progress("sample and shade surfels", shadedSoFar, planned);
-    return absl::OkStatus();
+    return bakeCancelled(request);
   };
   absl::Status sampled = sampleSurfels(
       scene, sampling,
@@ -395,7 +404,10 @@ absl::StatusOr<DirectTree> buildDirectTree(ExternalSurfelSorter& sorter, const s
         for (int c = 0; c < 3; ++c) power[c] += next.surfel.area() * both[c];
       }
     }
-    if (request.progress && (++built & 0xffff) == 0) request.progress(kStage, built, surfels);
+    if ((++built & 0xffff) == 0) {
+      if (request.progress) request.progress(kStage, built, surfels);
+      PBGI_RETURN_IF_ERROR(bakeCancelled(request));
+    }
   }
   if (request.progress) request.progress(kStage, built, surfels);
   PBGI_ASSIGN_OR_RETURN(const TreeWriteResult tree, writer->finish());

@@ -20,6 +20,7 @@
 // tree's spill and page buffers a few MiB. The point cloud is the one part OpenVDB builds in
 // memory; in `auto` mode it is written only when it fits in a quarter of the budget, and
 // skipped with a warning otherwise.
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -58,6 +59,9 @@ struct FrameBakeRequest {
   std::string tempDir;       // spill files; empty: the system's temporary folder
   std::string pbgiVersion;
   std::function<void(const std::string& stage, uint64_t done, uint64_t total)> progress;
+  // Stops the bake when set (a farm task whose lease was lost), between chunks of surfels in
+  // every stage: the bake fails Cancelled and writes no tree.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 inline constexpr uint64_t kDefaultBakePoints = 1'000'000;

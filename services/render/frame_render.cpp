@@ -50,6 +50,7 @@ absl::StatusOr<std::shared_ptr<TreeFile>> frameTree(const ShotDesc& shot,
   bake->outDir = request.bakeDir;
   bake->threads = request.threads;
   bake->progress = request.bakeProgress;
+  bake->cancel = request.cancel;
   report->treePath = bakeTreePath(baked, *bake);
   if (!request.rebake && std::filesystem::exists(report->treePath)) {
     auto existing = TreeFile::open(report->treePath);

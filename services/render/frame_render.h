@@ -34,7 +34,8 @@ struct FrameRenderRequest {
   std::optional<OutputOptions> output;
   std::string ocioConfig;  // empty: the shipped config
   std::function<void(int unitsDone, int unitsTotal)> progress;
-  // Stops the render when set (a farm task whose lease was lost): the request fails Cancelled.
+  // Stops the render, and the bake before it, when set (a farm task whose lease was lost): the
+  // request fails Cancelled.
   const std::atomic<bool>* cancel = nullptr;
   // Render and write only these rectangles of the (mosaic) frame: a farm tile, one rectangle
   // per view of a camera array. The EXR holds them stacked top to bottom, left-aligned, and

@@ -320,6 +320,7 @@ absl::StatusOr<TaskResult> Worker::bake(const ShotDesc& shot, const v1::LeaseTas
   request.progress = [&beat](const std::string&, uint64_t done, uint64_t total) {
     if (total > 0) beat.progress(double(done) / double(total));
   };
+  request.cancel = beat.cancelFlag();
   TaskResult result;
   PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const FrameScene> scene,
                         scenes_.get(shot, task.frame(), &result.log));
