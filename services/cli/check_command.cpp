@@ -35,6 +35,14 @@ nlohmann::ordered_json toJson(const ShotDesc& shot, const ShotCheck& check) {
                         {f.bounds.max.x, f.bounds.max.y, f.bounds.max.z}}},
                       {"warnings", f.warnings}});
   }
+  nlohmann::ordered_json glossy = nlohmann::ordered_json::array();
+  for (const GlossyMaterialCheck& g : check.glossy) {
+    glossy.push_back({{"material", g.name},
+                      {"roughness", g.roughness},
+                      {"wavelet_bsdf_coefficients", g.keptCoefficients},
+                      {"wavelet_bsdf_dense_coefficients", g.denseCoefficients},
+                      {"wavelet_bsdf_error", g.relativeError}});
+  }
   return {{"shot", shot.path},
           {"name", shot.name},
           {"resolution", {shot.width, shot.height}},
@@ -44,7 +52,8 @@ nlohmann::ordered_json toJson(const ShotDesc& shot, const ShotCheck& check) {
           {"bakes_tree", check.needsTree},
           {"output", check.output},
           {"output_format", toString(check.format)},
-          {"frames", frames}};
+          {"frames", frames},
+          {"glossy_materials", glossy}};
 }
 
 std::string counted(size_t n, const char* one, const char* many) {
@@ -71,6 +80,13 @@ void printText(const ShotDesc& shot, const ShotCheck& check) {
     for (const std::string& w : f.warnings) {
       std::fprintf(stderr, "pbgi: warning: frame %d: %s\n", f.frame, w.c_str());
     }
+  }
+  for (const GlossyMaterialCheck& g : check.glossy) {
+    std::printf(
+        "glossy material '%s' (roughness %g): its BSDF in wavelets keeps %zu of %zu "
+        "coefficients, %.2f %% L2 error\n",
+        g.name.c_str(), g.roughness, g.keptCoefficients, g.denseCoefficients,
+        100.0 * g.relativeError);
   }
   std::printf("ok: %zu frame%s can render\n", check.frames.size(),
               check.frames.size() == 1 ? "" : "s");

@@ -393,7 +393,9 @@ absl::StatusOr<int64_t> FarmService::submit(const v1::SubmitJobRequest& request)
   // geometry that does not parse, a texture that is not there, is refused now, naming the
   // file, rather than failing on every worker until the job stalls. (Frames share their
   // files; keyframes only move them.)
-  if (!spec.frames.empty()) PBGI_RETURN_IF_ERROR(checkShot(shot, {spec.frames.front()}).status());
+  if (!spec.frames.empty()) {
+    PBGI_RETURN_IF_ERROR(checkShot(shot, {spec.frames.front()}, /*glossy=*/false).status());
+  }
   std::string pattern = shot.output;
   if (!request.output_dir().empty()) {
     const fs::path dir = fs::path(request.output_dir()).is_absolute()

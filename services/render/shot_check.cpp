@@ -2,6 +2,9 @@
 
 #include <fmt/format.h>
 
+#include "core/bake/surfel_shading.h"
+#include "core/pbgi/microbuffer.h"
+#include "core/pbgi/wavelet_bsdf.h"
 #include "core/render/integrators.h"
 #include "core/util/status.h"
 #include "formats/scene/frame_scene.h"
@@ -20,7 +23,30 @@ std::string toString(OutputFormat format) {
   return "unknown";
 }
 
-absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames) {
+namespace {
+
+absl::StatusOr<std::vector<GlossyMaterialCheck>> glossyMaterials(const Scene& scene) {
+  std::vector<GlossyMaterialCheck> out;
+  WaveletBsdfCache cache;
+  const WaveletBsdfOptions options;
+  for (const Material& m : scene.materials()) {
+    if (!needsWavelets(m) || Bsdf(m, untexturedAlbedo(m)).isDelta()) continue;
+    PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const WaveletBsdf> projected,
+                          cache.get(m, options));
+    out.push_back({.name = m.name,
+                   .roughness = m.roughness,
+                   .keptCoefficients = projected->keptCoefficients(),
+                   .denseCoefficients = static_cast<size_t>(projected->bins()) * kCubeFaces * 3 *
+                                        options.resolution * options.resolution,
+                   .relativeError = projected->maxRelativeError()});
+  }
+  return out;
+}
+
+}  // namespace
+
+absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames,
+                                    bool glossy) {
   ShotCheck check;
   std::vector<int> wanted = frames;
   if (wanted.empty()) {
@@ -53,6 +79,9 @@ absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>
       frame.warnings.push_back(
           "nothing emits light (no light, emissive surface or environment): the frame renders "
           "black");
+    }
+    if (glossy && check.frames.empty()) {
+      PBGI_ASSIGN_OR_RETURN(check.glossy, glossyMaterials(*loaded->scene));
     }
     check.frames.push_back(std::move(frame));
   }

@@ -23,17 +23,32 @@ struct FrameCheck {
   std::vector<std::string> warnings;  // the loader's, and a frame with nothing that emits
 };
 
+// A glossy material whose lobes the tree's SH do not hold (needsWavelets), as the wavelet
+// product would reflect light with it (wavelet_bsdf.h, default options): its coefficients kept
+// over every outgoing bin, of how many, and the largest relative L2 error dropped.
+struct GlossyMaterialCheck {
+  std::string name;
+  float roughness = 0;
+  size_t keptCoefficients = 0;
+  size_t denseCoefficients = 0;
+  float relativeError = 0;
+};
+
 struct ShotCheck {
   std::string integrator;
   bool needsTree = false;  // the frames bake a PBGI tree first
   std::string output;      // the first frame's image
   OutputFormat format = OutputFormat::kExr;
   std::vector<FrameCheck> frames;
+  std::vector<GlossyMaterialCheck> glossy;  // the first frame's scene's
 };
 
-// Checks `frames` of the shot (empty: every frame) as a render of them would meet them.
-// Errors name the shot, the frame and the file at fault.
-absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames);
+// Checks `frames` of the shot (empty: every frame) as a render of them would meet them, and
+// with `glossy`, projects the glossy materials' BSDFs for the report (a few tens of ms each;
+// submission, which only refuses, skips it). Errors name the shot, the frame and the file at
+// fault.
+absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames,
+                                    bool glossy = true);
 
 // "exr", "float RGB", "8-bit".
 std::string toString(OutputFormat format);

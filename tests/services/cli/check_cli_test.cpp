@@ -39,6 +39,25 @@ TEST(CheckCliTest, TheSampleChecksFrameByFrameAsTextAndJson) {
   EXPECT_EQ(parsed["frames"][0]["frame"], 2);
   EXPECT_EQ(parsed["frames"][0]["triangles"], 30);
   EXPECT_TRUE(parsed["frames"][0]["warnings"].empty());
+  EXPECT_TRUE(parsed["glossy_materials"].empty()) << "the sample is diffuse";
+}
+
+// A glossy shot's materials as the wavelet product would reflect with them: their BSDFs'
+// coefficients kept, and the error dropped, within the default 1 %.
+TEST(CheckCliTest, GlossyMaterialsReportTheirWaveletBsdfs) {
+  const auto shot = testing::sourceDir() / "config/scenes/glossy-cornell/glossy-cornell.shot.toml";
+  const auto r = runPbgi("check " + shellQuote(shot.string()) + " --frames 1 --json");
+  ASSERT_EQ(r.exitCode, 0) << r.output();
+  const auto parsed = nlohmann::json::parse(r.out);
+  ASSERT_EQ(parsed["glossy_materials"].size(), 2u) << r.out;
+  for (const auto& g : parsed["glossy_materials"]) {
+    EXPECT_GT(g["wavelet_bsdf_coefficients"].get<size_t>(), 0u) << g;
+    EXPECT_LT(g["wavelet_bsdf_coefficients"].get<size_t>(),
+              g["wavelet_bsdf_dense_coefficients"].get<size_t>() / 2)
+        << g;
+    EXPECT_GT(g["wavelet_bsdf_error"].get<double>(), 0.0) << g;
+    EXPECT_LE(g["wavelet_bsdf_error"].get<double>(), 0.01 + 1e-6) << g;
+  }
 }
 
 // What the shot file parses but a frame cannot load: the geometry's own file and line.
