@@ -123,7 +123,7 @@ absl::Status imageOverrides(const ImageFlags& flags, const ShotDesc& shot,
     overrides->width = scaled(shot.width);
     overrides->height = scaled(shot.height);
   }
-  if (overrides->width > 0) {
+  if (!flags.resolution.empty() || flags.scale > 0) {
     PBGI_RETURN_IF_ERROR(checkImageSize(overrides->width, overrides->height, shot.camera.views,
                                         flags.resolution.empty() ? "--scale" : "--resolution"));
   }

@@ -109,6 +109,10 @@ TEST(RenderCliTest, ResolutionScaleAndSeedFlagsShapeTheRender) {
   const Result bad = runPbgi(args + "--resolution 40");
   EXPECT_EQ(bad.exitCode, 2) << bad.output();
   EXPECT_NE(bad.err.find("expected W,H"), std::string::npos) << bad.err;
+  // A side of 0 (or less) is refused, not taken as "the shot's".
+  const Result zero = runPbgi(args + "--resolution 0,30");
+  EXPECT_EQ(zero.exitCode, 2) << zero.output();
+  EXPECT_NE(zero.err.find("each side must be from 1 to"), std::string::npos) << zero.err;
   std::filesystem::remove_all(dir);
 }
 
