@@ -76,6 +76,19 @@ class WorkerTest : public pbgi::testing::WorkerFarmTest {
     }
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - cancelled).count();
   }
+  // Waits up to 30 s for a task of `kind` (bake, tile) of the job to be leased.
+  bool waitForLeased(int64_t job, const std::string& kind) {
+    return waitFor(
+        [&] {
+          auto s = jobStatus(job);
+          if (!s.ok()) return false;
+          for (const auto& t : s->tasks()) {
+            if (t.kind() == kind && t.state() == "leased") return true;
+          }
+          return false;
+        },
+        30.0);
+  }
 };
 
 TEST_F(WorkerTest, AWorkerKilledMidTileLosesItsLeaseAndTheFrameIsUnchanged) {
@@ -137,14 +150,7 @@ TEST_F(WorkerTest, ACancelStopsTheRunningTileWithinASecond) {
   slow.extraRender = "tile_size = 4";  // render units of 4 x 4 pixels: 260,000 samples each
   const int64_t job = submit(slow, {1});
   Process& worker = startWorker("busy");
-  ASSERT_TRUE(waitFor(
-      [&] {
-        auto s = jobStatus(job);
-        return s.ok() && s->tasks_by_state().count("leased") &&
-               s->tasks_by_state().at("leased") == 1;
-      },
-      30.0))
-      << workerLogs();
+  ASSERT_TRUE(waitForLeased(job, "tile")) << workerLogs();
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   const double seconds = cancelAndTimeTheStop(job, worker);
   std::printf("the cancel stopped the running tile %.2f s after CancelJob\n", seconds);
@@ -171,17 +177,7 @@ TEST_F(WorkerTest, ACancelStopsARunningBake) {
   heavy.extraRender = "bake_points = 4000000\nbake_bounces = 3\n";  // a minute or more of work
   const int64_t job = submit(heavy, {1});
   Process& worker = startWorker("baker");
-  ASSERT_TRUE(waitFor(
-      [&] {
-        auto s = jobStatus(job);
-        if (!s.ok()) return false;
-        for (const auto& t : s->tasks()) {
-          if (t.kind() == "bake" && t.state() == "leased") return true;
-        }
-        return false;
-      },
-      30.0))
-      << workerLogs();
+  ASSERT_TRUE(waitForLeased(job, "bake")) << workerLogs();
   // In its sample-and-shade stage. Measured later in the bake too (one thread): cancelled 12 s
   // in (merge and build) it stopped 1.46 s after CancelJob, 24 s in (the first bounce) 0.86 s.
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
