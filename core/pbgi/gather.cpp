@@ -107,13 +107,15 @@ void Gatherer::gatherSurfels(const TreePage& page, const TreeNode& leaf, const V
   forEachSeenSurfel(page, leaf, p, n, options_.selfSkipRadius, options_.nearFieldFactor, stats,
                     [&](const SeenSurfel& seen) {
                       const Surfel& s = *seen.surfel;
+                      // In the buffer's axes about the receiver (the identity unless local).
+                      const Vec3f center = local_ ? p + toBuffer(s.position - p) : s.position;
+                      const Vec3f normal = toBuffer(seen.side.normal);
                       if (seen.near) {
-                        buffer_.rayCastDisk(s.position, seen.side.normal, s.radius,
-                                            seen.side.radiance);
+                        buffer_.rayCastDisk(center, normal, s.radius, seen.side.radiance);
                         ++stats->nearFieldRayCasts;
                       } else {
-                        buffer_.splatDisk(s.position, seen.side.normal, s.radius,
-                                          seen.side.radiance, kLayerExtentFactor * s.radius);
+                        buffer_.splatDisk(center, normal, s.radius, seen.side.radiance,
+                                          kLayerExtentFactor * s.radius);
                         ++stats->disksSplatted;
                       }
                     });
@@ -140,8 +142,8 @@ bool Gatherer::splatNode(const NodeAttributes& a, const NodeBounds& bounds,
     ++stats->clustersInvisible;
     return true;
   }
-  buffer_.splatFootprint(dir, distance, area / distance2, clusterRadiance(a, view, wavelet),
-                         clusterDepthExtent(a, dir));
+  buffer_.splatFootprint(toBuffer(dir), distance, area / distance2,
+                         clusterRadiance(a, view, wavelet), clusterDepthExtent(a, dir));
   ++stats->clustersSplatted;
   return true;
 }
@@ -222,6 +224,22 @@ absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, co
   local.gathers = 1;
   buffer_.clear(position, *n);
   absl::Status status = traverse(tree, position, *n, &local);
+  local.facesSkipped = static_cast<uint64_t>(buffer_.skippedFaces());
+  local.pixelsSkipped = static_cast<uint64_t>(buffer_.skippedPixels());
+  if (stats != nullptr) *stats += local;
+  return status;
+}
+
+absl::Status Gatherer::rasterizeLocal(TreePageSource& tree, const Vec3f& position,
+                                      const Frame& frame, GatherStats* stats) {
+  absl::StatusOr<Vec3f> n = receiverNormal(position, frame.n);
+  if (!n.ok()) return n.status();
+  GatherStats local;
+  local.gathers = 1;
+  buffer_.clear(position, Vec3f(0.0f, 0.0f, 1.0f));
+  local_ = &frame;
+  absl::Status status = traverse(tree, position, *n, &local);
+  local_ = nullptr;
   local.facesSkipped = static_cast<uint64_t>(buffer_.skippedFaces());
   local.pixelsSkipped = static_cast<uint64_t>(buffer_.skippedPixels());
   if (stats != nullptr) *stats += local;

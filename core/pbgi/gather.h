@@ -98,6 +98,12 @@ class Gatherer {
   // outside it or a tree deeper than any the builder makes.
   absl::Status rasterize(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
                          GatherStats* stats);
+  // The same picture in a receiver's own frame (unit, orthonormal, right-handed): the buffer's
+  // axes are the frame's s, t and n, so its faces are the frame's and its +z face looks along
+  // the normal. What a product with a BSDF projected in that frame needs (product_gather.h).
+  // The traversal, its culling and its counters are rasterize()'s.
+  absl::Status rasterizeLocal(TreePageSource& tree, const Vec3f& position, const Frame& frame,
+                              GatherStats* stats);
   // rasterize, then the clamped-cosine convolution. DataLoss when the tree's radiance makes
   // the result non-finite.
   absl::StatusOr<Rgb> irradiance(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
@@ -117,8 +123,12 @@ class Gatherer {
   void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
                      GatherStats* stats);
 
+  // A world vector in the buffer's axes: itself, or the frame's coordinates (rasterizeLocal).
+  Vec3f toBuffer(const Vec3f& v) const { return local_ ? local_->toLocal(v) : v; }
+
   GatherOptions options_;
   Microbuffer buffer_;
+  const Frame* local_ = nullptr;  // set during rasterizeLocal only
   TreeWalk walk_;
   SweptWalk swept_;
 };

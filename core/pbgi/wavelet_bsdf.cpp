@@ -3,10 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include <fmt/format.h>
 
 #include "core/pbgi/microbuffer.h"
+#include "core/util/check.h"
 #include "core/util/status.h"
 
 namespace pbgi {
@@ -14,6 +16,8 @@ namespace pbgi {
 namespace {
 
 constexpr float kHalfPi = std::numbers::pi_v<float> / 2.0f;
+
+constexpr int kMaxLobeSamples = 1024;
 
 bool isPowerOfTwo(int n) { return n > 0 && (n & (n - 1)) == 0; }
 
@@ -23,8 +27,8 @@ float WaveletBsdf::binElevation(int bin) const {
   return (static_cast<float>(bin) + 0.5f) * kHalfPi / static_cast<float>(bins());
 }
 
-absl::StatusOr<WaveletBsdf> WaveletBsdf::project(const Bsdf& bsdf,
-                                                  const WaveletBsdfOptions& options) {
+absl::StatusOr<WaveletBsdf> WaveletBsdf::project(const Material& material, const Rgb& albedo,
+                                                 const WaveletBsdfOptions& options) {
   if (!isPowerOfTwo(options.resolution) || options.resolution > kMaxMicrobufferResolution) {
     return absl::InvalidArgumentError(fmt::format(
         "wavelet BSDF resolution {}: expected a power of two up to {}", options.resolution,
@@ -38,48 +42,147 @@ absl::StatusOr<WaveletBsdf> WaveletBsdf::project(const Bsdf& bsdf,
     return absl::InvalidArgumentError(fmt::format(
         "wavelet BSDF relative error {}: expected a number in [0, 1)", options.relativeError));
   }
+  if (options.lobeSamples < 0 || options.lobeSamples > kMaxLobeSamples) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet BSDF lobe samples {}: expected 0 to {} a side", options.lobeSamples,
+                    kMaxLobeSamples));
+  }
   WaveletBsdf out;
   out.options_ = options;
-  out.slices_.resize(static_cast<size_t>(options.viewBins));
-  const std::shared_ptr<const MicrobufferTables> tables = microbufferTables(options.resolution);
-  std::vector<Rgb> texels(tables->directions.size());
-  for (int b = 0; b < options.viewBins; ++b) {
-    const float theta = out.binElevation(b);
-    const Vec3f wo(std::sin(theta), 0.0f, std::cos(theta));
-    for (size_t t = 0; t < texels.size(); ++t) {
-      const Vec3f& wi = tables->directions[t];
-      const float cosine = std::abs(wi.z);
-      texels[t] = cosine > 0.0f ? bsdf.f(wo, wi) * (cosine * tables->solidAngles[t]) : Rgb(0.0f);
-    }
-    const WaveletRadiance dense = WaveletRadiance::fromTexels(texels, options.resolution, 0.0f);
-    out.slices_[static_cast<size_t>(b)] = WaveletRadiance::fromDense(
-        dense.dense(), options.resolution, 0.0f, options.relativeError);
-  }
+  out.material_ = std::make_shared<const Material>(material);
+  out.albedo_ = albedo;
+  out.slices_ = std::make_unique<Slice[]>(static_cast<size_t>(options.viewBins));
   return out;
 }
 
-Rgb WaveletBsdf::reflect(const WaveletRadiance& incoming, float cosThetaO) const {
+const WaveletBsdf::Slice& WaveletBsdf::projected(int bin) const {
+  PBGI_CHECK(bin >= 0 && bin < bins());
+  Slice& slice = slices_[static_cast<size_t>(bin)];
+  if (!slice.done.load(std::memory_order_acquire)) {
+    std::call_once(slice.once, [&] {
+      projectSlice(bin, &slice);
+      slice.done.store(true, std::memory_order_release);
+    });
+  }
+  return slice;
+}
+
+void WaveletBsdf::projectSlice(int bin, Slice* out) const {
+  const int n = options_.resolution;
+  const size_t texelCount = size_t{6} * n * n;
+  const Bsdf bsdf(*material_, albedo_);
+  const float theta = binElevation(bin);
+  const Vec3f wo(std::sin(theta), 0.0f, std::cos(theta));
+  std::vector<Rgb> texels(texelCount, Rgb(0.0f));
+  if (options_.lobeSamples == 0) {
+    const std::shared_ptr<const MicrobufferTables> tables = microbufferTables(n);
+    for (size_t t = 0; t < texelCount; ++t) {
+      const Vec3f& wi = tables->directions[t];
+      const float cosine = std::abs(wi.z);
+      if (cosine > 0.0f) texels[t] = bsdf.f(wo, wi) * (cosine * tables->solidAngles[t]);
+    }
+  } else {
+    // Stratified over the unit square, the lobe's own sampling: the same directions for every
+    // projection of the same options, so a slice is a function of the material alone.
+    const int side = options_.lobeSamples;
+    const float weight = 1.0f / static_cast<float>(side * side);
+    for (int j = 0; j < side; ++j) {
+      for (int i = 0; i < side; ++i) {
+        const Vec2f u((static_cast<float>(i) + 0.5f) / static_cast<float>(side),
+                      (static_cast<float>(j) + 0.5f) / static_cast<float>(side));
+        const std::optional<BsdfSample> s = bsdf.sample(wo, 0.5f, u);
+        if (!s || s->delta || !(s->pdf > 0.0f) || !(s->wi.z > 0.0f)) continue;
+        const Rgb value = s->f * (std::abs(s->wi.z) / s->pdf * weight);
+        if (!isFinite(value)) continue;
+        texels[static_cast<size_t>(cubePixelIndex(s->wi, n))] += value;
+      }
+    }
+  }
+  const WaveletRadiance dense = WaveletRadiance::fromTexels(texels, n, 0.0f);
+  out->slice = WaveletRadiance::fromDense(dense.dense(), n, 0.0f, options_.relativeError);
+  // The kept coefficients, flat, for the product with dense incoming coefficients.
+  const std::vector<float> kept = out->slice.dense();
+  const size_t perFace = static_cast<size_t>(n) * n;
+  for (size_t face = 0; face < 6; ++face) {
+    for (size_t k = 0; k < perFace; ++k) {
+      const size_t red = face * 3 * perFace + k;
+      const Rgb w(kept[red], kept[red + perFace], kept[red + 2 * perFace]);
+      if (w.x != 0.0f || w.y != 0.0f || w.z != 0.0f) {
+        out->terms.push_back({static_cast<uint32_t>(red), w});
+      }
+    }
+  }
+}
+
+int WaveletBsdf::projectedBins() const {
+  int count = 0;
+  for (int b = 0; b < bins(); ++b) count += slices_[static_cast<size_t>(b)].done.load() ? 1 : 0;
+  return count;
+}
+
+void WaveletBsdf::incomingCoefficients(std::span<const Rgb> texels, int n,
+                                       std::vector<float>* out) {
+  const size_t perFace = static_cast<size_t>(n) * n;
+  PBGI_CHECK_EQ(texels.size(), 6 * perFace);
+  out->resize(6 * 3 * perFace);
+  for (size_t face = 0; face < 6; ++face) {
+    for (size_t k = 0; k < perFace; ++k) {
+      const Rgb& v = texels[face * perFace + k];
+      const bool finite = isFinite(v);
+      for (size_t c = 0; c < 3; ++c) (*out)[(face * 3 + c) * perFace + k] = finite ? v[c] : 0.0f;
+    }
+    for (size_t c = 0; c < 3; ++c) {
+      haarForward(std::span(out->data() + (face * 3 + c) * perFace, perFace), n);
+    }
+  }
+}
+
+Rgb WaveletBsdf::dotSlice(std::span<const float> incoming, int bin) const {
+  const size_t perFace = static_cast<size_t>(options_.resolution) * options_.resolution;
+  Rgb sum(0.0f);
+  for (const Term& t : projected(bin).terms) {
+    const float* in = incoming.data() + t.index;
+    sum += Rgb(t.weight.x * in[0], t.weight.y * in[perFace], t.weight.z * in[2 * perFace]);
+  }
+  return sum;
+}
+
+Rgb WaveletBsdf::reflect(std::span<const float> incoming, float cosThetaO) const {
+  const size_t n = static_cast<size_t>(options_.resolution);
+  PBGI_CHECK_EQ(incoming.size(), 6 * 3 * n * n);
   if (!(cosThetaO > 0.0f)) return Rgb(0.0f);
+  const auto [lo, w] = binsAround(cosThetaO);
+  const Rgb a = dotSlice(incoming, lo);
+  if (w <= 0.0f) return a;
+  return a * (1.0f - w) + dotSlice(incoming, lo + 1) * w;
+}
+
+std::pair<int, float> WaveletBsdf::binsAround(float cosThetaO) const {
   const float theta = std::acos(std::min(cosThetaO, 1.0f));
   // Bin b's centre is at (b + 0.5) of the bin width.
   const float at = std::clamp(theta / kHalfPi * static_cast<float>(bins()) - 0.5f, 0.0f,
                               static_cast<float>(bins() - 1));
   const int lo = std::min(static_cast<int>(at), bins() - 2);
-  const float w = at - static_cast<float>(lo);
-  const Rgb a = incoming.dot(slices_[static_cast<size_t>(lo)]);
+  return {lo, at - static_cast<float>(lo)};
+}
+
+Rgb WaveletBsdf::reflect(const WaveletRadiance& incoming, float cosThetaO) const {
+  if (!(cosThetaO > 0.0f)) return Rgb(0.0f);
+  const auto [lo, w] = binsAround(cosThetaO);
+  const Rgb a = incoming.dot(slice(lo));
   if (w <= 0.0f) return a;
-  return a * (1.0f - w) + incoming.dot(slices_[static_cast<size_t>(lo + 1)]) * w;
+  return a * (1.0f - w) + incoming.dot(slice(lo + 1)) * w;
 }
 
 size_t WaveletBsdf::keptCoefficients() const {
   size_t kept = 0;
-  for (const WaveletRadiance& s : slices_) kept += s.keptCoefficients();
+  for (int b = 0; b < bins(); ++b) kept += slice(b).keptCoefficients();
   return kept;
 }
 
 float WaveletBsdf::maxRelativeError() const {
   float worst = 0.0f;
-  for (const WaveletRadiance& s : slices_) worst = std::max(worst, s.relativeError());
+  for (int b = 0; b < bins(); ++b) worst = std::max(worst, slice(b).relativeError());
   return worst;
 }
 
@@ -89,17 +192,16 @@ absl::StatusOr<std::shared_ptr<const WaveletBsdf>> WaveletBsdfCache::get(
   const Rgb albedo = untexturedAlbedo(m);
   const std::string key = fmt::format(
       "{} {} {} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} {:a} "
-      "{:a} {} {} {:a}",
+      "{:a} {} {} {:a} {}",
       static_cast<int>(m.type), static_cast<int>(m.distribution), m.complexIor, m.roughness,
       albedo.x, albedo.y, albedo.z, m.specular.x, m.specular.y, m.specular.z, m.eta.x, m.eta.y,
       m.eta.z, m.k.x, m.k.y, m.k.z, m.tint.x, m.tint.y, m.tint.z, m.ior, options.resolution,
-      options.viewBins, options.relativeError);
+      options.viewBins, options.relativeError, options.lobeSamples);
   {
     std::lock_guard lock(mutex_);
     if (const auto it = projected_.find(key); it != projected_.end()) return it->second;
   }
-  const Bsdf bsdf(m, albedo);
-  PBGI_ASSIGN_OR_RETURN(WaveletBsdf projected, WaveletBsdf::project(bsdf, options));
+  PBGI_ASSIGN_OR_RETURN(WaveletBsdf projected, WaveletBsdf::project(m, albedo, options));
   auto shared = std::make_shared<const WaveletBsdf>(std::move(projected));
   std::lock_guard lock(mutex_);
   return projected_.emplace(key, std::move(shared)).first->second;

@@ -12,10 +12,13 @@
 // The error of the product is bounded by Cauchy-Schwarz: |<L, g> - <L, g_kept>| is at most
 // |L| |g - g_kept|, and |g - g_kept| is at most relativeError |g| (WaveletRadiance::fromDense
 // keeps coefficients to that bound and measures what it dropped).
+#include <atomic>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/pbgi/wavelet.h"
@@ -27,36 +30,77 @@ struct WaveletBsdfOptions {
   int resolution = 16;          // the cube's texels a side, as the incoming light's
   int viewBins = 16;            // outgoing elevations, bin centres uniform in angle in [0, 90)
   float relativeError = 0.01f;  // of each slice's L2 norm, dropped at most
+  // Each texel's value is f |cos| integrated over the texel, by lobeSamples^2 directions drawn
+  // from the BSDF (stratified, each adding f |cos| / pdf / count to the texel it falls in);
+  // 0 takes f |cos| dOmega at the texel's centre. A lobe narrower than a texel (GGX alpha 0.05
+  // against a 16^2 cube's 7-degree texels) needs the integral: at the centres alone its energy
+  // is off by whatever the centres happen to hit, and a finer grid only moves the problem to
+  // narrower lobes, where sampling the lobe does not.
+  int lobeSamples = 0;
   bool operator==(const WaveletBsdfOptions&) const = default;
 };
 
 class WaveletBsdf {
  public:
-  // Projects `bsdf` (a material whose lobes f() evaluates: not a delta), one slice per
-  // outgoing elevation bin. InvalidArgument for a resolution that is not a power of two up to
-  // kMaxMicrobufferResolution, fewer than 2 bins or an error outside [0, 1).
-  static absl::StatusOr<WaveletBsdf> project(const Bsdf& bsdf, const WaveletBsdfOptions& options);
+  // Projects the BSDF of `material` with `albedo` (a material whose lobes f() evaluates: not a
+  // delta), one slice per outgoing elevation bin. A slice is projected the first time it is
+  // used (thread-safe), so a render pays for the elevations it sees. InvalidArgument for a
+  // resolution that is not a power of two up to kMaxMicrobufferResolution, fewer than 2 bins,
+  // an error outside [0, 1) or lobe samples outside 0 to 1024 a side.
+  static absl::StatusOr<WaveletBsdf> project(const Material& material, const Rgb& albedo,
+                                             const WaveletBsdfOptions& options);
 
   // The radiance reflected towards the outgoing direction of elevation cosThetaO (its azimuth
   // the frame's x axis) from `incoming` (the same resolution and frame): the products with the
   // two slices around the elevation, interpolated linearly in it (clamped at the first and last
   // bins' centres). Black for a direction below the surface.
   Rgb reflect(const WaveletRadiance& incoming, float cosThetaO) const;
+  // The same from the incoming radiance's every coefficient (incomingCoefficients): the sum
+  // over the slice's kept coefficients only, the sparse product a receiver takes per sample.
+  Rgb reflect(std::span<const float> incoming, float cosThetaO) const;
+  // The Haar coefficients of incoming radiance at the texel centres of six n x n faces (the
+  // cube's layout), every one kept: face-major, then channel, then haarForward's pyramid
+  // layout, as WaveletRadiance::dense(). Non-finite texels count as black.
+  static void incomingCoefficients(std::span<const Rgb> texels, int n, std::vector<float>* out);
 
-  int bins() const { return static_cast<int>(slices_.size()); }
-  const WaveletRadiance& slice(int bin) const { return slices_[static_cast<size_t>(bin)]; }
+  int bins() const { return options_.viewBins; }
+  const WaveletRadiance& slice(int bin) const { return projected(bin).slice; }
   // The elevation (radians from the normal) of a bin's centre: its slice's outgoing direction.
   float binElevation(int bin) const;
   int resolution() const { return options_.resolution; }
   const WaveletBsdfOptions& options() const { return options_; }
-  // Over every slice: the coefficients kept, and the largest relative L2 error dropped
-  // (measured, at most options().relativeError).
+  // Over every slice (projecting those not yet used): the coefficients kept, and the largest
+  // relative L2 error dropped (measured, at most options().relativeError).
   size_t keptCoefficients() const;
   float maxRelativeError() const;
+  // Slices projected so far.
+  int projectedBins() const;
 
  private:
+  // A kept coefficient of a slice: where it is among the dense coefficients (its red channel's;
+  // green and blue follow at + n^2 and + 2 n^2), and its value per channel.
+  struct Term {
+    uint32_t index;
+    Rgb weight;
+  };
+  struct Slice {
+    std::once_flag once;
+    std::atomic<bool> done{false};
+    WaveletRadiance slice;
+    std::vector<Term> terms;  // its kept coefficients
+  };
+  const Slice& projected(int bin) const;
+  void projectSlice(int bin, Slice* slice) const;
+  // The two bins around an outgoing elevation and the weight of the second (clamped at the
+  // first and last bins' centres).
+  std::pair<int, float> binsAround(float cosThetaO) const;
+  // The product with one slice.
+  Rgb dotSlice(std::span<const float> incoming, int bin) const;
+
   WaveletBsdfOptions options_;
-  std::vector<WaveletRadiance> slices_;
+  std::shared_ptr<const Material> material_;  // a copy: the BSDF a slice is projected from
+  Rgb albedo_{0.0f};
+  std::unique_ptr<Slice[]> slices_;
 };
 
 // One projection per material's parameters and options, shared by every surfel and receiver

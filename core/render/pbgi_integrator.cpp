@@ -131,8 +131,8 @@ constexpr size_t kGathersTogether = 512;
 
 class PerPixelScratch final : public IntegratorScratch {
  public:
-  explicit PerPixelScratch(const PbgiSettings& settings)
-      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)) {
+  PerPixelScratch(const PbgiSettings& settings, std::shared_ptr<WaveletBsdfCache> bsdfs)
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel), std::move(bsdfs)) {
     gatherers.reserve(kGathersTogether);  // Gatherers stay where they are
   }
   PixelGathers pixel;
@@ -155,7 +155,7 @@ class PerPixelPbgi final : public Integrator {
   std::string name() const override { return "pbgi"; }
   std::span<const CounterSpec> counterSpecs() const override { return pbgiCounterSpecs(); }
   std::unique_ptr<IntegratorScratch> newScratch() const override {
-    return std::make_unique<PerPixelScratch>(settings_);
+    return std::make_unique<PerPixelScratch>(settings_, bsdfs_);
   }
 
   absl::Status render(const TileSamples& samples, std::span<PathSample> out,
@@ -219,12 +219,15 @@ class PerPixelPbgi final : public Integrator {
   TreePageSource& tree_;
   PbgiSettings settings_;
   std::optional<SkyIrradiance> sky_;
+  // The product gather's BSDF slices, projected once per material for every thread.
+  std::shared_ptr<WaveletBsdfCache> bsdfs_ = std::make_shared<WaveletBsdfCache>();
 };
 
 // One block's state: its receivers, its cut's buffers, what it counted.
 struct BidirectionalBlock {
-  explicit BidirectionalBlock(const PbgiSettings& settings)
-      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel)), cut(settings.cut) {}
+  BidirectionalBlock(const PbgiSettings& settings, std::shared_ptr<WaveletBsdfCache> bsdfs)
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel), std::move(bsdfs)),
+        cut(settings.cut) {}
   PixelGathers pixel;
   BidirectionalCut cut;
   std::vector<CutReceiver> receivers;
@@ -276,7 +279,7 @@ class BidirectionalPbgi final : public Integrator {
     const size_t count = samples.blocks.size();
     PBGI_CHECK_GT(count, size_t{0});
     while (state.blocks.size() < count) {
-      state.blocks.push_back(std::make_unique<BidirectionalBlock>(settings_));
+      state.blocks.push_back(std::make_unique<BidirectionalBlock>(settings_, bsdfs_));
     }
     std::vector<absl::Status> errors(count);
     tbb::this_task_arena::isolate([&] {
@@ -428,6 +431,8 @@ class BidirectionalPbgi final : public Integrator {
   TreePageSource& tree_;
   PbgiSettings settings_;
   std::optional<SkyIrradiance> sky_;
+  // The product gather's BSDF slices, projected once per material for every thread.
+  std::shared_ptr<WaveletBsdfCache> bsdfs_ = std::make_shared<WaveletBsdfCache>();
 };
 
 }  // namespace

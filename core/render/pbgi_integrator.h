@@ -18,6 +18,7 @@
 #include "core/pbgi/adaptive_gather.h"
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
+#include "core/pbgi/product_gather.h"
 #include "core/pbgi/tree_page.h"
 #include "core/pbgi/warped_gather.h"
 #include "core/render/integrator.h"
@@ -26,9 +27,11 @@
 namespace pbgi {
 
 enum class PbgiGatherKind { kBidirectional, kPerPixel };
-// Glossy receivers' microbuffer: warped by the BSDF (Ritschel et al. 2009) or the adaptive
-// quadtree refined by the BSDF and the light (Wang et al. 2016, adaptive_gather.h).
-enum class GlossyGatherKind { kWarped, kAdaptive };
+// Glossy receivers' gather: a microbuffer warped by the BSDF (Ritschel et al. 2009), the
+// adaptive quadtree refined by the BSDF and the light (Wang et al. 2016, adaptive_gather.h), or
+// the light gathered once per footprint and reflected by the wavelet product with each
+// sample's BSDF slice (Wang et al. 2015, product_gather.h).
+enum class GlossyGatherKind { kWarped, kAdaptive, kProduct };
 
 struct PbgiSettings {
   PbgiGatherKind gather = PbgiGatherKind::kBidirectional;
@@ -36,6 +39,7 @@ struct PbgiSettings {
   GlossyGatherKind glossyGather = GlossyGatherKind::kAdaptive;
   WarpedGatherOptions glossy;     // glossy receivers' warped microbuffer
   AdaptiveGatherOptions adaptive;  // ... or their adaptive one
+  ProductGatherOptions product;    // ... or the product's cube and BSDF slices
   int maxGathersPerPixel = 4;  // per-pixel gathers a pixel's samples make
   CutOptions cut;              // the bidirectional cut
   int blockSize = 64;          // the bidirectional cut's blocks, in view pixels
@@ -56,6 +60,7 @@ struct PbgiSettings {
 // The warped microbuffer that goes with a gather preset: a third more pixels a side than the
 // cube's faces (the lobe takes them all), the same near field.
 WarpedGatherOptions glossyGatherOptions(const GatherOptions& gather);
+// (The product gather's: productGatherOptions, product_gather.h.)
 // The adaptive microbuffer that goes with a gather preset: its near field.
 AdaptiveGatherOptions adaptiveGatherOptions(const GatherOptions& gather);
 

@@ -2,6 +2,8 @@
 
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/scene/material.h"
+#include "core/util/check.h"
+#include "core/util/status.h"
 
 namespace pbgi {
 
@@ -9,6 +11,8 @@ namespace {
 
 constexpr float kReuseNormalCos = 0.95f;
 constexpr float kReuseViewCos = 0.999f;
+// The key of the product's gathers: the light arriving, which any glossy material reflects.
+constexpr uint32_t kProductKey = kNoMaterial - 1;
 
 }  // namespace
 
@@ -70,18 +74,66 @@ Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
   return r;
 }
 
-PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel)
-    : shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
-  if (settings.glossyGather == GlossyGatherKind::kAdaptive) {
-    adaptive_.emplace(settings.adaptive);
-  } else {
-    warped_.emplace(settings.glossy);
+PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
+                           std::shared_ptr<WaveletBsdfCache> bsdfs)
+    : bsdfs_(std::move(bsdfs)), shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
+  switch (settings.glossyGather) {
+    case GlossyGatherKind::kAdaptive:
+      adaptive_.emplace(settings.adaptive);
+      break;
+    case GlossyGatherKind::kWarped:
+      warped_.emplace(settings.glossy);
+      break;
+    case GlossyGatherKind::kProduct:
+      PBGI_CHECK(bsdfs_ != nullptr);
+      product_.emplace(settings.product);
+      break;
   }
+}
+
+absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const Scene& scene,
+                                                   const Receiver& r, GatherStats* stats,
+                                                   RenderCounters* counters) {
+  const size_t material = r.hit.material;
+  if (slices_.size() <= material) slices_.resize(material + 1);
+  if (slices_[material] == nullptr) {
+    PBGI_ASSIGN_OR_RETURN(slices_[material],
+                          bsdfs_->get(scene.material(r.hit.material), product_->options().bsdf));
+  }
+  uint32_t slot = 0;
+  if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, kProductKey)) {
+    ++(*counters)[kGatherReuses];
+    slot = g->slot;
+  } else {
+    slot = static_cast<uint32_t>(productsUsed_++);
+    if (products_.size() < productsUsed_) products_.emplace_back();
+    ProductGather& gathered = products_[slot];
+    gathered.frame = viewFrame(r.n, r.wo);
+    if (absl::Status s = product_->gather(tree, r.hit.p, gathered.frame, &gathered.incoming, stats);
+        !s.ok()) {
+      return s;
+    }
+    ++(*counters)[kGathers];
+    ++(*counters)[kGlossyGathers];
+    shared_.add({.p = r.hit.p,
+                 .n = r.n,
+                 .reach = kReuseDistanceFraction * r.hit.t,
+                 .planeReach = kReusePlaneFraction * r.hit.t,
+                 .key = kProductKey,
+                 .wo = r.wo,
+                 .slot = slot});
+  }
+  const ProductGather& gathered = products_[slot];
+  ++(*counters)[kGlossyProducts];
+  const Rgb lo = slices_[material]->reflect(gathered.incoming, dot(r.wo, gathered.frame.n));
+  if (absl::Status s = checkGathered(lo); !s.ok()) return s;
+  return lo;
 }
 
 absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& scene,
                                           const Receiver& r, const Rgb& albedo, Rng& rng,
                                           GatherStats* stats, RenderCounters* counters) {
+  if (product_) return reflectByProduct(tree, scene, r, stats, counters);
   if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, r.hit.material)) {
     ++(*counters)[kGatherReuses];
     return g->value;

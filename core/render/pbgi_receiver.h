@@ -13,8 +13,10 @@
 // Surfaces are two-sided, as for the path tracer: a receiver gathers on the side its camera
 // ray arrives from.
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
+#include <vector>
 
 #include <absl/status/status.h>
 
@@ -22,10 +24,11 @@
 #include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/pbgi/gather_reuse.h"
+#include "core/pbgi/product_gather.h"
 #include "core/pbgi/warped_gather.h"
 #include "core/render/integrator.h"
-#include "core/render/pbgi_integrator.h"
 #include "core/render/path_tracer.h"
+#include "core/render/pbgi_integrator.h"
 #include "core/scene/scene.h"
 
 namespace pbgi {
@@ -37,6 +40,7 @@ enum PbgiCounter : size_t {
   kGathers,              // diffuse receivers (microbuffers or the cut's) and glossy gathers
   kGatherReuses,         // samples that took an earlier gather of their pixel
   kGlossyGathers,
+  kGlossyProducts,
   kNodesVisited,
   kNodesCulledPlane,
   kClustersSplatted,
@@ -86,9 +90,15 @@ inline constexpr float kReuseDistanceFraction = 0.05f;
 // (key kNoMaterial: any diffuse material shares it).
 class PixelGathers {
  public:
-  PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel);
+  // `bsdfs` (the product gather's BSDF slices, shared by every thread of a render) may be null
+  // unless the settings ask for the product.
+  PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
+               std::shared_ptr<WaveletBsdfCache> bsdfs = nullptr);
   // Forget the pixel's gathers: call before each pixel.
-  void newPixel() { shared_.clear(); }
+  void newPixel() {
+    shared_.clear();
+    productsUsed_ = 0;
+  }
   GatherReuse& shared() { return shared_; }
   // The glossy reflected radiance towards the camera; jitter drawn from `rng` when it gathers
   // anew.
@@ -97,8 +107,21 @@ class PixelGathers {
                               RenderCounters* counters);
 
  private:
-  std::optional<WarpedGatherer> warped_;      // one of the two, as the settings say
+  // The product's: a gather's light, its frame, and the sample's reflection by it.
+  struct ProductGather {
+    Frame frame;
+    std::vector<float> incoming;
+  };
+  absl::StatusOr<Rgb> reflectByProduct(TreePageSource& tree, const Scene& scene, const Receiver& r,
+                                       GatherStats* stats, RenderCounters* counters);
+
+  std::optional<WarpedGatherer> warped_;  // one of the three, as the settings say
   std::optional<AdaptiveGatherer> adaptive_;
+  std::optional<ProductGatherer> product_;
+  std::shared_ptr<WaveletBsdfCache> bsdfs_;
+  std::vector<ProductGather> products_;  // the pixel's, by slot (capacity kept across pixels)
+  size_t productsUsed_ = 0;
+  std::vector<std::shared_ptr<const WaveletBsdf>> slices_;  // by the scene's material index
   GatherReuse shared_;
 };
 

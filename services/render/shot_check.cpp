@@ -4,6 +4,7 @@
 
 #include "core/bake/surfel_shading.h"
 #include "core/pbgi/microbuffer.h"
+#include "core/pbgi/product_gather.h"
 #include "core/pbgi/wavelet_bsdf.h"
 #include "core/render/integrators.h"
 #include "core/util/status.h"
@@ -28,7 +29,8 @@ namespace {
 absl::StatusOr<std::vector<GlossyMaterialCheck>> glossyMaterials(const Scene& scene) {
   std::vector<GlossyMaterialCheck> out;
   WaveletBsdfCache cache;
-  const WaveletBsdfOptions options;
+  // As the product gather of the default preset projects them for its receivers.
+  const WaveletBsdfOptions options = productGatherOptions(GatherOptions{}).bsdf;
   for (const Material& m : scene.materials()) {
     if (!needsWavelets(m) || Bsdf(m, untexturedAlbedo(m)).isDelta()) continue;
     PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const WaveletBsdf> projected,

@@ -288,13 +288,14 @@ double relMseWhereAlbedo(const Image& image, const Image& reference, const Rgb& 
 }
 
 // The red wall as a rough conductor (GGX 0.2): its receivers gather through the adaptive
-// microbuffer (the default) or the importance-warped one. Compared on the wall's own pixels
-// only. Measured when written (warped): relMSE 0.028, 0.030 with the cube buffer convolved
-// with the BRDF, 0.154 without indirect light, 0.008 for the path tracer at 64 spp; 0.040 once
-// the bake's bounces each gathered only the light the last one added. Both buffers at 64 spp
+// microbuffer (the default), the importance-warped one, or the wavelet product. Compared on the
+// wall's own pixels only. Measured when written (warped): relMSE 0.028, 0.030 with the cube buffer
+// convolved with the BRDF, 0.154 without indirect light, 0.008 for the path tracer at 64 spp; 0.040
+// once the bake's bounces each gathered only the light the last one added. Both buffers at 64 spp
 // against 1024 on a 200,000-surfel bake: 0.0017 (adaptive), 0.0016 (warped); 32 against 512
-// on 100,000 surfels: 0.0022, 0.0022; the test runs 16 against 128 on 50,000 surfels: 0.0050, 0.0051.
-TEST_F(PbgiRender, GlossyReceiversGatherThroughBothGlossyBuffers) {
+// on 100,000 surfels: 0.0022, 0.0022; the test runs 16 against 128 on 50,000 surfels: 0.0050,
+// 0.0051.
+TEST_F(PbgiRender, GlossyReceiversGatherThroughEveryGlossyGather) {
   const Rgb specular(0.9f, 0.3f, 0.2f);
   for (MaterialDesc& m : shot_.materials) {
     if (m.name != "red") continue;
@@ -307,13 +308,28 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughBothGlossyBuffers) {
   p.overrides.integrator = "path";
   p.overrides.spp = 128;
   const Image path = render(p);
-  for (const char* kind : {"adaptive", "warped"}) {
-    FrameRenderRequest r = request(std::string("glossy-") + kind, tree);
+  for (const std::string kind : {"adaptive", "warped", "product"}) {
+    FrameRenderRequest r = request("glossy-" + kind, tree);
     r.overrides.spp = 16;
     testing::setParam(r.overrides.params, "glossy_gather", kind);
     FrameRenderReport report;
     const Image pbgi = render(r, &report);
     EXPECT_GT(report.counters[kGlossyGathers], 0u);
+    // The product's samples each take the product; the others' take none.
+    if (kind == "product") {
+      EXPECT_GE(report.counters[kGlossyProducts], report.counters[kGlossyGathers]);
+      // Its BSDF slices are projected as threads first need them: the bits are the same
+      // whatever the tiles, the threads and the page cache.
+      FrameRenderRequest again = request("glossy-product-again", tree);
+      again.overrides.spp = 16;
+      testing::setParam(again.overrides.params, "glossy_gather", kind);
+      again.tileSize = 8;
+      again.threads = 1;
+      again.cacheBytes = 1;
+      EXPECT_TRUE(render(again).pixels() == pbgi.pixels());
+    } else {
+      EXPECT_EQ(report.counters[kGlossyProducts], 0u);
+    }
     EXPECT_GT(report.counters[kGathers], report.counters[kGlossyGathers]);
     int pixels = 0;
     const double error = relMseWhereAlbedo(pbgi, path, specular, 1.0f, &pixels);
@@ -321,7 +337,7 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughBothGlossyBuffers) {
     std::printf(
         "glossy wall (%d pixels), %s: PBGI (16 spp) against path (128 spp): relMSE "
         "%.4g; without its indirect light %.4g\n",
-        pixels, kind, error, withoutIndirect);
+        pixels, kind.c_str(), error, withoutIndirect);
     ASSERT_GT(pixels, 50);
     EXPECT_LT(error, 0.045) << kind;
     EXPECT_GT(withoutIndirect, 3.0 * error) << kind;
