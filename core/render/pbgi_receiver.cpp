@@ -113,15 +113,7 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const S
         !s.ok()) {
       return s;
     }
-    ++(*counters)[kGathers];
-    ++(*counters)[kGlossyGathers];
-    shared_.add({.p = r.hit.p,
-                 .n = r.n,
-                 .reach = kReuseDistanceFraction * r.hit.t,
-                 .planeReach = kReusePlaneFraction * r.hit.t,
-                 .key = kProductKey,
-                 .wo = r.wo,
-                 .slot = slot});
+    keep(r, kProductKey, Rgb(0.0f), slot, counters);
   }
   const ProductGather& gathered = products_[slot];
   ++(*counters)[kGlossyProducts];
@@ -146,16 +138,22 @@ absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& sce
                 : warped_->reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats);
   if (!lo.ok()) return lo.status();
   if (absl::Status s = checkGathered(*lo); !s.ok()) return s;
+  keep(r, r.hit.material, *lo, 0, counters);
+  return *lo;
+}
+
+void PixelGathers::keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
+                        RenderCounters* counters) {
   ++(*counters)[kGathers];
   ++(*counters)[kGlossyGathers];
   shared_.add({.p = r.hit.p,
                .n = r.n,
                .reach = kReuseDistanceFraction * r.hit.t,
                .planeReach = kReusePlaneFraction * r.hit.t,
-               .key = r.hit.material,
+               .key = key,
                .wo = r.wo,
-               .value = *lo});
-  return *lo;
+               .value = value,
+               .slot = slot});
 }
 
 absl::Status checkGathered(const Rgb& value) {

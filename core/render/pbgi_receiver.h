@@ -112,6 +112,10 @@ class PixelGathers {
     Frame frame;
     std::vector<float> incoming;
   };
+  // Counts a glossy gather and keeps it for the pixel's later samples (its value, or where
+  // the product's light is).
+  void keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
+            RenderCounters* counters);
   absl::StatusOr<Rgb> reflectByProduct(TreePageSource& tree, const Scene& scene, const Receiver& r,
                                        GatherStats* stats, RenderCounters* counters);
 
