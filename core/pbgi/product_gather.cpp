@@ -1,8 +1,5 @@
 #include "core/pbgi/product_gather.h"
 
-#include <algorithm>
-#include <cmath>
-
 #include <fmt/format.h>
 
 namespace pbgi {
@@ -21,19 +18,7 @@ absl::Status ProductGatherOptions::validate() const {
         fmt::format("product gather options: the BSDF's resolution {} is not the gather's {}",
                     bsdf.resolution, n));
   }
-  if (bsdf.viewBins < 2 || bsdf.lobeSamples < 0 || bsdf.lobeSamples > 1024 ||
-      !(bsdf.relativeError >= 0.0f && bsdf.relativeError < 1.0f)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "product gather options: BSDF view bins {} (at least 2), lobe samples {} (0 to 1024 a "
-        "side), relative error {} (in [0, 1))",
-        bsdf.viewBins, bsdf.lobeSamples, bsdf.relativeError));
-  }
-  return absl::OkStatus();
-}
-
-std::string ProductGatherOptions::toString() const {
-  return fmt::format("product({} bsdf(bins={} lobe_samples={} error={:g}))", gather.toString(),
-                     bsdf.viewBins, bsdf.lobeSamples, bsdf.relativeError);
+  return bsdf.validate();
 }
 
 ProductGatherOptions productGatherOptions(const GatherOptions& gather) {

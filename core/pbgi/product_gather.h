@@ -18,7 +18,6 @@
 // sample the lobe) rather than resolved, so a sharp reflection of a bright small source is as
 // blurred as a texel is wide.
 #include <span>
-#include <string>
 #include <vector>
 
 #include <absl/status/status.h>
@@ -37,7 +36,6 @@ struct ProductGatherOptions {
   bool operator==(const ProductGatherOptions&) const = default;
   // InvalidArgument naming the field when a value is out of range.
   absl::Status validate() const;
-  std::string toString() const;
 };
 
 // The product gather that goes with a gather preset: a power of two at least a third more

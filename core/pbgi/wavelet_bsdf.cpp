@@ -27,26 +27,30 @@ float WaveletBsdf::binElevation(int bin) const {
   return (static_cast<float>(bin) + 0.5f) * kHalfPi / static_cast<float>(bins());
 }
 
+absl::Status WaveletBsdfOptions::validate() const {
+  if (!isPowerOfTwo(resolution) || resolution > kMaxMicrobufferResolution) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet BSDF resolution {}: expected a power of two up to {}", resolution,
+                    kMaxMicrobufferResolution));
+  }
+  if (viewBins < 2) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet BSDF view bins {}: expected at least 2", viewBins));
+  }
+  if (!(relativeError >= 0.0f && relativeError < 1.0f)) {
+    return absl::InvalidArgumentError(
+        fmt::format("wavelet BSDF relative error {}: expected a number in [0, 1)", relativeError));
+  }
+  if (lobeSamples < 0 || lobeSamples > kMaxLobeSamples) {
+    return absl::InvalidArgumentError(fmt::format(
+        "wavelet BSDF lobe samples {}: expected 0 to {} a side", lobeSamples, kMaxLobeSamples));
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<WaveletBsdf> WaveletBsdf::project(const Material& material, const Rgb& albedo,
                                                  const WaveletBsdfOptions& options) {
-  if (!isPowerOfTwo(options.resolution) || options.resolution > kMaxMicrobufferResolution) {
-    return absl::InvalidArgumentError(fmt::format(
-        "wavelet BSDF resolution {}: expected a power of two up to {}", options.resolution,
-        kMaxMicrobufferResolution));
-  }
-  if (options.viewBins < 2) {
-    return absl::InvalidArgumentError(
-        fmt::format("wavelet BSDF view bins {}: expected at least 2", options.viewBins));
-  }
-  if (!(options.relativeError >= 0.0f && options.relativeError < 1.0f)) {
-    return absl::InvalidArgumentError(fmt::format(
-        "wavelet BSDF relative error {}: expected a number in [0, 1)", options.relativeError));
-  }
-  if (options.lobeSamples < 0 || options.lobeSamples > kMaxLobeSamples) {
-    return absl::InvalidArgumentError(
-        fmt::format("wavelet BSDF lobe samples {}: expected 0 to {} a side", options.lobeSamples,
-                    kMaxLobeSamples));
-  }
+  if (absl::Status s = options.validate(); !s.ok()) return s;
   WaveletBsdf out;
   out.options_ = options;
   out.material_ = std::make_shared<const Material>(material);

@@ -38,15 +38,18 @@ struct WaveletBsdfOptions {
   // narrower lobes, where sampling the lobe does not.
   int lobeSamples = 0;
   bool operator==(const WaveletBsdfOptions&) const = default;
+  // InvalidArgument for a resolution that is not a power of two up to
+  // kMaxMicrobufferResolution, fewer than 2 bins, an error outside [0, 1) or lobe samples
+  // outside 0 to 1024 a side.
+  absl::Status validate() const;
 };
 
 class WaveletBsdf {
  public:
   // Projects the BSDF of `material` with `albedo` (a material whose lobes f() evaluates: not a
   // delta), one slice per outgoing elevation bin. A slice is projected the first time it is
-  // used (thread-safe), so a render pays for the elevations it sees. InvalidArgument for a
-  // resolution that is not a power of two up to kMaxMicrobufferResolution, fewer than 2 bins,
-  // an error outside [0, 1) or lobe samples outside 0 to 1024 a side.
+  // used (thread-safe), so a render pays for the elevations it sees. Errors: the options'
+  // validate().
   static absl::StatusOr<WaveletBsdf> project(const Material& material, const Rgb& albedo,
                                              const WaveletBsdfOptions& options);
 

@@ -85,8 +85,9 @@ Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
 inline constexpr float kReusePlaneFraction = 0.005f;
 inline constexpr float kReuseDistanceFraction = 0.05f;
 
-// A pixel's gathers, shared between its samples: glossy receivers' warped gathers (key: their
-// material, and their view direction) and, for the per-pixel integrator, diffuse irradiance
+// A pixel's gathers, shared between its samples: glossy receivers' microbuffer gathers (key:
+// their material, and their view direction) or product gathers (key: any glossy material, and
+// the view direction), and, for the per-pixel integrator, diffuse irradiance
 // (key kNoMaterial: any diffuse material shares it).
 class PixelGathers {
  public:
