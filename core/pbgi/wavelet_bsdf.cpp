@@ -161,6 +161,12 @@ Rgb WaveletBsdf::reflect(std::span<const float> incoming, float cosThetaO) const
   return a * (1.0f - w) + dotSlice(incoming, lo + 1) * w;
 }
 
+bool WaveletBsdf::reflectsNothing(float cosThetaO) const {
+  if (!(cosThetaO > 0.0f)) return true;
+  const auto [lo, w] = binsAround(cosThetaO);
+  return projected(lo).terms.empty() && (w <= 0.0f || projected(lo + 1).terms.empty());
+}
+
 std::pair<int, float> WaveletBsdf::binsAround(float cosThetaO) const {
   const float theta = std::acos(std::min(cosThetaO, 1.0f));
   // Bin b's centre is at (b + 0.5) of the bin width.

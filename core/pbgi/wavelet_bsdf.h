@@ -61,6 +61,10 @@ class WaveletBsdf {
   // The same from the incoming radiance's every coefficient (incomingCoefficients): the sum
   // over the slice's kept coefficients only, the sparse product a receiver takes per sample.
   Rgb reflect(std::span<const float> incoming, float cosThetaO) const;
+  // Whether reflect() is black towards cosThetaO whatever the light: a direction below the
+  // surface (a shading normal turned from the camera), or slices around it that kept no
+  // coefficient (a BSDF that reflects nothing there). A receiver then skips its gather.
+  bool reflectsNothing(float cosThetaO) const;
   // The Haar coefficients of incoming radiance at the texel centres of six n x n faces (the
   // cube's layout), every one kept: face-major, then channel, then haarForward's pyramid
   // layout, as WaveletRadiance::dense(). Non-finite texels count as black.

@@ -183,8 +183,14 @@ constexpr std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
      "gathers: diffuse receivers (per-pixel microbuffers, or the cut's shading points) and glossy "
      "microbuffers"},
     {"gather_reuses", "samples that took an earlier gather of their pixel"},
-    {"glossy_gathers", "of the gathers, a glossy receiver's (its microbuffer, or the product's cube)"},
+    {"glossy_gathers",
+     "of the gathers, a glossy receiver's (its microbuffer, or the product's cube)"},
     {"glossy_products", "glossy samples reflected by the wavelet product with their BSDF"},
+    {"glossy_products_skipped",
+     "glossy samples whose BSDF slices reflect nothing towards the camera: no product gather"},
+    {"glossy_as_diffuse",
+     "rough glossy samples whose lobe the tree's SH hold: the diffuse gather, by their "
+     "directional albedo"},
     {"nodes_visited", "microbuffer traversals: nodes visited"},
     {"culled_plane", "nodes behind the receiver's tangent plane"},
     {"clusters", "nodes splatted as clusters"},

@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <numbers>
 #include <optional>
+#include <tuple>
 #include <unordered_map>
 #include <vector>
 
@@ -52,17 +53,18 @@ void gatherSky(const std::optional<SkyIrradiance>& sky, size_t count, Gather&& g
 // and each diffuse one goes to diffuse(k, receiver) for the caller's gather. Errors name the
 // pixel.
 template <typename Diffuse>
-absl::Status traceFirstHits(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings,
-                            const TileSamples& samples, size_t firstPixel, size_t endPixel,
-                            std::span<PathSample> out, PixelGathers& pixel, GatherStats* stats,
-                            RenderCounters* counters, Diffuse&& diffuse) {
+absl::Status traceFirstHits(const Scene& scene, const LambertianLobes& lobes, TreePageSource& tree,
+                            const PbgiSettings& settings, const TileSamples& samples,
+                            size_t firstPixel, size_t endPixel, std::span<PathSample> out,
+                            PixelGathers& pixel, GatherStats* stats, RenderCounters* counters,
+                            Diffuse&& diffuse) {
   const size_t spp = static_cast<size_t>(samples.spp);
   for (size_t i = firstPixel; i < endPixel; ++i) {
     if (samples.cancelled()) return cancelledError();
     pixel.newPixel();
     for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
-      const Receiver r = traceReceiver(scene, samples.rays[k], samples.rngs[k], settings.pathTracer,
-                                       &out[k], counters);
+      const Receiver r = traceReceiver(scene, lobes, samples.rays[k], samples.rngs[k],
+                                       settings.pathTracer, &out[k], counters);
       if (r.kind == ReceiverKind::kGlossy) {
         absl::StatusOr<Rgb> lo =
             pixel.reflect(tree, scene, r, out[k].albedo, samples.rngs[k], stats, counters);
@@ -86,6 +88,17 @@ struct DiffuseHit {
   Vec3f p, n, ng, wo;
   float t = 0.0f;
   static DiffuseHit of(const Receiver& r) { return {r.hit.p, r.n, r.ng, r.wo, r.hit.t}; }
+};
+
+// What a diffuse sample makes of its gathers' irradiance and sky light (Receiver's).
+struct DiffuseReflectance {
+  Rgb indirect, sky;
+  static DiffuseReflectance of(const Receiver& r) { return {r.reflectance, r.skyReflectance}; }
+  void apply(const Rgb& irradiance, const Rgb& skyIrradiance, float weight, PathSample& out) const {
+    // In the order a diffuse material's albedo always took: the same bits.
+    out.indirect += indirect * irradiance * std::numbers::inv_pi_v<float> * weight;
+    out.direct += sky * skyIrradiance * std::numbers::inv_pi_v<float> * weight;
+  }
 };
 
 // The diffuse gather a sample takes: an earlier one of its pixel that lies on the same surface
@@ -139,7 +152,13 @@ class PerPixelScratch final : public IntegratorScratch {
   std::vector<Gatherer> gatherers;
   std::vector<Vec3f> positions, normals, geometric;  // the tile's gathers
   std::vector<Rgb> values, sky;
-  std::vector<std::pair<size_t, uint32_t>> uses;  // (sample, gather) of each diffuse sample
+  // Each diffuse sample's: its gather and how it reflects it.
+  struct Use {
+    size_t sample;
+    uint32_t slot;
+    DiffuseReflectance reflectance;
+  };
+  std::vector<Use> uses;
 };
 
 // The per-pixel gather: every diffuse camera sample takes a gather of its own or shares one
@@ -148,7 +167,7 @@ class PerPixelScratch final : public IntegratorScratch {
 class PerPixelPbgi final : public Integrator {
  public:
   PerPixelPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+      : scene_(scene), lobes_(scene), tree_(tree), settings_(withSky(scene, settings)) {
     if (settings_.skyAtRecords) sky_.emplace(scene);
   }
 
@@ -167,7 +186,7 @@ class PerPixelPbgi final : public Integrator {
     state.uses.clear();
     GatherStats stats;
     if (absl::Status s =
-            traceFirstHits(scene_, tree_, settings_, samples, 0, samples.pixelCount(), out,
+            traceFirstHits(scene_, lobes_, tree_, settings_, samples, 0, samples.pixelCount(), out,
                            state.pixel, &stats, counters,
                            [&](size_t k, const Receiver& r) {
                              const auto next = static_cast<uint32_t>(state.positions.size());
@@ -178,7 +197,7 @@ class PerPixelPbgi final : public Integrator {
                                state.normals.push_back(r.n);
                                state.geometric.push_back(r.ng);
                              }
-                             state.uses.push_back({k, slot});
+                             state.uses.push_back({k, slot, DiffuseReflectance::of(r)});
                            });
         !s.ok()) {
       return s;
@@ -206,9 +225,9 @@ class PerPixelPbgi final : public Integrator {
           return CutReceiver{state.positions[i], state.normals[i], state.geometric[i]};
         },
         &state.sky, counters);
-    for (const auto& [k, slot] : state.uses) {
-      out[k].indirect = out[k].albedo * state.values[slot] * std::numbers::inv_pi_v<float>;
-      out[k].direct += out[k].albedo * state.sky[slot] * std::numbers::inv_pi_v<float>;
+    for (const PerPixelScratch::Use& u : state.uses) {
+      out[u.sample].indirect = Rgb(0.0f);
+      u.reflectance.apply(state.values[u.slot], state.sky[u.slot], 1.0f, out[u.sample]);
     }
     addGatherStats(stats, counters);
     return absl::OkStatus();
@@ -216,6 +235,7 @@ class PerPixelPbgi final : public Integrator {
 
  private:
   const Scene& scene_;
+  LambertianLobes lobes_;
   TreePageSource& tree_;
   PbgiSettings settings_;
   std::optional<SkyIrradiance> sky_;
@@ -237,6 +257,7 @@ struct BidirectionalBlock {
     size_t sample;
     uint32_t record;
     float weight;
+    DiffuseReflectance reflectance;
   };
   std::vector<Use> uses;
   std::vector<Rgb> irradiance;
@@ -246,7 +267,7 @@ struct BidirectionalBlock {
   // of `anchorRecords`), the samples that interpolate them, and pixels by position.
   std::vector<SharedGather> anchorRecords;
   std::vector<std::pair<uint32_t, uint32_t>> anchorRange;  // by pixel - the block's first
-  std::vector<std::pair<size_t, DiffuseHit>> between;
+  std::vector<std::tuple<size_t, DiffuseHit, DiffuseReflectance>> between;
   std::unordered_map<uint64_t, uint32_t> pixelAt;  // (y << 32 | x) -> pixel - the block's first
 };
 
@@ -258,7 +279,7 @@ class BidirectionalScratch final : public IntegratorScratch {
 class BidirectionalPbgi final : public Integrator {
  public:
   BidirectionalPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+      : scene_(scene), lobes_(scene), tree_(tree), settings_(withSky(scene, settings)) {
     if (settings_.skyAtRecords) sky_.emplace(scene);
   }
 
@@ -310,9 +331,7 @@ class BidirectionalPbgi final : public Integrator {
         PathSample& ps = out[u.sample];
         if (u.sample != last) ps.indirect = Rgb(0.0f);
         last = u.sample;
-        ps.indirect +=
-            ps.albedo * block.irradiance[u.record] * std::numbers::inv_pi_v<float> * u.weight;
-        ps.direct += ps.albedo * block.sky[u.record] * std::numbers::inv_pi_v<float> * u.weight;
+        u.reflectance.apply(block.irradiance[u.record], block.sky[u.record], u.weight, ps);
       }
     }
     return absl::OkStatus();
@@ -335,17 +354,17 @@ class BidirectionalPbgi final : public Integrator {
     block.between.clear();
     const auto isAnchor = [&](const Vec2i& p) { return p.x % spacing == 0 && p.y % spacing == 0; };
     if (absl::Status s = traceFirstHits(
-            scene_, tree_, settings_, samples, first, first + unitBlock.pixelCount, out,
+            scene_, lobes_, tree_, settings_, samples, first, first + unitBlock.pixelCount, out,
             block.pixel, &stats, &block.counters,
             [&](size_t k, const Receiver& r) {
               if (spacing > 1 && !isAnchor(samples.pixels[k / spp])) {
-                block.between.push_back({k, DiffuseHit::of(r)});
+                block.between.push_back({k, DiffuseHit::of(r), DiffuseReflectance::of(r)});
                 return;
               }
               block.uses.push_back({k,
                                     sharedRecord(block.pixel.shared(), DiffuseHit::of(r),
                                                  &block.receivers, &block.counters),
-                                    1.0f});
+                                    1.0f, DiffuseReflectance::of(r)});
               if (spacing > 1) {
                 // The pixel's records so far, kept for the pixels between (in place of the
                 // copy its earlier sample left at the end).
@@ -391,7 +410,7 @@ class BidirectionalPbgi final : public Integrator {
     }
     GatherReuse& own = block.pixel.shared();
     size_t ownPixel = SIZE_MAX;
-    for (const auto& [k, r] : block.between) {
+    for (const auto& [k, r, reflectance] : block.between) {
       const Vec2i p = samples.pixels[k / spp];
       const int ax = p.x - ((p.x % spacing) + spacing) % spacing;
       const int ay = p.y - ((p.y % spacing) + spacing) % spacing;
@@ -410,7 +429,7 @@ class BidirectionalPbgi final : public Integrator {
                                                     end - begin);
         const SharedGather* g = own.find(records, r.p, r.n, r.wo, kNoMaterial);
         if (g != nullptr && length(r.p - g->p) <= kInterpolationReachFraction * r.t) {
-          block.uses.push_back({k, g->slot, w});
+          block.uses.push_back({k, g->slot, w, reflectance});
           total += w;
         }
       }
@@ -423,11 +442,13 @@ class BidirectionalPbgi final : public Integrator {
         own.clear();
         ownPixel = k / spp;
       }
-      block.uses.push_back({k, sharedRecord(own, r, &block.receivers, &block.counters), 1.0f});
+      block.uses.push_back(
+          {k, sharedRecord(own, r, &block.receivers, &block.counters), 1.0f, reflectance});
     }
   }
 
   const Scene& scene_;
+  LambertianLobes lobes_;
   TreePageSource& tree_;
   PbgiSettings settings_;
   std::optional<SkyIrradiance> sky_;

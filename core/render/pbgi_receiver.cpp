@@ -1,6 +1,11 @@
 #include "core/render/pbgi_receiver.h"
 
+#include <algorithm>
+#include <cmath>
+
+#include "core/bake/surfel_shading.h"
 #include "core/pbgi/bidirectional_cut.h"
+#include "core/sampling/rng.h"
 #include "core/scene/material.h"
 #include "core/util/check.h"
 #include "core/util/status.h"
@@ -13,6 +18,23 @@ constexpr float kReuseNormalCos = 0.95f;
 constexpr float kReuseViewCos = 0.999f;
 // The key of the product's gathers: the light arriving, which any glossy material reflects.
 constexpr uint32_t kProductKey = kNoMaterial - 1;
+
+// The directional albedo towards wo, by the BSDF's own samples on an n x n stratified grid
+// (fixed: the same table every run).
+Rgb directionalAlbedo(const Bsdf& bsdf, const Vec3f& wo, int n, Rng& rng) {
+  Rgb sum(0.0f);
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const Vec2f u((static_cast<float>(i) + rng.uniform()) / static_cast<float>(n),
+                    (static_cast<float>(j) + rng.uniform()) / static_cast<float>(n));
+      const std::optional<BsdfSample> s = bsdf.sample(wo, rng.uniform(), u);
+      if (!s || s->delta || !(s->pdf > 0.0f) || s->wi.z <= 0.0f) continue;
+      const Rgb w = s->f * (s->wi.z / s->pdf);
+      if (isFinite(w)) sum += w;
+    }
+  }
+  return vmin(sum / static_cast<float>(n * n), Rgb(1.0f));
+}
 
 }  // namespace
 
@@ -36,7 +58,36 @@ void addCutStats(const CutStats& s, RenderCounters* c) {
 #undef PBGI_CUT_COUNTER_ADD
 }
 
-Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
+LambertianLobes::LambertianLobes(const Scene& scene) : tables_(scene.materials().size()) {
+  constexpr int kSamplesASide = 48;
+  for (size_t m = 0; m < tables_.size(); ++m) {
+    const Material& material = scene.material(static_cast<uint32_t>(m));
+    // Conductors only: the path tracer serves dielectrics (rough ones too) at the first hit,
+    // and a smooth conductor is a delta lobe.
+    if (material.type != MaterialType::kConductor || material.isEmissive()) continue;
+    const Bsdf bsdf(material, untexturedAlbedo(material));
+    if (bsdf.isDelta() || bsdf.isBlack() || needsWavelets(material)) continue;
+    Rng rng = Rng::forKeys(0x4c414d42ull, m);
+    std::vector<Rgb>& table = tables_[m];
+    table.resize(kBins);
+    for (int b = 0; b < kBins; ++b) {
+      // Bin b at cosine b / (kBins - 1); grazing views at a small cosine, not an edge-on one.
+      const float c = std::max(static_cast<float>(b) / static_cast<float>(kBins - 1), 1e-3f);
+      const Vec3f wo(std::sqrt(std::max(0.0f, 1.0f - c * c)), 0.0f, c);
+      table[b] = directionalAlbedo(bsdf, wo, kSamplesASide, rng);
+    }
+  }
+}
+
+Rgb LambertianLobes::albedo(uint32_t m, float cosTheta) const {
+  const std::vector<Rgb>& table = tables_[m];
+  const float x = std::clamp(cosTheta, 0.0f, 1.0f) * static_cast<float>(kBins - 1);
+  const int b = std::min(static_cast<int>(x), kBins - 2);
+  const float f = x - static_cast<float>(b);
+  return table[b] * (1.0f - f) + table[b + 1] * f;
+}
+
+Receiver traceReceiver(const Scene& scene, const LambertianLobes& lobes, const Ray& ray, Rng& rng,
                        const PathTracerSettings& pathTracer, PathSample* out,
                        RenderCounters* counters) {
   Receiver r;
@@ -70,7 +121,17 @@ Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
   const bool front = dot(r.hit.ng, r.wo) >= 0.0f;
   r.n = front ? r.hit.ns : -r.hit.ns;
   r.ng = front ? r.hit.ng : -r.hit.ng;
-  r.kind = material.type == MaterialType::kDiffuse ? ReceiverKind::kDiffuse : ReceiverKind::kGlossy;
+  if (material.type == MaterialType::kDiffuse) {
+    r.kind = ReceiverKind::kDiffuse;
+    r.reflectance = out->albedo;
+    r.skyReflectance = out->albedo;
+  } else if (lobes.has(r.hit.material)) {
+    ++(*counters)[kGlossyAsDiffuse];
+    r.kind = ReceiverKind::kDiffuse;
+    r.reflectance = lobes.albedo(r.hit.material, dot(r.n, r.wo));
+  } else {
+    r.kind = ReceiverKind::kGlossy;
+  }
   return r;
 }
 
@@ -99,6 +160,10 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const S
   if (slices_[material] == nullptr) {
     PBGI_ASSIGN_OR_RETURN(slices_[material],
                           bsdfs_->get(scene.material(r.hit.material), product_->options().bsdf));
+  }
+  if (slices_[material]->reflectsNothing(dot(r.wo, r.n))) {
+    ++(*counters)[kGlossyProductsSkipped];
+    return Rgb(0.0f);
   }
   uint32_t slot = 0;
   if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, kProductKey)) {

@@ -7,9 +7,10 @@
 //   - the path tracer, for mirrors and glass (delta or refractive BSDFs), whose indirect light
 //     PBGI cannot gather;
 //   - the adaptive microbuffer gather for glossy receivers (Wang et al. 2016), or the warped
-//     one (Ritschel et al. 2009) when the settings ask for it, shared between a pixel's
-//     samples that see the same material the same way;
-//   - a diffuse gather: the per-pixel microbuffer or the bidirectional cut.
+//     one (Ritschel et al. 2009) or the wavelet product when the settings ask for it, shared
+//     between a pixel's samples that see the same material the same way;
+//   - a diffuse gather: the per-pixel microbuffer or the bidirectional cut, also for a rough
+//     glossy receiver whose lobe the tree's SH hold (LambertianLobes below).
 // Surfaces are two-sided, as for the path tracer: a receiver gathers on the side its camera
 // ray arrives from.
 #include <cstdint>
@@ -41,6 +42,8 @@ enum PbgiCounter : size_t {
   kGatherReuses,         // samples that took an earlier gather of their pixel
   kGlossyGathers,
   kGlossyProducts,
+  kGlossyProductsSkipped,
+  kGlossyAsDiffuse,
   kNodesVisited,
   kNodesCulledPlane,
   kClustersSplatted,
@@ -64,18 +67,44 @@ void addCutStats(const CutStats& s, RenderCounters* counters);
 
 enum class ReceiverKind { kNone, kBlack, kPathTraced, kGlossy, kDiffuse };
 
+// Glossy materials whose first hits reflect as diffuse ones (issue 31's skip): a rough
+// conductor whose lobes the tree's SH hold (needsWavelets false, so that the bake made its
+// surfels diffuse ones of its hemispherical albedo) takes the diffuse gather, and reflects the
+// irradiance E it gathers by its directional albedo towards the camera: rho(wo) / pi E, exact
+// under uniform light. A glossy gather would refine a microbuffer, or project a product, for a
+// lobe the cut's SH already carry. Its light samples stay the path tracer's (its sky too: the
+// records' sky light is for diffuse materials, whose samples leave it out).
+class LambertianLobes {
+ public:
+  // The directional albedo's table: this many cosines of the view, from 0 to 1.
+  static constexpr int kBins = 32;
+  // Measures each conductor of `scene` (a few milliseconds each, only for rough conductors).
+  explicit LambertianLobes(const Scene& scene);
+  // Whether material `m` reflects as a diffuse one.
+  bool has(uint32_t m) const { return m < tables_.size() && !tables_[m].empty(); }
+  // Its directional albedo towards a view at `cosTheta` from the normal (interpolated).
+  Rgb albedo(uint32_t m, float cosTheta) const;
+
+ private:
+  std::vector<std::vector<Rgb>> tables_;  // by material; empty: reflects by its own lobe
+};
+
 struct Receiver {
   ReceiverKind kind = ReceiverKind::kNone;
   SurfaceHit hit;
   Vec3f n{0.0f, 0.0f, 1.0f};   // shading normal on the camera's side
   Vec3f ng{0.0f, 0.0f, 1.0f};  // geometric normal on the camera's side
   Vec3f wo{0.0f, 0.0f, 1.0f};  // towards the camera
+  // A diffuse receiver's: what multiplies the gathered irradiance / pi, and the environment's
+  // irradiance / pi at the records (black where the sample's own light samples took the sky).
+  Rgb reflectance{0.0f};
+  Rgb skyReflectance{0.0f};
 };
 
 // Fills `out` with the sample's direct light and AOVs (its indirect light too, for receivers
 // the path tracer serves) and says what the rest needs. Counts black and path-traced
-// receivers.
-Receiver traceReceiver(const Scene& scene, const Ray& ray, Rng& rng,
+// receivers, and glossy ones that take the diffuse path (`lobes`).
+Receiver traceReceiver(const Scene& scene, const LambertianLobes& lobes, const Ray& ray, Rng& rng,
                        const PathTracerSettings& pathTracer, PathSample* out,
                        RenderCounters* counters);
 

@@ -161,6 +161,27 @@ TEST(WaveletBsdf, LobeSampledSlicesHoldANarrowLobesEnergy) {
   }
 }
 
+// What lets a receiver skip its product gather: a view below the surface (a shading normal
+// turned from the camera), or slices that kept nothing (a BSDF that reflects nothing there).
+TEST(WaveletBsdf, ReflectsNothingBelowTheSurfaceOrWhereNoCoefficientIsKept) {
+  WaveletBsdfOptions options;
+  options.resolution = 8;
+  options.viewBins = 8;
+  const Material glossy = ggxConductor(0.15f);
+  auto bsdf = WaveletBsdf::project(glossy, glossy.albedo, options);
+  ASSERT_TRUE(bsdf.ok()) << bsdf.status();
+  EXPECT_TRUE(bsdf->reflectsNothing(-0.2f));
+  EXPECT_TRUE(bsdf->reflectsNothing(0.0f));
+  EXPECT_FALSE(bsdf->reflectsNothing(0.05f));
+  EXPECT_FALSE(bsdf->reflectsNothing(0.7f));
+  Material black = glossy;
+  black.specular = Rgb(0.0f);
+  black.tint = Rgb(0.0f);
+  auto none = WaveletBsdf::project(black, Rgb(0.0f), options);
+  ASSERT_TRUE(none.ok()) << none.status();
+  for (const float c : {0.05f, 0.4f, 0.7f, 1.0f}) EXPECT_TRUE(none->reflectsNothing(c)) << c;
+}
+
 TEST(WaveletBsdf, OneProjectionPerMaterialsParametersAndBadOptionsAreRefused) {
   WaveletBsdfCache cache;
   const WaveletBsdfOptions options{.resolution = 8, .viewBins = 4, .relativeError = 0.05f};

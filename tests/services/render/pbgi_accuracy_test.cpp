@@ -7,9 +7,11 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -154,6 +156,84 @@ TEST(PbgiAccuracy, GlossyCornellBoxCarriesTheBlocksLight) {
   // 1.0102 / 1.0292, 0.0034): its noise is far inside the bounds.
   expectAccurate({"glossy-cornell/glossy-cornell.shot.toml", 64, 64, 60000, 3, 0.07,
                   0.05, true, 512});
+}
+
+// Issue 31's glossy bounce: a glossy plate (GGX 0.15) tilted under a sphere light sends the
+// light's reflection onto the wall in front of it, a spot that is all of the wall's indirect
+// light (the floor is black). PBGI carries it through the plate's glossy surfels, whose light
+// leaves as wavelets (their direct light, and each bounce's light they reflect), and the wall's
+// gather: the wall's mean indirect light within 5 % of the path tracer's. Measured: 1.018,
+// and the wall's lower two thirds 4.9 times as bright as its top third (path tracer: 4.3).
+TEST(PbgiAccuracy, AGlossyPlateLightsTheWallInFrontOfIt) {
+  const fs::path dir = testing::makeTempDir("pbgi-glossy-bounce");
+  {
+    std::ofstream obj(dir / "plate.obj");
+    obj << "mtllib none.mtl\n"
+           "usemtl floor\n"  // y = 0
+           "v -3 0 -3\nv -3 0 3\nv 3 0 3\nv 3 0 -3\nf 1 2 3\nf 1 3 4\n"
+           "usemtl wall\n"  // z = 2, facing the camera
+           "v -3 0 2\nv -3 4 2\nv 3 4 2\nv 3 0 2\nf 5 6 7\nf 5 7 8\n"
+           // A 1.4 m plate at 45 degrees, its top's normal (0, 1, 1) / sqrt 2: light from
+           // straight above leaves it towards +z, onto the wall.
+           "usemtl plate\n"
+           "v -0.7 0.3 0.8\nv 0.7 0.3 0.8\nv 0.7 1.29 -0.19\nv -0.7 1.29 -0.19\n"
+           "f 9 10 11\nf 9 11 12\n";
+  }
+  {
+    std::ofstream toml(dir / "plate.shot.toml");
+    toml << "version = 1\n"
+            "[shot]\nname = \"glossy-bounce\"\nframes = [1, 1]\nresolution = [64, 48]\n"
+            "output = \"out/plate.####.exr\"\n"
+            "[camera]\nposition = [0.0, 3.5, -5.0]\nlook_at = [0.0, 1.2, 2.0]\n"
+            "up = [0.0, 1.0, 0.0]\nfov_y_deg = 45.0\n"
+            "[[geometry]]\nfile = \"plate.obj\"\n"
+            "[[material]]\nname = \"floor\"\ntype = \"diffuse\"\nalbedo = [0.0, 0.0, 0.0]\n"
+            "[[material]]\nname = \"wall\"\ntype = \"diffuse\"\nalbedo = [0.7, 0.7, 0.7]\n"
+            "[[material]]\nname = \"plate\"\ntype = \"conductor\"\nroughness = 0.15\n"
+            "specular = [0.95, 0.93, 0.88]\n"
+            "[[light]]\ntype = \"sphere\"\ncenter = [0.0, 4.0, 0.3]\nradius = 0.2\n"
+            "radiance = [60.0, 60.0, 60.0]\n";
+  }
+  auto loaded = loadShotFile((dir / "plate.shot.toml").string());
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  const ShotDesc shot = *loaded;
+  const Image path = renderPath(shot, dir, 512);
+  const Image pbgi = renderPbgi(shot, dir, 60000, 3);
+  ASSERT_GT(path.width(), 0);
+  ASSERT_GT(pbgi.width(), 0);
+  // The wall's pixels (by their albedo), and their top third and the rest: the spot is low.
+  const int a0 = pbgi.channelIndex("albedo.R"), i0 = pbgi.channelIndex("indirect.R");
+  double got = 0.0, want = 0.0;
+  std::array<double, 2> half = {0.0, 0.0}, pathHalf = {0.0, 0.0};
+  std::array<int, 2> halfPixels = {0, 0};
+  int pixels = 0;
+  for (int y = 0; y < pbgi.height(); ++y) {
+    for (int x = 0; x < pbgi.width(); ++x) {
+      if (std::abs(pbgi.at(x, y, a0) - 0.7f) > 1e-4f || std::abs(path.at(x, y, a0) - 0.7f) > 1e-4f)
+        continue;
+      ++pixels;
+      const int lower = y >= pbgi.height() / 3 ? 1 : 0;
+      ++halfPixels[lower];
+      for (int c = 0; c < 3; ++c) {
+        got += pbgi.at(x, y, i0 + c);
+        want += path.at(x, y, i0 + c);
+        half[lower] += pbgi.at(x, y, i0 + c);
+        pathHalf[lower] += path.at(x, y, i0 + c);
+      }
+    }
+  }
+  ASSERT_GT(pixels, 300);
+  ASSERT_GT(halfPixels[0], 50);
+  const double contrast = half[1] / half[0] * halfPixels[0] / halfPixels[1];
+  const double pathContrast = pathHalf[1] / pathHalf[0] * halfPixels[0] / halfPixels[1];
+  std::printf(
+      "wall in front of a glossy plate (%d pixels): mean indirect %.4f of the path "
+      "tracer's; its lower part %.1f times as bright as its top (path tracer %.1f)\n",
+      pixels, got / want, contrast, pathContrast);
+  EXPECT_GT(contrast, 3.0);  // the spot, in both
+  EXPECT_GT(pathContrast, 3.0);
+  EXPECT_NEAR(got / want, 1.0, 0.05);
+  fs::remove_all(dir);
 }
 
 // The luminance-weighted centroid, in pixels, of the indirect light above 0.6 of its peak in

@@ -344,6 +344,58 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughEveryGlossyGather) {
   }
 }
 
+// The red wall as a rough conductor whose lobe the tree's SH hold (GGX alpha 1: needsWavelets
+// false, so the bake made its surfels diffuse): its samples take the diffuse gather, by their
+// directional albedo, and no glossy one, through either diffuse gather. Compared on the wall's
+// own pixels, as the glossy wall above; its mean too.
+TEST_F(PbgiRender, RoughConductorsWhoseLobeTheShHoldTakeTheDiffuseGather) {
+  const Rgb specular(0.9f, 0.3f, 0.2f);
+  for (MaterialDesc& m : shot_.materials) {
+    if (m.name != "red") continue;
+    m.type = MaterialType::kConductor;
+    m.roughness = 1.0f;
+    m.specular = specular;
+  }
+  const std::string tree = bake(50000, 3);
+  FrameRenderRequest p = request("rough-path", "");
+  p.overrides.integrator = "path";
+  p.overrides.spp = 128;
+  const Image path = render(p);
+  for (const std::string gather : {"per-pixel", "bidirectional"}) {
+    FrameRenderRequest r = request("rough-" + gather, tree, gather);
+    r.overrides.spp = 16;
+    FrameRenderReport report;
+    const Image pbgi = render(r, &report);
+    EXPECT_GT(report.counters[kGlossyAsDiffuse], 0u) << gather;
+    EXPECT_EQ(report.counters[kGlossyGathers], 0u) << gather;
+    int pixels = 0;
+    const double error = relMseWhereAlbedo(pbgi, path, specular, 1.0f, &pixels);
+    const double withoutIndirect = relMseWhereAlbedo(pbgi, path, specular, 0.0f, &pixels);
+    const int r0 = pbgi.channelIndex("R"), a0 = pbgi.channelIndex("albedo.R");
+    double mean = 0.0, reference = 0.0;
+    for (int y = 0; y < pbgi.height(); ++y) {
+      for (int x = 0; x < pbgi.width(); ++x) {
+        const Rgb a(pbgi.at(x, y, a0), pbgi.at(x, y, a0 + 1), pbgi.at(x, y, a0 + 2));
+        if (length(a - specular) > 1e-4f) continue;
+        for (int c = 0; c < 3; ++c) {
+          mean += pbgi.at(x, y, r0 + c);
+          reference += path.at(x, y, r0 + c);
+        }
+      }
+    }
+    std::printf(
+        "rough conductor wall (%d pixels), %s: %llu samples by the diffuse gather; PBGI (16 spp) "
+        "against path (128 spp): relMSE %.4g, mean %.4f of the path tracer's; without its "
+        "indirect light %.4g\n",
+        pixels, gather.c_str(), static_cast<unsigned long long>(report.counters[kGlossyAsDiffuse]),
+        error, mean / reference, withoutIndirect);
+    ASSERT_GT(pixels, 50);
+    EXPECT_LT(error, 0.045) << gather;
+    EXPECT_NEAR(mean / reference, 1.0, 0.03) << gather;
+    EXPECT_GT(withoutIndirect, 3.0 * error) << gather;
+  }
+}
+
 TEST_F(PbgiRender, ADamagedPageFailsTheTileNamingFileAndPage) {
   const std::string tree = bake(20000, 0);
   {
