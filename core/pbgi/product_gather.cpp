@@ -1,5 +1,7 @@
 #include "core/pbgi/product_gather.h"
 
+#include <algorithm>
+
 #include <fmt/format.h>
 
 namespace pbgi {
@@ -27,6 +29,7 @@ ProductGatherOptions productGatherOptions(const GatherOptions& gather) {
   int n = 1;
   while (n < gather.resolution * 4 / 3 && n < kMaxMicrobufferResolution) n *= 2;
   o.gather.resolution = n;
+  o.gather.maxSolidAngle = std::min(gather.maxSolidAngle, 4.0f * kPi / (6.0f * n * n));
   o.bsdf = {.resolution = n, .viewBins = 64, .relativeError = 0.01f, .lobeSamples = 128};
   return o;
 }

@@ -102,6 +102,13 @@ void WaveletBsdf::projectSlice(int bin, Slice* out) const {
       }
     }
   }
+  double sum = 0.0, squares = 0.0;
+  for (const Rgb& t : texels) {
+    const double y = std::max(0.0f, luminance(t));
+    sum += y;
+    squares += y * y;
+  }
+  out->lobeTexels = squares > 0.0 ? static_cast<float>(sum * sum / squares) : 0.0f;
   const WaveletRadiance dense = WaveletRadiance::fromTexels(texels, n, 0.0f);
   out->slice = WaveletRadiance::fromDense(dense.dense(), n, 0.0f, options_.relativeError);
   // The kept coefficients, flat, for the product with dense incoming coefficients.
@@ -165,6 +172,12 @@ bool WaveletBsdf::reflectsNothing(float cosThetaO) const {
   if (!(cosThetaO > 0.0f)) return true;
   const auto [lo, w] = binsAround(cosThetaO);
   return projected(lo).terms.empty() && (w <= 0.0f || projected(lo + 1).terms.empty());
+}
+
+float WaveletBsdf::lobeTexels(float cosThetaO) const {
+  const auto [lo, w] = binsAround(std::max(cosThetaO, 0.0f));
+  const float a = projected(lo).lobeTexels;
+  return w <= 0.0f ? a : std::min(a, projected(lo + 1).lobeTexels);
 }
 
 std::pair<int, float> WaveletBsdf::binsAround(float cosThetaO) const {

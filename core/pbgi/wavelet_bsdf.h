@@ -65,6 +65,13 @@ class WaveletBsdf {
   // surface (a shading normal turned from the camera), or slices around it that kept no
   // coefficient (a BSDF that reflects nothing there). A receiver then skips its gather.
   bool reflectsNothing(float cosThetaO) const;
+  // How many texels the lobe towards cosThetaO spans, in effect: (sum g)^2 / sum g^2 over its
+  // texels' luminance g (the participation ratio: n for a lobe spread evenly over n texels, 1
+  // for one texel), the smaller of the two slices around it. A product resolves a lobe that
+  // spans many texels; one narrower than a few blurs what it reflects over a texel (an edge
+  // beside the mirror direction bleeds into it), and a receiver is better served by a gather
+  // that refines towards the lobe.
+  float lobeTexels(float cosThetaO) const;
   // The Haar coefficients of incoming radiance at the texel centres of six n x n faces (the
   // cube's layout), every one kept: face-major, then channel, then haarForward's pyramid
   // layout, as WaveletRadiance::dense(). Non-finite texels count as black.
@@ -95,6 +102,7 @@ class WaveletBsdf {
     std::atomic<bool> done{false};
     WaveletRadiance slice;
     std::vector<Term> terms;  // its kept coefficients
+    float lobeTexels = 0.0f;
   };
   const Slice& projected(int bin) const;
   void projectSlice(int bin, Slice* slice) const;

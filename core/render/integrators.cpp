@@ -188,6 +188,8 @@ constexpr std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"glossy_products", "glossy samples reflected by the wavelet product with their BSDF"},
     {"glossy_products_skipped",
      "glossy samples whose BSDF slices reflect nothing towards the camera: no product gather"},
+    {"glossy_narrow_lobes",
+     "glossy samples whose lobe is too narrow for the product's cube: the adaptive gather"},
     {"glossy_as_diffuse",
      "rough glossy samples whose lobe the tree's SH hold: the diffuse gather, by their "
      "directional albedo"},

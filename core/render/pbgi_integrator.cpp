@@ -61,7 +61,7 @@ absl::Status traceFirstHits(const Scene& scene, const LambertianLobes& lobes, Tr
   const size_t spp = static_cast<size_t>(samples.spp);
   for (size_t i = firstPixel; i < endPixel; ++i) {
     if (samples.cancelled()) return cancelledError();
-    pixel.newPixel();
+    pixel.newPixel(samples.pixels[i]);
     for (size_t k = i * spp; k < (i + 1) * spp; ++k) {
       const Receiver r = traceReceiver(scene, lobes, samples.rays[k], samples.rngs[k],
                                        settings.pathTracer, &out[k], counters);
@@ -130,12 +130,6 @@ uint32_t sharedRecord(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutRe
   if (slot == next) records->push_back({.p = r.p, .n = r.n, .ng = r.ng});
   return slot;
 }
-
-// How far a record may lie from a sample of another pixel that interpolates it, as a fraction
-// of the sample's distance from the camera: a few pixels at film resolutions (a pixel spans
-// about 1/500 of its distance at 1080p), so that a coarse image, whose pixels are wide in the
-// scene, gathers per pixel rather than stretch records over light that changes between them.
-constexpr float kInterpolationReachFraction = 0.02f;
 
 // How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
 // each page a small cache loads serves many of them, few enough that their microbuffers stay
@@ -246,7 +240,8 @@ class PerPixelPbgi final : public Integrator {
 // One block's state: its receivers, its cut's buffers, what it counted.
 struct BidirectionalBlock {
   BidirectionalBlock(const PbgiSettings& settings, std::shared_ptr<WaveletBsdfCache> bsdfs)
-      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel), std::move(bsdfs)),
+      : pixel(settings, static_cast<size_t>(settings.maxGathersPerPixel), std::move(bsdfs),
+              settings.recordSpacing),
         cut(settings.cut) {}
   PixelGathers pixel;
   BidirectionalCut cut;
@@ -343,6 +338,7 @@ class BidirectionalPbgi final : public Integrator {
                           size_t counterCount) const {
     block.receivers.clear();
     block.uses.clear();
+    block.pixel.newBlock();
     block.counters = RenderCounters{};
     block.counters.values.assign(counterCount, 0);
     GatherStats stats;

@@ -136,8 +136,10 @@ Receiver traceReceiver(const Scene& scene, const LambertianLobes& lobes, const R
 }
 
 PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
-                           std::shared_ptr<WaveletBsdfCache> bsdfs)
-    : bsdfs_(std::move(bsdfs)), shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
+                           std::shared_ptr<WaveletBsdfCache> bsdfs, int productSpacing)
+    : bsdfs_(std::move(bsdfs)),
+      productSpacing_(std::max(productSpacing, 1)),
+      shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
   switch (settings.glossyGather) {
     case GlossyGatherKind::kAdaptive:
       adaptive_.emplace(settings.adaptive);
@@ -148,27 +150,66 @@ PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPix
     case GlossyGatherKind::kProduct:
       PBGI_CHECK(bsdfs_ != nullptr);
       product_.emplace(settings.product);
+      adaptive_.emplace(settings.adaptive);  // for lobes the product does not resolve
       break;
   }
 }
 
-absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const Scene& scene,
-                                                   const Receiver& r, GatherStats* stats,
-                                                   RenderCounters* counters) {
-  const size_t material = r.hit.material;
+void PixelGathers::newPixel(const Vec2i& pixel) {
+  shared_.clear();
+  if (productSpacing_ <= 1) {
+    productsUsed_ = 0;
+    return;
+  }
+  const int s = productSpacing_;
+  const int ax = pixel.x - ((pixel.x % s) + s) % s;
+  const int ay = pixel.y - ((pixel.y % s) + s) % s;
+  if (ay != anchorRowY_) {
+    anchorRowY_ = ay;
+    anchorKept_.clear();
+    anchorKeptX_.clear();
+    anchorProducts_ = 0;
+  }
+  anchorX_ = ax;
+  atAnchor_ = pixel.x == ax && pixel.y == ay;
+  // A pixel between anchors keeps its own gathers for itself alone.
+  productsUsed_ = anchorProducts_;
+}
+
+const SharedGather* PixelGathers::anchorProduct(const Receiver& r) const {
+  if (atAnchor_) return nullptr;
+  // The pixel's own square's anchor first, then the next one along the row.
+  for (const int x : {anchorX_, anchorX_ + productSpacing_}) {
+    for (size_t i = 0; i < anchorKept_.size(); ++i) {
+      if (anchorKeptX_[i] != x) continue;
+      const SharedGather* g =
+          shared_.find(std::span(&anchorKept_[i], 1), r.hit.p, r.n, r.wo, kProductKey);
+      if (g != nullptr) return g;
+    }
+  }
+  return nullptr;
+}
+
+absl::StatusOr<const WaveletBsdf*> PixelGathers::productSlices(const Scene& scene,
+                                                               uint32_t material) {
   if (slices_.size() <= material) slices_.resize(material + 1);
   if (slices_[material] == nullptr) {
     PBGI_ASSIGN_OR_RETURN(slices_[material],
-                          bsdfs_->get(scene.material(r.hit.material), product_->options().bsdf));
+                          bsdfs_->get(scene.material(material), product_->options().bsdf));
   }
-  if (slices_[material]->reflectsNothing(dot(r.wo, r.n))) {
-    ++(*counters)[kGlossyProductsSkipped];
-    return Rgb(0.0f);
-  }
+  return slices_[material].get();
+}
+
+absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const WaveletBsdf& slices,
+                                                   const Receiver& r, GatherStats* stats,
+                                                   RenderCounters* counters) {
   uint32_t slot = 0;
   if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, kProductKey)) {
     ++(*counters)[kGatherReuses];
     slot = g->slot;
+  } else if (const SharedGather* a = anchorProduct(r)) {
+    ++(*counters)[kGatherReuses];
+    slot = a->slot;
   } else {
     slot = static_cast<uint32_t>(productsUsed_++);
     if (products_.size() < productsUsed_) products_.emplace_back();
@@ -178,11 +219,17 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const S
         !s.ok()) {
       return s;
     }
-    keep(r, kProductKey, Rgb(0.0f), slot, counters);
+    const SharedGather kept = keep(r, kProductKey, Rgb(0.0f), slot, counters);
+    if (productSpacing_ > 1 && atAnchor_) {
+      // For the pixels after it (kept while the row of anchors lasts).
+      anchorKept_.push_back(kept);
+      anchorKeptX_.push_back(anchorX_);
+      anchorProducts_ = productsUsed_;
+    }
   }
   const ProductGather& gathered = products_[slot];
   ++(*counters)[kGlossyProducts];
-  const Rgb lo = slices_[material]->reflect(gathered.incoming, dot(r.wo, gathered.frame.n));
+  const Rgb lo = slices.reflect(gathered.incoming, dot(r.wo, gathered.frame.n));
   if (absl::Status s = checkGathered(lo); !s.ok()) return s;
   return lo;
 }
@@ -190,7 +237,19 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const S
 absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& scene,
                                           const Receiver& r, const Rgb& albedo, Rng& rng,
                                           GatherStats* stats, RenderCounters* counters) {
-  if (product_) return reflectByProduct(tree, scene, r, stats, counters);
+  if (product_) {
+    PBGI_ASSIGN_OR_RETURN(const WaveletBsdf* slices, productSlices(scene, r.hit.material));
+    const float cosThetaO = dot(r.wo, r.n);
+    if (slices->reflectsNothing(cosThetaO)) {
+      ++(*counters)[kGlossyProductsSkipped];
+      return Rgb(0.0f);
+    }
+    // A lobe the cube resolves; a narrower one's receiver takes the adaptive gather below.
+    if (slices->lobeTexels(cosThetaO) >= kMinProductLobeTexels) {
+      return reflectByProduct(tree, *slices, r, stats, counters);
+    }
+    ++(*counters)[kGlossyNarrowLobes];
+  }
   if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, r.hit.material)) {
     ++(*counters)[kGatherReuses];
     return g->value;
@@ -207,18 +266,20 @@ absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& sce
   return *lo;
 }
 
-void PixelGathers::keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
-                        RenderCounters* counters) {
+SharedGather PixelGathers::keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
+                                RenderCounters* counters) {
   ++(*counters)[kGathers];
   ++(*counters)[kGlossyGathers];
-  shared_.add({.p = r.hit.p,
-               .n = r.n,
-               .reach = kReuseDistanceFraction * r.hit.t,
-               .planeReach = kReusePlaneFraction * r.hit.t,
-               .key = key,
-               .wo = r.wo,
-               .value = value,
-               .slot = slot});
+  const SharedGather g{.p = r.hit.p,
+                       .n = r.n,
+                       .reach = kReuseDistanceFraction * r.hit.t,
+                       .planeReach = kReusePlaneFraction * r.hit.t,
+                       .key = key,
+                       .wo = r.wo,
+                       .value = value,
+                       .slot = slot};
+  shared_.add(g);
+  return g;
 }
 
 absl::Status checkGathered(const Rgb& value) {

@@ -43,6 +43,7 @@ enum PbgiCounter : size_t {
   kGlossyGathers,
   kGlossyProducts,
   kGlossyProductsSkipped,
+  kGlossyNarrowLobes,
   kGlossyAsDiffuse,
   kNodesVisited,
   kNodesCulledPlane,
@@ -113,22 +114,43 @@ Receiver traceReceiver(const Scene& scene, const LambertianLobes& lobes, const R
 // plane), and in all (the same neighbourhood; a pixel spans about 1/500 of its distance).
 inline constexpr float kReusePlaneFraction = 0.005f;
 inline constexpr float kReuseDistanceFraction = 0.05f;
+// How far a gather may lie from a sample of another pixel that takes it, as a fraction of the
+// sample's distance from the camera: a few pixels at film resolutions (a pixel spans about
+// 1/500 of its distance at 1080p), so that a coarse image, whose pixels are wide in the scene,
+// gathers per pixel rather than stretch gathers over light that changes between them.
+inline constexpr float kInterpolationReachFraction = 0.02f;
 
 // A pixel's gathers, shared between its samples: glossy receivers' microbuffer gathers (key:
 // their material, and their view direction) or product gathers (key: any glossy material, and
 // the view direction), and, for the per-pixel integrator, diffuse irradiance
 // (key kNoMaterial: any diffuse material shares it).
+//
+// Product gathers are shared across pixels too, when `productSpacing` > 1 (the bidirectional
+// integrator's record spacing): the light a glossy receiver gathers depends on where it lies
+// and how it faces, not on its material, and changes slowly across a surface, as the diffuse
+// records' does. The pixels whose coordinates are multiples of the spacing (anchors) keep their
+// product gathers for the pixels of their spacing x spacing square and the next square's along
+// the row: a sample there takes the first that lies on its surface (the test a pixel's samples
+// share by, within kInterpolationReachFraction of its distance) and reflects it with its own
+// view and BSDF; one that finds none gathers its own, shared within its pixel. An anchor must
+// come before the pixels that take it (a block's Morton order visits each square anchor first);
+// a pixel whose anchor has not come, or whose row of anchors has since been left, gathers its
+// own. The result depends only on the pixels' order. Memory: the gathers of one row of anchors
+// at most.
 class PixelGathers {
  public:
   // `bsdfs` (the product gather's BSDF slices, shared by every thread of a render) may be null
   // unless the settings ask for the product.
   PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
-               std::shared_ptr<WaveletBsdfCache> bsdfs = nullptr);
-  // Forget the pixel's gathers: call before each pixel.
-  void newPixel() {
-    shared_.clear();
-    productsUsed_ = 0;
+               std::shared_ptr<WaveletBsdfCache> bsdfs = nullptr, int productSpacing = 1);
+  // Forget every gather kept across pixels: call before each block of pixels.
+  void newBlock() {
+    anchorRowY_ = kNoRow;
+    anchorKept_.clear();
+    anchorProducts_ = 0;
   }
+  // Forget the pixel's gathers (all but the anchors' products): call before each pixel.
+  void newPixel(const Vec2i& pixel);
   GatherReuse& shared() { return shared_; }
   // The glossy reflected radiance towards the camera; jitter drawn from `rng` when it gathers
   // anew.
@@ -143,18 +165,33 @@ class PixelGathers {
     std::vector<float> incoming;
   };
   // Counts a glossy gather and keeps it for the pixel's later samples (its value, or where
-  // the product's light is).
-  void keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
-            RenderCounters* counters);
-  absl::StatusOr<Rgb> reflectByProduct(TreePageSource& tree, const Scene& scene, const Receiver& r,
-                                       GatherStats* stats, RenderCounters* counters);
+  // the product's light is); returns what it kept.
+  SharedGather keep(const Receiver& r, uint32_t key, const Rgb& value, uint32_t slot,
+                    RenderCounters* counters);
+  // The product's BSDF slices of a material (projected the first time a thread asks).
+  absl::StatusOr<const WaveletBsdf*> productSlices(const Scene& scene, uint32_t material);
+  absl::StatusOr<Rgb> reflectByProduct(TreePageSource& tree, const WaveletBsdf& slices,
+                                       const Receiver& r, GatherStats* stats,
+                                       RenderCounters* counters);
 
-  std::optional<WarpedGatherer> warped_;  // one of the three, as the settings say
-  std::optional<AdaptiveGatherer> adaptive_;
+  std::optional<WarpedGatherer> warped_;      // as the settings say: warped, adaptive, or
+  std::optional<AdaptiveGatherer> adaptive_;  // product and adaptive (for narrow lobes)
   std::optional<ProductGatherer> product_;
   std::shared_ptr<WaveletBsdfCache> bsdfs_;
   std::vector<ProductGather> products_;  // the pixel's, by slot (capacity kept across pixels)
   size_t productsUsed_ = 0;
+  // Across pixels: the current row of anchors' product gathers (products_[0, anchorProducts_)),
+  // each with its anchor's x, and where the pixel's anchor is.
+  static constexpr int kNoRow = INT32_MIN;
+  int productSpacing_ = 1;
+  int anchorRowY_ = kNoRow;
+  int anchorX_ = 0;
+  bool atAnchor_ = true;
+  size_t anchorProducts_ = 0;
+  std::vector<SharedGather> anchorKept_;
+  std::vector<int> anchorKeptX_;
+  // The anchor's product gather a sample of another pixel may take: null for none.
+  const SharedGather* anchorProduct(const Receiver& r) const;
   std::vector<std::shared_ptr<const WaveletBsdf>> slices_;  // by the scene's material index
   GatherReuse shared_;
 };

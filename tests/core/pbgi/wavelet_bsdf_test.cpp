@@ -182,6 +182,37 @@ TEST(WaveletBsdf, ReflectsNothingBelowTheSurfaceOrWhereNoCoefficientIsKept) {
   for (const float c : {0.05f, 0.4f, 0.7f, 1.0f}) EXPECT_TRUE(none->reflectsNothing(c)) << c;
 }
 
+// How many texels a lobe spans (what decides whether the product resolves it): more for a
+// rougher lobe and a finer cube, about one for a near mirror.
+TEST(WaveletBsdf, ALobeSpansMoreTexelsTheRougherItIs) {
+  for (const int n : {16, 32}) {
+    WaveletBsdfOptions options;
+    options.resolution = n;
+    options.viewBins = 16;
+    options.lobeSamples = 128;
+    for (const float c : {0.95f, 0.5f}) {
+      float last = 0.0f;
+      std::printf("[ measured ] %d^2, view cosine %.2f: texels a GGX lobe spans:", n, c);
+      for (const float alpha : {0.01f, 0.05f, 0.1f, 0.15f, 0.25f, 0.35f, 0.6f}) {
+        const Material m = ggxConductor(alpha);
+        auto bsdf = WaveletBsdf::project(m, m.albedo, options);
+        ASSERT_TRUE(bsdf.ok()) << bsdf.status();
+        const float texels = bsdf->lobeTexels(c);
+        std::printf(" %.2f: %.1f", alpha, texels);
+        EXPECT_GT(texels, last) << alpha;
+        last = texels;
+      }
+      std::printf("\n");
+    }
+  }
+  const Material mirrorLike = ggxConductor(0.01f);
+  WaveletBsdfOptions options;
+  options.lobeSamples = 128;
+  auto bsdf = WaveletBsdf::project(mirrorLike, mirrorLike.albedo, options);
+  ASSERT_TRUE(bsdf.ok());
+  EXPECT_LT(bsdf->lobeTexels(0.9f), 4.0f);
+}
+
 TEST(WaveletBsdf, OneProjectionPerMaterialsParametersAndBadOptionsAreRefused) {
   WaveletBsdfCache cache;
   const WaveletBsdfOptions options{.resolution = 8, .viewBins = 4, .relativeError = 0.05f};
