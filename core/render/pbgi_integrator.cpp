@@ -131,6 +131,12 @@ uint32_t sharedRecord(GatherReuse& pixel, const DiffuseHit& r, std::vector<CutRe
   return slot;
 }
 
+// How far a record may lie from a sample of another pixel that interpolates it, as a fraction
+// of the sample's distance from the camera: a few pixels at film resolutions (a pixel spans
+// about 1/500 of its distance at 1080p), so that a coarse image, whose pixels are wide in the
+// scene, gathers per pixel rather than stretch records over light that changes between them.
+constexpr float kInterpolationReachFraction = 0.02f;
+
 // How many per-pixel gathers of a tile walk the tree together (gatherTogether): enough that
 // each page a small cache loads serves many of them, few enough that their microbuffers stay
 // bounded (512 of 12^2 x 6 pixels: about 21 MB a thread).

@@ -5,14 +5,15 @@
 // Per-pixel (Christensen 2008): every pixel gathers for its own samples. A sample whose first
 // hit lies on the plane of an earlier gather of the same pixel, near it, facing the same way
 // takes that gather's result; others gather anew into a cube microbuffer (diffuse) or a
-// glossy one (adaptive or warped, as glossyGather says), up to maxGathersPerPixel records. Diffuse receivers reflect albedo / pi
-// times the gathered irradiance.
+// glossy gather (product, adaptive or warped, as glossyGather says), up to maxGathersPerPixel
+// records. Diffuse receivers reflect albedo / pi times the gathered irradiance.
 //
 // Bidirectional (Jarabo et al. 2014, core/pbgi/bidirectional_cut.h): the diffuse receivers
 // of every sample of a block of the fixed grid (its pixels x spp x the views of a camera
 // array) gather together through one cut of the light tree against a tree of the receivers,
 // so that light that is coarse for many pixels is computed once. Glossy receivers keep their
-// own microbuffer.
+// own gathers; the product's are shared across the record spacing's pixels too
+// (pbgi_receiver.h).
 #include <memory>
 
 #include "core/pbgi/adaptive_gather.h"
@@ -36,7 +37,7 @@ enum class GlossyGatherKind { kWarped, kAdaptive, kProduct };
 struct PbgiSettings {
   PbgiGatherKind gather = PbgiGatherKind::kBidirectional;
   GatherOptions perPixel;      // the per-pixel gather's microbuffer
-  GlossyGatherKind glossyGather = GlossyGatherKind::kAdaptive;
+  GlossyGatherKind glossyGather = GlossyGatherKind::kProduct;
   WarpedGatherOptions glossy;     // glossy receivers' warped microbuffer
   AdaptiveGatherOptions adaptive;  // ... or their adaptive one
   ProductGatherOptions product;    // ... or the product's cube and BSDF slices
