@@ -136,9 +136,9 @@ Receiver traceReceiver(const Scene& scene, const LambertianLobes& lobes, const R
 }
 
 PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
-                           std::shared_ptr<WaveletBsdfCache> bsdfs, int productSpacing)
+                           std::shared_ptr<WaveletBsdfCache> bsdfs, int spacing)
     : bsdfs_(std::move(bsdfs)),
-      productSpacing_(std::max(productSpacing, 1)),
+      spacing_(std::max(spacing, 1)),
       shared_(kReuseNormalCos, kReuseViewCos, maxGathersPerPixel) {
   switch (settings.glossyGather) {
     case GlossyGatherKind::kAdaptive:
@@ -157,11 +157,11 @@ PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPix
 
 void PixelGathers::newPixel(const Vec2i& pixel) {
   shared_.clear();
-  if (productSpacing_ <= 1) {
+  if (spacing_ <= 1) {
     productsUsed_ = 0;
     return;
   }
-  const int s = productSpacing_;
+  const int s = spacing_;
   const int ax = pixel.x - ((pixel.x % s) + s) % s;
   const int ay = pixel.y - ((pixel.y % s) + s) % s;
   if (ay != anchorRowY_) {
@@ -176,14 +176,13 @@ void PixelGathers::newPixel(const Vec2i& pixel) {
   productsUsed_ = anchorProducts_;
 }
 
-const SharedGather* PixelGathers::anchorProduct(const Receiver& r) const {
+const SharedGather* PixelGathers::anchorGather(const Receiver& r, uint32_t key) const {
   if (atAnchor_) return nullptr;
   // The pixel's own square's anchor first, then the next one along the row.
-  for (const int x : {anchorX_, anchorX_ + productSpacing_}) {
+  for (const int x : {anchorX_, anchorX_ + spacing_}) {
     for (size_t i = 0; i < anchorKept_.size(); ++i) {
       if (anchorKeptX_[i] != x) continue;
-      const SharedGather* g =
-          shared_.find(std::span(&anchorKept_[i], 1), r.hit.p, r.n, r.wo, kProductKey);
+      const SharedGather* g = shared_.find(std::span(&anchorKept_[i], 1), r.hit.p, r.n, r.wo, key);
       if (g != nullptr) return g;
     }
   }
@@ -207,7 +206,7 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const W
   if (const SharedGather* g = shared_.find(r.hit.p, r.n, r.wo, kProductKey)) {
     ++(*counters)[kGatherReuses];
     slot = g->slot;
-  } else if (const SharedGather* a = anchorProduct(r)) {
+  } else if (const SharedGather* a = anchorGather(r, kProductKey)) {
     ++(*counters)[kGatherReuses];
     slot = a->slot;
   } else {
@@ -219,13 +218,7 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const W
         !s.ok()) {
       return s;
     }
-    const SharedGather kept = keep(r, kProductKey, Rgb(0.0f), slot, counters);
-    if (productSpacing_ > 1 && atAnchor_) {
-      // For the pixels after it (kept while the row of anchors lasts).
-      anchorKept_.push_back(kept);
-      anchorKeptX_.push_back(anchorX_);
-      anchorProducts_ = productsUsed_;
-    }
+    keepForPixelsAfter(keep(r, kProductKey, Rgb(0.0f), slot, counters));
   }
   const ProductGather& gathered = products_[slot];
   ++(*counters)[kGlossyProducts];
@@ -254,6 +247,10 @@ absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& sce
     ++(*counters)[kGatherReuses];
     return g->value;
   }
+  if (const SharedGather* g = anchorGather(r, r.hit.material)) {
+    ++(*counters)[kGatherReuses];
+    return g->value;
+  }
   const Bsdf bsdf(scene.material(r.hit.material), albedo);
   const Frame frame(r.n);
   const Vec2f jitter(rng.uniform(), rng.uniform());
@@ -262,7 +259,7 @@ absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& sce
                 : warped_->reflect(tree, r.hit.p, frame, bsdf, frame.toLocal(r.wo), jitter, stats);
   if (!lo.ok()) return lo.status();
   if (absl::Status s = checkGathered(*lo); !s.ok()) return s;
-  keep(r, r.hit.material, *lo, 0, counters);
+  keepForPixelsAfter(keep(r, r.hit.material, *lo, 0, counters));
   return *lo;
 }
 
@@ -280,6 +277,13 @@ SharedGather PixelGathers::keep(const Receiver& r, uint32_t key, const Rgb& valu
                        .slot = slot};
   shared_.add(g);
   return g;
+}
+
+void PixelGathers::keepForPixelsAfter(const SharedGather& g) {
+  if (spacing_ <= 1 || !atAnchor_) return;
+  anchorKept_.push_back(g);
+  anchorKeptX_.push_back(anchorX_);
+  anchorProducts_ = productsUsed_;  // an anchor's product gathers stay while its row lasts
 }
 
 absl::Status checkGathered(const Rgb& value) {

@@ -120,27 +120,31 @@ inline constexpr float kReuseDistanceFraction = 0.05f;
 // the view direction), and, for the per-pixel integrator, diffuse irradiance
 // (key kNoMaterial: any diffuse material shares it).
 //
-// Product gathers are shared across pixels too, when `productSpacing` > 1 (the bidirectional
-// integrator's record spacing): the light a glossy receiver gathers depends on where it lies
-// and how it faces, not on its material, and changes slowly across a surface, as the diffuse
-// records' does. The pixels whose coordinates are multiples of the spacing (anchors) keep their
-// product gathers for the other pixels of their spacing x spacing square: a sample there takes
-// the first of its own anchor's, else of the next anchor's along the row, that passes the test
-// a pixel's samples share by (the same plane, near, facing and seen the same way), and reflects
-// it with its own view and BSDF; one that finds none gathers its own, shared within its pixel.
-// (The diffuse records' tighter reach, kInterpolationReachFraction, kept 1,157 of the 1,502
-// product gathers of a 96^2 glossy Cornell box: a pixel's samples lie up to a filter's width
-// apart, which a grazing wall stretches; this test kept 420.) An anchor must
-// come before the pixels that take it (a block's Morton order visits each square anchor first);
-// a pixel whose anchor has not come, or whose row of anchors has since been left, gathers its
-// own. The result depends only on the pixels' order. Memory: the gathers of one row of anchors
-// at most.
+// Glossy gathers are shared across pixels too, when `spacing` > 1 (the bidirectional
+// integrator's record spacing), as the diffuse records are. The pixels whose coordinates are
+// multiples of the spacing (anchors) keep their glossy gathers for the other pixels of their
+// spacing x spacing square: a sample there takes the first of its own anchor's, else of the
+// next anchor's along the row, that passes the test a pixel's samples share by (the same
+// plane, near, facing and seen the same way, the same key). What it takes:
+//   - a product gather: the light arriving, which depends on where the receiver lies and how
+//     it faces, not on its material; the sample reflects it with its own view and BSDF;
+//   - a microbuffer gather (adaptive or warped): the radiance its material reflects towards a
+//     view within 2.6 degrees of the sample's, as a pixel's own samples share it. A lobe is
+//     degrees wide and a pixel's view hundredths of one at film resolutions, so a glossy
+//     reflection changes little across the square.
+// One that finds none gathers its own, shared within its pixel. (The diffuse records' tighter
+// reach, kInterpolationReachFraction, kept 1,157 of the 1,502 product gathers of a 96^2 glossy
+// Cornell box: a pixel's samples lie up to a filter's width apart, which a grazing wall
+// stretches; this test kept 420.) An anchor must come before the pixels that take it (a
+// block's Morton order visits each square anchor first); a pixel whose anchor has not come, or
+// whose row of anchors has since been left, gathers its own. The result depends only on the
+// pixels' order. Memory: the gathers of one row of anchors at most.
 class PixelGathers {
  public:
   // `bsdfs` (the product gather's BSDF slices, shared by every thread of a render) may be null
   // unless the settings ask for the product.
   PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPixel,
-               std::shared_ptr<WaveletBsdfCache> bsdfs = nullptr, int productSpacing = 1);
+               std::shared_ptr<WaveletBsdfCache> bsdfs = nullptr, int spacing = 1);
   // Forget every gather kept across pixels: call before each block of pixels.
   void newBlock() {
     anchorRowY_ = kNoRow;
@@ -179,18 +183,20 @@ class PixelGathers {
   std::shared_ptr<WaveletBsdfCache> bsdfs_;
   std::vector<ProductGather> products_;  // the pixel's, by slot (capacity kept across pixels)
   size_t productsUsed_ = 0;
-  // Across pixels: the current row of anchors' product gathers (products_[0, anchorProducts_)),
-  // each with its anchor's x, and where the pixel's anchor is.
+  // Across pixels: the current row of anchors' glossy gathers, each with its anchor's x (the
+  // product's light in products_[0, anchorProducts_)), and where the pixel's anchor is.
   static constexpr int kNoRow = INT32_MIN;
-  int productSpacing_ = 1;
+  int spacing_ = 1;
   int anchorRowY_ = kNoRow;
   int anchorX_ = 0;
   bool atAnchor_ = true;
   size_t anchorProducts_ = 0;
   std::vector<SharedGather> anchorKept_;
   std::vector<int> anchorKeptX_;
-  // The anchor's product gather a sample of another pixel may take: null for none.
-  const SharedGather* anchorProduct(const Receiver& r) const;
+  // The anchor's glossy gather of key `key` a sample of another pixel may take: null for none.
+  const SharedGather* anchorGather(const Receiver& r, uint32_t key) const;
+  // Keeps a gather of an anchor pixel for the pixels after it.
+  void keepForPixelsAfter(const SharedGather& g);
   std::vector<std::shared_ptr<const WaveletBsdf>> slices_;  // by the scene's material index
   GatherReuse shared_;
 };
