@@ -59,7 +59,7 @@ void addCutStats(const CutStats& s, RenderCounters* c) {
 }
 
 LambertianLobes::LambertianLobes(const Scene& scene) : tables_(scene.materials().size()) {
-  constexpr int kSamplesASide = 48;
+  constexpr int kSamplesASide = 32;
   for (size_t m = 0; m < tables_.size(); ++m) {
     const Material& material = scene.material(static_cast<uint32_t>(m));
     // Conductors only: the path tracer serves dielectrics (rough ones too) at the first hit,

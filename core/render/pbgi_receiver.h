@@ -79,7 +79,8 @@ class LambertianLobes {
  public:
   // The directional albedo's table: this many cosines of the view, from 0 to 1.
   static constexpr int kBins = 32;
-  // Measures each conductor of `scene` (a few milliseconds each, only for rough conductors).
+  // Measures each conductor of `scene`: whether the SH hold its lobe (0.35 ms), and for those
+  // they hold the table, 32^2 stratified BSDF samples a bin (about 4 ms).
   explicit LambertianLobes(const Scene& scene);
   // Whether material `m` reflects as a diffuse one.
   bool has(uint32_t m) const { return m < tables_.size() && !tables_[m].empty(); }

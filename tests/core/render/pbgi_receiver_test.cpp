@@ -58,7 +58,7 @@ TEST(LambertianLobes, RoughConductorsWhoseLobeTheShHoldReflectByTheirDirectional
   }
   std::printf("[ measured ] GGX 1.0 directional albedo table: worst relative error %.4f\n", worst);
   // The table holds what one Lambertian albedo cannot: GGX alpha 1 reflects far more at a
-  // grazing view than head-on (measured, red: 0.717 at cosine 0.08, 0.278 at 0.99; its
+  // grazing view than head-on (measured, red: 0.716 at cosine 0.08, 0.278 at 0.99; its
   // shadowing-masking loses most head-on), so the view's own albedo is what scales E / pi.
   const float grazing = lobes.albedo(1, 0.08f).x, headOn = lobes.albedo(1, 0.99f).x;
   std::printf("[ measured ] GGX 1.0 albedo, red: %.3f grazing, %.3f head-on\n", grazing, headOn);
