@@ -218,12 +218,20 @@ absl::Status gatherTogether(TreePageSource& tree, std::span<Gatherer> gatherers,
 
 absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
                                  GatherStats* stats) {
+  return rasterizeIn(tree, position, normal, nullptr, stats);
+}
+
+absl::Status Gatherer::rasterizeIn(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
+                                   const Frame* frame, GatherStats* stats) {
   absl::StatusOr<Vec3f> n = receiverNormal(position, normal);
   if (!n.ok()) return n.status();
   GatherStats local;
   local.gathers = 1;
-  buffer_.clear(position, *n);
+  // The buffer's horizon: the normal in its axes (+z in the receiver's own frame).
+  buffer_.clear(position, frame != nullptr ? Vec3f(0.0f, 0.0f, 1.0f) : *n);
+  local_ = frame;
   absl::Status status = traverse(tree, position, *n, &local);
+  local_ = nullptr;
   local.facesSkipped = static_cast<uint64_t>(buffer_.skippedFaces());
   local.pixelsSkipped = static_cast<uint64_t>(buffer_.skippedPixels());
   if (stats != nullptr) *stats += local;
@@ -232,18 +240,7 @@ absl::Status Gatherer::rasterize(TreePageSource& tree, const Vec3f& position, co
 
 absl::Status Gatherer::rasterizeLocal(TreePageSource& tree, const Vec3f& position,
                                       const Frame& frame, GatherStats* stats) {
-  absl::StatusOr<Vec3f> n = receiverNormal(position, frame.n);
-  if (!n.ok()) return n.status();
-  GatherStats local;
-  local.gathers = 1;
-  buffer_.clear(position, Vec3f(0.0f, 0.0f, 1.0f));
-  local_ = &frame;
-  absl::Status status = traverse(tree, position, *n, &local);
-  local_ = nullptr;
-  local.facesSkipped = static_cast<uint64_t>(buffer_.skippedFaces());
-  local.pixelsSkipped = static_cast<uint64_t>(buffer_.skippedPixels());
-  if (stats != nullptr) *stats += local;
-  return status;
+  return rasterizeIn(tree, position, frame.n, &frame, stats);
 }
 
 absl::StatusOr<Rgb> Gatherer::irradiance(TreePageSource& tree, const Vec3f& position,

@@ -123,6 +123,9 @@ class Gatherer {
   void gatherSurfels(const TreePage& page, const TreeNode& leaf, const Vec3f& p, const Vec3f& n,
                      GatherStats* stats);
 
+  // rasterize (frame null) and rasterizeLocal.
+  absl::Status rasterizeIn(TreePageSource& tree, const Vec3f& position, const Vec3f& normal,
+                           const Frame* frame, GatherStats* stats);
   // A world vector in the buffer's axes: itself, or the frame's coordinates (rasterizeLocal).
   Vec3f toBuffer(const Vec3f& v) const { return local_ ? local_->toLocal(v) : v; }
 

@@ -5,7 +5,8 @@
 // transformed with every coefficient kept, and each camera sample that shares the gather takes
 // the sparse dot product of those coefficients with its material's BSDF slice for its own
 // outgoing elevation (wavelet_bsdf.h). The gather is a function of where the receiver lies and
-// how it faces, not of its material: the samples of a pixel on any glossy material share it.
+// how it faces, not of its material: the samples of a pixel on any glossy material share it
+// (and, through the bidirectional cut, the pixels around it: core/render/pbgi_receiver.h).
 //
 // The frame. Its z is the receiver's normal and its x the tangent towards the view direction
 // of the sample that gathered (the slices' frame, whose wo has azimuth 0). A sample that shares
@@ -14,9 +15,9 @@
 //
 // Against the warped and adaptive microbuffers (warped_gather.h, adaptive_gather.h), which
 // rasterize again for every BSDF and view, the light is gathered once per footprint at a
-// fixed resolution; a lobe narrower than a texel is integrated over the texels (the slices
-// sample the lobe) rather than resolved, so a sharp reflection of a bright small source is as
-// blurred as a texel is wide.
+// fixed resolution; a lobe is integrated over the texels (the slices sample the lobe) rather
+// than resolved, so a reflection is as blurred as a texel is wide. A lobe that spans few
+// texels is therefore left to the adaptive microbuffer (kMinProductLobeTexels below).
 #include <span>
 #include <vector>
 

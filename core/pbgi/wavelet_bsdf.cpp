@@ -161,11 +161,7 @@ Rgb WaveletBsdf::dotSlice(std::span<const float> incoming, int bin) const {
 Rgb WaveletBsdf::reflect(std::span<const float> incoming, float cosThetaO) const {
   const size_t n = static_cast<size_t>(options_.resolution);
   PBGI_CHECK_EQ(incoming.size(), 6 * 3 * n * n);
-  if (!(cosThetaO > 0.0f)) return Rgb(0.0f);
-  const auto [lo, w] = binsAround(cosThetaO);
-  const Rgb a = dotSlice(incoming, lo);
-  if (w <= 0.0f) return a;
-  return a * (1.0f - w) + dotSlice(incoming, lo + 1) * w;
+  return interpolated(cosThetaO, [&](int bin) { return dotSlice(incoming, bin); });
 }
 
 bool WaveletBsdf::reflectsNothing(float cosThetaO) const {
@@ -190,11 +186,7 @@ std::pair<int, float> WaveletBsdf::binsAround(float cosThetaO) const {
 }
 
 Rgb WaveletBsdf::reflect(const WaveletRadiance& incoming, float cosThetaO) const {
-  if (!(cosThetaO > 0.0f)) return Rgb(0.0f);
-  const auto [lo, w] = binsAround(cosThetaO);
-  const Rgb a = incoming.dot(slice(lo));
-  if (w <= 0.0f) return a;
-  return a * (1.0f - w) + incoming.dot(slice(lo + 1)) * w;
+  return interpolated(cosThetaO, [&](int bin) { return incoming.dot(slice(bin)); });
 }
 
 size_t WaveletBsdf::keptCoefficients() const {

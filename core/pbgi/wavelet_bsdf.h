@@ -111,6 +111,16 @@ class WaveletBsdf {
   std::pair<int, float> binsAround(float cosThetaO) const;
   // The product with one slice.
   Rgb dotSlice(std::span<const float> incoming, int bin) const;
+  // What both reflect()s take: the products with the two slices around cosThetaO
+  // (productWith(bin)), interpolated; black below the surface.
+  template <typename ProductWith>
+  Rgb interpolated(float cosThetaO, ProductWith&& productWith) const {
+    if (!(cosThetaO > 0.0f)) return Rgb(0.0f);
+    const auto [lo, w] = binsAround(cosThetaO);
+    const Rgb a = productWith(lo);
+    if (w <= 0.0f) return a;
+    return a * (1.0f - w) + productWith(lo + 1) * w;
+  }
 
   WaveletBsdfOptions options_;
   std::shared_ptr<const Material> material_;  // a copy: the BSDF a slice is projected from

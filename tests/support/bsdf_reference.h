@@ -1,5 +1,6 @@
 #pragma once
 // Materials and brute-force references the glossy gathers' tests share.
+#include <array>
 #include <cmath>
 #include <span>
 
@@ -25,8 +26,9 @@ inline Material dielectricMaterial(float roughness) {
   return m;
 }
 
-inline Material conductorMaterial(float roughness, const Rgb& specular,
-                           MicrofacetDistribution distribution = MicrofacetDistribution::kGgx) {
+inline Material conductorMaterial(
+    float roughness, const Rgb& specular,
+    MicrofacetDistribution distribution = MicrofacetDistribution::kGgx) {
   Material m;
   m.type = MaterialType::kConductor;
   m.roughness = roughness;
@@ -52,7 +54,9 @@ inline Rgb directionalAlbedo(const Bsdf& bsdf, const Vec3f& wo, int n = 512) {
   return Rgb(float(sum[0] / count), float(sum[1] / count), float(sum[2] / count));
 }
 
-inline float relativeError(float value, float expected) { return std::abs(value / expected - 1.0f); }
+inline float relativeError(float value, float expected) {
+  return std::abs(value / expected - 1.0f);
+}
 
 inline Vec3f unitWo(float x, float y, float z) { return normalize(Vec3f(x, y, z)); }
 
@@ -91,6 +95,25 @@ inline double referenceDiskReflection(const Bsdf& bsdf, const Frame& frame, cons
   disk.radius = radius;
   disk.radiance = Rgb(radiance);
   return referenceDisksReflection(bsdf, frame, wo, std::span(&disk, 1));
+}
+
+// The glossy gathers' small bright source: for a receiver at the origin facing +z, seen from
+// each of four views, a disk 3 units away a little off the view's mirror direction, facing the
+// receiver.
+struct DiskNearMirror {
+  Vec3f wo, center, normal;
+};
+inline std::array<DiskNearMirror, 4> disksNearMirror() {
+  const std::array<Vec3f, 4> views = {unitWo(0.4f, 0.1f, 1), unitWo(-0.2f, 0.7f, 1),
+                                      unitWo(0.05f, 0, 1), unitWo(1, 0.3f, 0.8f)};
+  std::array<DiskNearMirror, 4> out;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const Vec3f& wo = views[i];
+    const Vec3f mirror(-wo.x, -wo.y, wo.z);
+    const Vec3f center = 3.0f * normalize(mirror + Vec3f(0.02f, -0.01f, 0));
+    out[i] = {wo, center, -normalize(center)};
+  }
+  return out;
 }
 
 }  // namespace pbgi::testing

@@ -23,11 +23,13 @@ namespace {
 using testing::conductorMaterial;
 using testing::diffuseMaterial;
 using testing::directionalAlbedo;
+using testing::DiskNearMirror;
+using testing::disksNearMirror;
+using testing::diskSurfels;
 using testing::FailingPageSource;
 using testing::RecordingSource;
 using testing::referenceDiskReflection;
 using testing::relativeError;
-using testing::diskSurfels;
 using testing::sphereSurfels;
 using testing::treeOf;
 using testing::unitWo;
@@ -174,11 +176,8 @@ TEST(AdaptiveGather, GlossyReflectionOfASmallDisk) {
   WarpedGatherer warped{WarpedGatherOptions{}};
   double adaptiveError = 0.0, warpedError = 0.0;
   int views = 0;
-  for (const Vec3f& wo : {unitWo(0.4f, 0.1f, 1), unitWo(-0.2f, 0.7f, 1), unitWo(0.05f, 0, 1),
-                          unitWo(1, 0.3f, 0.8f)}) {
-    const Vec3f mirror(-wo.x, -wo.y, wo.z);
-    const Vec3f center = 3.0f * normalize(mirror + Vec3f(0.02f, -0.01f, 0));
-    const Vec3f normal = -normalize(center);
+  for (const DiskNearMirror& disk : disksNearMirror()) {
+    const Vec3f &wo = disk.wo, &center = disk.center, &normal = disk.normal;
     auto tree = treeOf(diskSurfels(8000, center, normal, 0.25f, Rgb(10.0f)));
     const double reference = referenceDiskReflection(bsdf, frame, wo, center, normal, 0.25f, 10.0f);
     Rng rng(9);

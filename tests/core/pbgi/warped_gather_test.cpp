@@ -23,16 +23,18 @@ using testing::conductorMaterial;
 using testing::dielectricMaterial;
 using testing::diffuseMaterial;
 using testing::directionalAlbedo;
+using testing::DiskNearMirror;
+using testing::disksNearMirror;
+using testing::diskSurfels;
 using testing::FailingPageSource;
-using testing::referenceDiskReflection;
-using testing::relativeError;
-using testing::unitWo;
 using testing::memoryTree;
 using testing::MemoryTreeSource;
 using testing::RecordingSource;
-using testing::treeOf;
-using testing::diskSurfels;
+using testing::referenceDiskReflection;
+using testing::relativeError;
 using testing::sphereSurfels;
+using testing::treeOf;
+using testing::unitWo;
 
 // The pixels' regions tile the hemisphere: their solid angles add up to 2 pi, and directions
 // drawn uniformly over it fall into the pixels in proportion to those solid angles.
@@ -189,12 +191,8 @@ TEST(WarpedGather, GlossyReflectionBeatsTheCubeMicrobuffer) {
   WarpedGatherer warped{WarpedGatherOptions{}};
   double warpedError = 0.0, cubeError = 0.0, jitteredError = 0.0;
   int views = 0;
-  for (const Vec3f& wo : {unitWo(0.4f, 0.1f, 1), unitWo(-0.2f, 0.7f, 1), unitWo(0.05f, 0, 1),
-                          unitWo(1, 0.3f, 0.8f)}) {
-    // The disk is centred a little off the mirror direction, facing the receiver.
-    const Vec3f mirror(-wo.x, -wo.y, wo.z);
-    const Vec3f center = 3.0f * normalize(mirror + Vec3f(0.02f, -0.01f, 0));
-    const Vec3f normal = -normalize(center);
+  for (const DiskNearMirror& disk : disksNearMirror()) {
+    const Vec3f &wo = disk.wo, &center = disk.center, &normal = disk.normal;
     const float radius = 0.25f;
     auto tree = treeOf(diskSurfels(8000, center, normal, radius, Rgb(emitted)));
     const double reference =
