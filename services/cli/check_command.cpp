@@ -41,7 +41,9 @@ nlohmann::ordered_json toJson(const ShotDesc& shot, const ShotCheck& check) {
                       {"roughness", g.roughness},
                       {"wavelet_bsdf_coefficients", g.keptCoefficients},
                       {"wavelet_bsdf_dense_coefficients", g.denseCoefficients},
-                      {"wavelet_bsdf_error", g.relativeError}});
+                      {"wavelet_bsdf_error", g.relativeError},
+                      {"lobe_texels", {g.lobeTexelsMin, g.lobeTexelsMax}},
+                      {"glossy_gather", g.gather}});
   }
   return {{"shot", shot.path},
           {"name", shot.name},
@@ -84,9 +86,9 @@ void printText(const ShotDesc& shot, const ShotCheck& check) {
   for (const GlossyMaterialCheck& g : check.glossy) {
     std::printf(
         "glossy material '%s' (roughness %g): its BSDF in wavelets keeps %zu of %zu "
-        "coefficients, %.2f %% L2 error\n",
+        "coefficients, %.2f %% L2 error; its lobe spans %.0f to %.0f texels: %s\n",
         g.name.c_str(), g.roughness, g.keptCoefficients, g.denseCoefficients,
-        100.0 * g.relativeError);
+        100.0 * g.relativeError, g.lobeTexelsMin, g.lobeTexelsMax, g.gather.c_str());
   }
   std::printf("ok: %zu frame%s can render\n", check.frames.size(),
               check.frames.size() == 1 ? "" : "s");

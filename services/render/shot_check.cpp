@@ -1,5 +1,9 @@
 #include "services/render/shot_check.h"
 
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
 #include <fmt/format.h>
 
 #include "core/bake/surfel_shading.h"
@@ -32,15 +36,30 @@ absl::StatusOr<std::vector<GlossyMaterialCheck>> glossyMaterials(const Scene& sc
   // As the product gather of the default preset projects them for its receivers.
   const WaveletBsdfOptions options = productGatherOptions(GatherOptions{}).bsdf;
   for (const Material& m : scene.materials()) {
-    if (!needsWavelets(m) || Bsdf(m, untexturedAlbedo(m)).isDelta()) continue;
+    // Conductors only: the first hit on a dielectric, rough or not, is path traced.
+    if (m.type != MaterialType::kConductor || !needsWavelets(m) ||
+        Bsdf(m, untexturedAlbedo(m)).isDelta()) {
+      continue;
+    }
     PBGI_ASSIGN_OR_RETURN(const std::shared_ptr<const WaveletBsdf> projected,
                           cache.get(m, options));
+    float least = std::numeric_limits<float>::infinity(), most = 0.0f;
+    for (int b = 0; b < projected->bins(); ++b) {
+      const float texels = projected->lobeTexels(std::cos(projected->binElevation(b)));
+      least = std::min(least, texels);
+      most = std::max(most, texels);
+    }
     out.push_back({.name = m.name,
                    .roughness = m.roughness,
                    .keptCoefficients = projected->keptCoefficients(),
                    .denseCoefficients = static_cast<size_t>(projected->bins()) * kCubeFaces * 3 *
                                         options.resolution * options.resolution,
-                   .relativeError = projected->maxRelativeError()});
+                   .relativeError = projected->maxRelativeError(),
+                   .lobeTexelsMin = least,
+                   .lobeTexelsMax = most,
+                   .gather = least >= kMinProductLobeTexels ? "product"
+                             : most < kMinProductLobeTexels ? "adaptive"
+                                                            : "product or adaptive, by view"});
   }
   return out;
 }

@@ -23,15 +23,20 @@ struct FrameCheck {
   std::vector<std::string> warnings;  // the loader's, and a frame with nothing that emits
 };
 
-// A glossy material whose lobes the tree's SH do not hold (needsWavelets), as the wavelet
-// product would reflect light with it (wavelet_bsdf.h, default options): its coefficients kept
-// over every outgoing bin, of how many, and the largest relative L2 error dropped.
+// A glossy receiver's material (a rough conductor) whose lobes the tree's SH do not hold
+// (needsWavelets), as the default preset's wavelet product would reflect light with it
+// (wavelet_bsdf.h): its coefficients kept over every outgoing bin, of how many, the largest
+// relative L2 error dropped, how many of the cube's texels its lobe spans (the least and the
+// most over the bins), and so which gather its receivers take: "product", "adaptive" (a lobe
+// narrower than kMinProductLobeTexels) or "product or adaptive, by view".
 struct GlossyMaterialCheck {
   std::string name;
   float roughness = 0;
   size_t keptCoefficients = 0;
   size_t denseCoefficients = 0;
   float relativeError = 0;
+  float lobeTexelsMin = 0, lobeTexelsMax = 0;
+  std::string gather;
 };
 
 struct ShotCheck {
