@@ -305,14 +305,7 @@ GlossyLeafBaker::Leaf GlossyLeafBaker::collectGlossy(std::span<Surfel> surfels,
   return leaf;
 }
 
-void GlossyLeafBaker::gatherIncoming(Leaf& leaf) const {
-  thread_local std::optional<std::array<Gatherer, 2>> gatherers;
-  if (incoming_ == nullptr || leaf.glossy.empty()) return;
-  GatherOptions gather;
-  gather.resolution = options_.incomingResolution;
-  if (!gatherers || gatherers->front().options() != gather) {
-    gatherers.emplace(std::array<Gatherer, 2>{Gatherer(gather), Gatherer(gather)});
-  }
+void GlossyLeafBaker::locate(Leaf& leaf) {
   float area = 0.0f;
   for (const Leaf::Glossy& g : leaf.glossy) {
     leaf.mean += g.surfel->normal * g.surfel->area();
@@ -322,6 +315,17 @@ void GlossyLeafBaker::gatherIncoming(Leaf& leaf) const {
   leaf.centre = leaf.centre / area;
   leaf.mean =
       leaf.mean.length2() > 0.0f ? normalize(leaf.mean) : leaf.glossy.front().surfel->normal;
+}
+
+void GlossyLeafBaker::gatherIncoming(Leaf& leaf) const {
+  thread_local std::optional<std::array<Gatherer, 2>> gatherers;
+  if (incoming_ == nullptr || leaf.glossy.empty()) return;
+  GatherOptions gather;
+  gather.resolution = options_.incomingResolution;
+  if (!gatherers || gatherers->front().options() != gather) {
+    gatherers.emplace(std::array<Gatherer, 2>{Gatherer(gather), Gatherer(gather)});
+  }
+  locate(leaf);
   GatherStats stats;
   for (int side = 0; side < 2; ++side) {
     const Vec3f n = side == 0 ? leaf.mean : -leaf.mean;
@@ -443,6 +447,50 @@ WaveletRadiance GlossyLeafBaker::operator()(std::span<Surfel> surfels, uint64_t 
   reflectIncoming(leaf, leafKey);
   traceSpecularChains(leaf, leafKey);
   return radiate(leaf);
+}
+
+void GlossyLeafBaker::bakeLeaves(std::span<WaveletLeafJob> jobs, PairGatherStats* stats) const {
+  std::vector<Leaf> leaves(jobs.size());
+  tbb::parallel_for(size_t{0}, jobs.size(),
+                    [&](size_t j) { leaves[j] = collectGlossy(jobs[j].surfels, jobs[j].key); });
+  const std::shared_ptr<const MicrobufferTables> cube = microbufferTables(options_.resolution);
+  if (incoming_ != nullptr) {
+    // Each glossy leaf a receiver of both sides, at its centre, facing its mean normal.
+    std::vector<PairReceiver> receivers;
+    std::vector<size_t> leafOf;
+    for (size_t j = 0; j < leaves.size(); ++j) {
+      if (leaves[j].glossy.empty()) continue;
+      locate(leaves[j]);
+      receivers.push_back({leaves[j].centre, leaves[j].mean, true});
+      leafOf.push_back(j);
+    }
+    PairGatherOptions pair;
+    pair.gather.resolution = options_.incomingResolution;
+    pair.receiverSolidAngle = options_.pairReceiverSolidAngle;
+    // As gatherIncoming: a leaf whose gather fails reflects no incoming light.
+    (void)pairGather(
+        *incoming_, receivers, pair,
+        [&](size_t i, const Microbuffer& above, const Microbuffer* below) {
+          const size_t j = leafOf[i];
+          Leaf& leaf = leaves[j];
+          leaf.sides[0] = &above;
+          leaf.sides[1] = below;
+          leaf.cube = cube;
+          reflectIncoming(leaf, jobs[j].key);
+          leaf.sides[0] = leaf.sides[1] = nullptr;
+        },
+        nullptr, stats);
+  }
+  tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t j) {
+    Leaf& leaf = leaves[j];
+    if (leaf.glossy.empty() && leaf.smooth.empty()) {
+      jobs[j].out = WaveletRadiance();
+      return;
+    }
+    leaf.cube = cube;
+    traceSpecularChains(leaf, jobs[j].key);
+    jobs[j].out = radiate(leaf);
+  });
 }
 
 WaveletRadiance glossyDirectRadiance(const Scene& scene, const Surfel& surfel,

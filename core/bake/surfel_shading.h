@@ -18,8 +18,10 @@
 #include <cstdint>
 #include <span>
 
+#include "core/pbgi/pair_gather.h"
 #include "core/pbgi/surfel.h"
 #include "core/pbgi/tree_page.h"
+#include "core/pbgi/tree_writer.h"
 #include "core/pbgi/wavelet.h"
 #include "core/sampling/rng.h"
 #include "core/scene/scene.h"
@@ -90,6 +92,9 @@ struct GlossyBakeOptions {
   // a bake does it in the tree it ends with alone, the chains being its dearest part.
   bool specularChains = true;
   int incomingResolution = 16;
+  // bakeLeaves: the receiver threshold of the pair refinement that gathers a batch's glossy
+  // leaves together (pair_gather.h; 0: each leaf gathers alone, as operator() does).
+  float pairReceiverSolidAngle = 0.0f;
 };
 
 // What the tree writer asks of the bake for each leaf holding glossy or refractive surfels
@@ -113,11 +118,19 @@ class GlossyLeafBaker {
   // alone. `tree` must be thread-safe (a PageCache) and outlive the calls.
   void setIncoming(TreePageSource* tree) { incoming_ = tree; }
   WaveletRadiance operator()(std::span<Surfel> surfels, uint64_t leafKey) const;
+  // The same for a batch of leaves (TreeWaveletOptions::leaves), their incoming light gathered
+  // by pair refinement over the batch's glossy leaves (pair_gather.h), both sides of each, so
+  // that a cluster that looks alike from a group of leaves is splatted once for the group. With
+  // pairReceiverSolidAngle 0 each job's vector is operator()'s, bit for bit; the same batch
+  // gives the same bits whatever the threads. The refinement's counters add to `stats` (may be
+  // null).
+  void bakeLeaves(std::span<WaveletLeafJob> jobs, PairGatherStats* stats) const;
 
  private:
   const Scene* scene_;
   GlossyBakeOptions options_;
   TreePageSource* incoming_ = nullptr;
+
   std::vector<uint64_t> bases_;     // first global triangle id of each mesh
   std::vector<uint8_t> needs_;      // per scene material: needsWavelets
   bool any_ = false;
@@ -136,6 +149,8 @@ class GlossyLeafBaker {
   // texel, the lights seen through mirrors and glass, then each surfel's outgoing radiance.
   struct Leaf;
   Leaf collectGlossy(std::span<Surfel> surfels, uint64_t leafKey) const;
+  // The leaf's centre and mean normal, where its incoming light is gathered.
+  static void locate(Leaf& leaf);
   void gatherIncoming(Leaf& leaf) const;
   void reflectIncoming(Leaf& leaf, uint64_t leafKey) const;
   void traceSpecularChains(Leaf& leaf, uint64_t leafKey) const;

@@ -38,6 +38,7 @@ namespace pbgi {
 namespace gather_internal {
 struct NodeBounds;
 }  // namespace gather_internal
+class PairWalk;
 
 // Changes whenever a gather's result for the same tree and options changes (a bake whose
 // bounces gathered with another revision is stale): 2 gave clusters their bounding box's depth.
@@ -113,6 +114,7 @@ class Gatherer {
   const Microbuffer& microbuffer() const { return buffer_; }
 
  private:
+  friend class PairWalk;  // pair_gather.cpp: groups splat as the walk would, receivers walk
   friend absl::Status gatherTogether(TreePageSource&, std::span<Gatherer>,
                                      std::span<const Vec3f>, std::span<const Vec3f>,
                                      std::span<Rgb>, GatherStats*);

@@ -223,6 +223,19 @@ bool Microbuffer::compose(int k, float distance, float extent, float alpha, cons
   return pixels_[k].compose(distance, extent, alpha, radiance * alpha);
 }
 
+void Microbuffer::composeBuffer(const Microbuffer& other) {
+  PBGI_CHECK_EQ(other.n_, n_);
+  for (size_t k = 0; k < pixels_.size(); ++k) {
+    const Pixel& from = other.pixels_[k];
+    if (!(from.front.coverage > 0.0f) || !(from.front.depth > 0.0f)) continue;
+    Pixel& to = pixels_[k];
+    for (const DepthLayer* layer : {&from.front, &from.back}) {
+      if (!(layer->coverage > 0.0f) || layer->depth == kEmpty) continue;
+      to.compose(layer->depth, layer->extent, layer->coverage, layer->radiance);
+    }
+  }
+}
+
 int Microbuffer::splatFootprint(const Vec3f& dir, float distance, float solidAngle,
                                 const Rgb& radiance, float extent) {
   if (!(distance > 0.0f) || !(solidAngle > 0.0f)) return 0;

@@ -110,6 +110,11 @@ class Microbuffer {
   // (alpha 1) at the hit distance. The origin may be inside the disk's bounding sphere.
   int rayCastDisk(const Vec3f& center, const Vec3f& normal, float radius, const Rgb& radiance);
 
+  // Adds `other`'s picture (same resolution; a receiver group's, pair_gather.h) under what this
+  // buffer holds: each of its pixels' layers, front then back, composed into this buffer's
+  // pixel as a piece of that depth, extent, coverage and radiance. Inactive pixels stay so.
+  void composeBuffer(const Microbuffer& other);
+
   // Irradiance at the origin for a receiver facing `normal` (unit): the sum over pixels of
   // radiance times the clamped cosine integrated over the pixel (exact for pixels above the
   // horizon, from the tables' vector solid angles).

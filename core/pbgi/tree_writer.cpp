@@ -278,6 +278,9 @@ class TreeWriter::Impl {
     std::vector<PageNode> batch;
     std::vector<uint32_t> childCounts;
     std::vector<Quantized> errors;
+    std::vector<WaveletLeafJob> jobs;
+    constexpr size_t kNoJob = ~size_t{0};
+    std::vector<size_t> jobOf;
     ErrorSums powerSums, areaSums;
     uint64_t remaining = spilledNodes_;
     while (remaining > 0) {
@@ -289,10 +292,25 @@ class TreeWriter::Impl {
         if (auto s = readSpilled(&batch[i], &childCounts[i]); !s.ok()) return s;
       }
       const uint64_t firstKey = spilledNodes_ - remaining;
+      // The batch's leaves' wavelets together, when the bake shares work between them.
+      jobs.clear();
+      jobOf.assign(n, kNoJob);
+      if (options_.wavelets.leaf && options_.wavelets.leaves) {
+        for (size_t i = 0; i < n; ++i) {
+          if (childCounts[i] == 0 && hasDirectionalSurfels(batch[i].surfels)) {
+            jobOf[i] = jobs.size();
+            jobs.push_back({std::span<Surfel>(batch[i].surfels), firstKey + i, {}});
+          }
+        }
+        if (!jobs.empty()) options_.wavelets.leaves(jobs);
+      }
       // Codebook lookups (and leaves' wavelets) are the cost; each node's is independent.
       tbb::parallel_for(size_t{0}, n, [&](size_t i) {
         PageNode& node = batch[i];
-        if (childCounts[i] == 0 && options_.wavelets.leaf && hasDirectionalSurfels(node.surfels)) {
+        if (jobOf[i] != kNoJob) {
+          node.wavelet = keptWavelet(std::move(jobs[jobOf[i]].out));
+        } else if (childCounts[i] == 0 && options_.wavelets.leaf &&
+                   hasDirectionalSurfels(node.surfels)) {
           node.wavelet = leafWavelet(node.surfels, firstKey + i);
         }
         const NodeAttributes& a = node.attributes;
@@ -350,7 +368,11 @@ class TreeWriter::Impl {
   }
 
   std::shared_ptr<const WaveletRadiance> leafWavelet(std::span<Surfel> surfels, uint64_t key) {
-    const WaveletRadiance w = options_.wavelets.leaf(surfels, key);
+    return keptWavelet(options_.wavelets.leaf(surfels, key));
+  }
+
+  // A leaf's vector as the tree keeps it (none for a black one).
+  std::shared_ptr<const WaveletRadiance> keptWavelet(const WaveletRadiance& w) {
     // Black (glossy surfels no light reaches): no vector, the same as none.
     const bool black = w.keptNodes() == 0 &&
                        std::all_of(w.faces().begin(), w.faces().end(),

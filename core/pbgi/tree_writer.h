@@ -36,8 +36,19 @@ namespace pbgi {
 // is linear). Every node's vector keeps the fewest quadtree nodes that hold it within
 // relativeError (L2, relative to its norm; WaveletRadiance::fromDense), at most maxNodes. Null
 // (every scene without such materials): no wavelets, and the tree is byte for byte what it was.
+// One leaf of a batch (TreeWaveletOptions::leaves): its surfels, its key, and its vector.
+struct WaveletLeafJob {
+  std::span<Surfel> surfels;
+  uint64_t key = 0;
+  WaveletRadiance out;
+};
+
 struct TreeWaveletOptions {
   std::function<WaveletRadiance(std::span<Surfel> surfels, uint64_t leafKey)> leaf;
+  // Optional, beside `leaf`: a batch of leaves at once (the quantized writer's batches), each
+  // job's `out` set as `leaf` would, so that work leaves share (the glossy bake's pair gather)
+  // is done once for the batch. Called from one thread; it may run its own in parallel.
+  std::function<void(std::span<WaveletLeafJob> jobs)> leaves;
   float relativeError = 0.2f;
   size_t maxNodes = 0;  // 0: as many as a page holds beside the largest node
 };

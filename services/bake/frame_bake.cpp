@@ -129,6 +129,10 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
       request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
       request.waveletResolution, request.tree.wavelets.relativeError,
       request.tree.wavelets.maxNodes, kTreePayloadVersion, request.pbgiVersion);
+  // Only when set, so that bakes made before the setting keep their hash.
+  if (request.glossyPairThreshold > 0.0f) {
+    text += fmt::format("|glossy_pairs={}", request.glossyPairThreshold);
+  }
   return XXH3_64bits(text.data(), text.size());
 }
 
@@ -178,6 +182,11 @@ absl::StatusOr<TreeWriteResult> bakeBounce(const std::string& fromPath, const st
     options.tree.wavelets.leaf = [r = &*reflector](std::span<Surfel> s, uint64_t key) {
       return (*r)(s, key);
     };
+    if (request.glossyPairThreshold > 0.0f) {
+      options.tree.wavelets.leaves = [r = &*reflector, report](std::span<WaveletLeafJob> jobs) {
+        r->bakeLeaves(jobs, &report->glossyPairs);
+      };
+    }
   }
   if (toPath != nullptr) {
     auto created = TreeFileWriter::create(*toPath, options);
@@ -241,6 +250,10 @@ absl::Status validateBakeRequest(const FrameBakeRequest& request) {
     return absl::InvalidArgumentError(
         fmt::format("light samples {}: expected at least 1", request.lightSamples));
   }
+  if (!(request.glossyPairThreshold >= 0.0f && request.glossyPairThreshold <= 4.0f * kPi)) {
+    return absl::InvalidArgumentError(fmt::format(
+        "glossy pairs {}: expected a solid angle from 0 to 4 pi sr", request.glossyPairThreshold));
+  }
   return absl::OkStatus();
 }
 
@@ -276,6 +289,7 @@ struct GlossyBakers {
   static GlossyBakeOptions glossyOptions(const ShotDesc& shot, const FrameBakeRequest& request) {
     GlossyBakeOptions o;
     o.resolution = request.waveletResolution;
+    o.pairReceiverSolidAngle = request.glossyPairThreshold;
     o.seed = shot.render.seed;
     o.frame = request.frame;
     return o;
@@ -484,7 +498,8 @@ absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& path,
 absl::StatusOr<TreeWriteResult> addGlossyIndirect(
     const Scene& scene, const std::string& path, const std::string& stem,
     TreeFileWriteOptions options, const GlossyBakers& glossy, const FrameBakeRequest& request,
-    SpillFile& sorted, BouncedLight& light, const Rgb& tail, uint64_t surfels) {
+    SpillFile& sorted, BouncedLight& light, const Rgb& tail, uint64_t surfels,
+    PairGatherStats* pairs) {
   const std::string lit = stem + ".glossy.tmp.pbgi";
   std::error_code renameError;
   std::filesystem::rename(path, lit, renameError);
@@ -501,6 +516,11 @@ absl::StatusOr<TreeWriteResult> addGlossyIndirect(
     options.tree.wavelets.leaf = [&indirect](std::span<Surfel> s, uint64_t key) {
       return indirect(s, key);
     };
+    if (request.glossyPairThreshold > 0.0f) {
+      options.tree.wavelets.leaves = [&indirect, pairs](std::span<WaveletLeafJob> jobs) {
+        indirect.bakeLeaves(jobs, pairs);
+      };
+    }
     return writeFinalTree(path, options, sorted, light, tail, surfels);
   }();
   std::error_code removeError;
@@ -620,8 +640,9 @@ absl::StatusOr<FrameBakeReport> runBake(const ShotDesc& shot, const FrameBakeReq
     clock.lap("final tree");
     if (glossy.any()) {
       PBGI_ASSIGN_OR_RETURN(
-          report.tree, addGlossyIndirect(scene, report.treePath, stem, treeOptions, glossy, request,
-                                         *sorted, light, report.tail, surfels));
+          report.tree,
+          addGlossyIndirect(scene, report.treePath, stem, treeOptions, glossy, request, *sorted,
+                            light, report.tail, surfels, &report.glossyPairs));
       clock.lap("glossy indirect");
     }
   }

@@ -55,6 +55,9 @@ struct FrameBakeRequest {
   TreeWriteOptions tree;     // encoding, leaf size, page size, codebook sizes, wavelet error
                              // (seed: the shot's; its wavelets' leaf: the bake's)
   int waveletResolution = 16;  // n x n texels a face of glossy surfels' cube maps
+  // Glossy leaves gather the light of the trees before them by pair refinement with this
+  // receiver threshold (sr; pair_gather.h), or each alone (0, the default).
+  float glossyPairThreshold = 0.0f;
   PointCloudMode pointCloud = PointCloudMode::kAuto;
   std::string tempDir;       // spill files; empty: the system's temporary folder
   std::string pbgiVersion;
@@ -75,6 +78,7 @@ struct FrameBakeReport {
   SortStats sort;
   TreeWriteResult tree;
   CutStats bounceCut;  // the bounces' cuts
+  PairGatherStats glossyPairs;  // glossy leaves' gathers of the light of the trees before
   // The bounces' page caches (a quarter of the budget each): loads against the pages of the
   // trees they read.
   uint64_t bounceCacheHits = 0, bounceCacheLoads = 0, bounceTreePages = 0;

@@ -36,6 +36,7 @@ struct BakeOptions {
   bool noTail = false;
   std::optional<float> waveletError;
   std::optional<int> waveletResolution;
+  float glossyPairs = 0.0f;
 };
 
 int runBake(const BakeOptions& o) {
@@ -61,6 +62,7 @@ int runBake(const BakeOptions& o) {
   request.tree.build.leafSize = o.leafSize;
   if (o.waveletError) request.tree.wavelets.relativeError = *o.waveletError;
   if (o.waveletResolution) request.waveletResolution = *o.waveletResolution;
+  request.glossyPairThreshold = o.glossyPairs;
   request.tree.powerCentres = o.powerCentres;
   // CLI11 has already checked the name against the same list.
   request.tree.encoding = parseTreeEncoding(o.encoding).value_or(TreeEncoding::kQuantized);
@@ -148,6 +150,10 @@ int runBake(const BakeOptions& o) {
                 request.bounceTail ? "estimated" : "left out", report->tail.x, report->tail.y,
                 report->tail.z);
   }
+  if (report->glossyPairs.receivers > 0) {
+    std::printf("  glossy leaves' incoming light, by pair refinement: %s\n",
+                report->glossyPairs.toString().c_str());
+  }
   std::printf("%s", formatStages(report->stages).c_str());
   std::printf("wall time %.3f s\n", report->wallSeconds);
   return kExitOk;
@@ -207,6 +213,11 @@ void registerBakeCommand(CLI::App& app, CommandAction& action) {
   cmd->add_option("--wavelet-resolution", options->waveletResolution,
                   "Glossy light: texels a side of each cube-map face (a power of two; default: the "
                   "shot's bake_wavelet_resolution, 16)");
+  cmd->add_option("--glossy-pairs", options->glossyPairs,
+                  "Glossy leaves gather the bounces' light by pair refinement (Wang et al.'s "
+                  "Algorithm 1): a group of leaves takes a cluster once when the group spans at "
+                  "most this solid angle (sr) from it; 0, the default, gathers each leaf alone")
+      ->check(CLI::Range(0.0f, 12.566f));
   cmd->callback([options, &action] { action = [options] { return runBake(*options); }; });
 }
 
