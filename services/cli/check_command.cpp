@@ -84,11 +84,7 @@ void printText(const ShotDesc& shot, const ShotCheck& check) {
     }
   }
   for (const GlossyMaterialCheck& g : check.glossy) {
-    std::printf(
-        "glossy material '%s' (roughness %g): its BSDF in wavelets keeps %zu of %zu "
-        "coefficients, %.2f %% L2 error; its lobe spans %.0f to %.0f texels: %s\n",
-        g.name.c_str(), g.roughness, g.keptCoefficients, g.denseCoefficients,
-        100.0 * g.relativeError, g.lobeTexelsMin, g.lobeTexelsMax, g.gather.c_str());
+    std::printf("%s\n", describeGlossyMaterial(g).c_str());
   }
   std::printf("ok: %zu frame%s can render\n", check.frames.size(),
               check.frames.size() == 1 ? "" : "s");

@@ -9,8 +9,10 @@
 #include <fmt/format.h>
 
 #include "formats/pbgi/tree_file.h"
+#include "formats/shot/shot_file.h"
 #include "formats/vdb/surfel_vdb.h"
 #include "services/cli/cli.h"
+#include "services/render/shot_check.h"
 
 namespace pbgi::cli {
 
@@ -72,6 +74,31 @@ absl::Status walkTree(TreeFile& tree, TreeStatistics* stats) {
     for (const NodeRef& c : page->childrenOf(node)) stack.push_back({c, e.depth + 1});
   }
   return absl::OkStatus();
+}
+
+// The wavelet BSDFs the render projects for the tree's glossy materials (they are made from the
+// shot's materials when a render starts, not stored in the tree): from the shot and frame the
+// tree's header names, as `pbgi check` reports them. A shot that cannot be read any more is
+// said, not an error: the tree itself is whole.
+void printGlossyBsdfs(const TreeFile& tree) {
+  std::string shotPath;
+  int frame = 0;
+  for (const auto& [k, v] : tree.bakeInfo()) {
+    if (k == "shot") shotPath = v;
+    if (k == "frame") frame = std::atoi(v.c_str());
+  }
+  if (shotPath.empty()) return;
+  absl::StatusOr<ShotDesc> shot = loadShotFile(shotPath);
+  absl::StatusOr<ShotCheck> check =
+      shot.ok() ? checkShot(*shot, {frame}) : absl::StatusOr<ShotCheck>(shot.status());
+  if (!check.ok()) {
+    std::printf("  glossy BSDFs: not reported, the shot it was baked from cannot be read: %s\n",
+                std::string(check.status().message()).c_str());
+    return;
+  }
+  for (const GlossyMaterialCheck& g : check->glossy) {
+    std::printf("  %s\n", describeGlossyMaterial(g).c_str());
+  }
 }
 
 int inspectTree(const std::string& path) {
@@ -161,6 +188,7 @@ int inspectTree(const std::string& path) {
         static_cast<unsigned long long>(stats.waveletBytes),
         uncompressed > 0 ? 100.0 * double(stats.waveletBytes) / double(uncompressed) : 0.0,
         key("wavelet_error").c_str(), key("wavelet_max_relative_error").c_str());
+    printGlossyBsdfs(**tree);
   } else {
     std::printf("  wavelets: none\n");
   }

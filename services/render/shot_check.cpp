@@ -66,6 +66,14 @@ absl::StatusOr<std::vector<GlossyMaterialCheck>> glossyMaterials(const Scene& sc
 
 }  // namespace
 
+std::string describeGlossyMaterial(const GlossyMaterialCheck& g) {
+  return fmt::format(
+      "glossy material '{}' (roughness {:g}): its BSDF in wavelets keeps {} of {} coefficients, "
+      "{:.2f} % L2 error; its lobe spans {:.0f} to {:.0f} texels: {}",
+      g.name, g.roughness, g.keptCoefficients, g.denseCoefficients, 100.0 * g.relativeError,
+      g.lobeTexelsMin, g.lobeTexelsMax, g.gather);
+}
+
 absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames,
                                     bool glossy) {
   ShotCheck check;

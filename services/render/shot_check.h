@@ -55,6 +55,11 @@ struct ShotCheck {
 absl::StatusOr<ShotCheck> checkShot(const ShotDesc& shot, const std::vector<int>& frames,
                                     bool glossy = true);
 
+// One line of what `pbgi check` and `pbgi inspect` print of a glossy material: "glossy material
+// 'NAME' (roughness R): its BSDF in wavelets keeps K of N coefficients, E % L2 error; its lobe
+// spans A to B texels: GATHER".
+std::string describeGlossyMaterial(const GlossyMaterialCheck& g);
+
 // "exr", "float RGB", "8-bit".
 std::string toString(OutputFormat format);
 

@@ -77,6 +77,37 @@ TEST(BakeCli, BakesWaveletsOnlyForScenesWithGlossyMaterials) {
                                             " --points 5000 --bounces 1");
   EXPECT_EQ(glossy.exitCode, 0) << glossy.output();
   EXPECT_NE(glossy.out.find("wavelets (glossy light): "), std::string::npos) << glossy.out;
+  // pbgi inspect reports the glossy materials' wavelet BSDFs, from the shot the header names
+  // (the four plates: GGX 0.01 to 0.35), and says so when that shot cannot be read any more.
+  const std::string tree = (dir / "plates" / "plates.0001.pbgi").string();
+  const testing::RunResult inspected = runPbgi("inspect " + shellQuote(tree));
+  EXPECT_EQ(inspected.exitCode, 0) << inspected.output();
+  size_t materials = 0;
+  for (size_t at = inspected.out.find("  glossy material '"); at != std::string::npos;
+       at = inspected.out.find("  glossy material '", at + 1)) {
+    ++materials;
+  }
+  EXPECT_EQ(materials, 4u) << inspected.out;
+  EXPECT_NE(inspected.out.find("its BSDF in wavelets keeps "), std::string::npos) << inspected.out;
+  const fs::path moved = dir / "moved";
+  fs::create_directories(moved);
+  fs::copy_file(plates, moved / "plates.shot.toml");
+  fs::copy_file(plates.parent_path() / "plates.obj", moved / "plates.obj");
+  for (const auto& e : fs::directory_iterator(plates.parent_path())) {
+    if (e.path().extension() == ".mtl") fs::copy_file(e.path(), moved / e.path().filename());
+  }
+  const testing::RunResult movedBake =
+      runPbgi("bake " + shellQuote((moved / "plates.shot.toml").string()) + " --out " +
+              shellQuote((moved / "bake").string()) + " --points 3000 --bounces 0");
+  ASSERT_EQ(movedBake.exitCode, 0) << movedBake.output();
+  fs::remove(moved / "plates.shot.toml");
+  const testing::RunResult orphan =
+      runPbgi("inspect " + shellQuote((moved / "bake" / "plates.0001.pbgi").string()));
+  EXPECT_EQ(orphan.exitCode, 0) << orphan.output();
+  EXPECT_NE(
+      orphan.out.find("glossy BSDFs: not reported, the shot it was baked from cannot be read"),
+      std::string::npos)
+      << orphan.out;
   const testing::RunResult diffuse = runPbgi("bake " + shellQuote(kShot.string()) + " --out " +
                                              shellQuote((dir / "cornell").string()) +
                                              " --points 5000 --bounces 1");
