@@ -64,6 +64,11 @@ const std::vector<ParamSpec>& pbgiParams() {
       {.key = "light_samples", .type = ParamType::kInt, .lo = 1, .hi = 1024, .defaultText = "16",
        .help = "light samples for the direct light at each camera sample's first hit (a camera "
                "sample costs a gather; a light sample is one shadow ray)"},
+      {.key = "glossy_bsdf_samples", .type = ParamType::kInt, .lo = 1, .hi = 1024,
+       .defaultText = "16",
+       .help = "BSDF samples for the direct light at a camera sample's first hit on a rough "
+               "conductor (a near-mirror lobe reflects a small light through them; each is one "
+               "ray)"},
       {.key = "cut_block", .type = ParamType::kInt, .lo = 8, .hi = 1024, .defaultText = "64",
        .help = "bidirectional: pixels a side of the blocks whose samples share one cut"},
       {.key = "record_spacing", .type = ParamType::kInt, .lo = 1, .hi = 8, .defaultText = "2",
@@ -135,7 +140,8 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.blocksPerUnit = static_cast<int>(p.intOr("cut_blocks_together", 16));
   s.pathTracer = {.maxDepth = r.maxDepth,
                   .rouletteDepth = r.rouletteDepth,
-                  .firstHitLightSamples = static_cast<int>(p.intOr("light_samples", 16))};
+                  .firstHitLightSamples = static_cast<int>(p.intOr("light_samples", 16)),
+                  .firstHitBsdfSamples = static_cast<int>(p.intOr("glossy_bsdf_samples", 16))};
   return s;
 }
 

@@ -9,6 +9,7 @@ namespace {
 
 // Seeds the first hit's light samples past the first ("FIRSTLGT").
 constexpr uint64_t kFirstHitLightDomain = 0x46495253544c4754ull;
+constexpr uint64_t kFirstHitBsdfDomain = 0x4649525342534446ull;
 // Random numbers a light sample draws (sampleUnoccludedLight): the light, a point on it.
 constexpr int kLightSampleNumbers = 3;
 
@@ -107,6 +108,54 @@ Rgb deltaLightsExactly(const Scene& scene, std::span<const int> deltas, const Su
   return sum;
 }
 
+// The emission one BSDF sample from `hit` meets (an emitter, or the infinite lights it escapes
+// to, less the sky with skipSky), MIS-weighted against light sampling as the path weighs the
+// emission it meets: what an extra BSDF sample at the first hit adds.
+Rgb bsdfSampledEmission(const Scene& scene, const SurfaceHit& hit, const Frame& frame,
+                        const Bsdf& bsdf, const Vec3f& woLocal, Rng& rng, bool skipSky) {
+  const float uc = rng.uniform();
+  const Vec2f u = next2(rng);
+  const std::optional<BsdfSample> bs = bsdf.sample(woLocal, uc, u);
+  if (!bs || bs->pdf <= 0.0f || isBlack(bs->f)) return Rgb(0.0f);
+  const Vec3f wi = frame.toWorld(bs->wi);
+  const Vec3f wo = frame.toWorld(woLocal);
+  if ((bs->wi.z * woLocal.z > 0.0f) != (dot(wi, hit.ng) * dot(wo, hit.ng) > 0.0f)) {
+    return Rgb(0.0f);
+  }
+  const Rgb beta = bs->f * (std::abs(bs->wi.z) / bs->pdf);
+  if (!isFinite(beta)) return Rgb(0.0f);
+  const Ray ray = scene.spawnRay(hit.p, hit.ng, wi);
+  SurfaceHit next;
+  Rgb sum(0.0f);
+  if (!scene.intersect(ray, &next)) {
+    for (const int index : scene.infiniteLights()) {
+      const Light* light = scene.lights()[index].get();
+      if (skipSky && isSkyLight(*light)) continue;
+      const Rgb Le = light->escaped(ray.dir);
+      if (isBlack(Le)) continue;
+      float weight = 1.0f;
+      if (!bs->delta) {
+        const float lightPdf =
+            scene.lightProbability(index) * light->pdf(hit.p, ray.dir, Vec3f(0.0f), Vec3f(0.0f));
+        weight = powerHeuristic(bs->pdf, lightPdf);
+      }
+      sum += beta * Le * weight;
+    }
+    return sum;
+  }
+  if (next.light < 0) return sum;
+  const Light& light = *scene.lights()[next.light];
+  const Rgb Le = light.emitted(next.ng, -ray.dir);
+  if (isBlack(Le)) return sum;
+  float weight = 1.0f;
+  if (!bs->delta) {
+    const float lightPdf =
+        scene.lightProbability(next.light, skipSky) * light.pdf(hit.p, ray.dir, next.p, next.ng);
+    weight = powerHeuristic(bs->pdf, lightPdf);
+  }
+  return beta * Le * weight;
+}
+
 PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
                      const PathTracerSettings& settings, SurfaceHit* firstHit) {
   PathSample out;
@@ -117,6 +166,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
   Vec3f prevP = ray.origin;
   Rgb* sink = &out.direct;  // emission found at bounce <= 1 is direct light
   bool skipSky = false;     // the last vertex left the environment's light to the records
+  float emissionScale = 1.0f;  // of the emission the path meets next (firstHitBsdfSamples)
 
   for (int bounce = 0;; ++bounce) {
     if (bounce >= 2) sink = &out.indirect;
@@ -133,7 +183,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
               scene.lightProbability(index) * light->pdf(prevP, ray.dir, Vec3f(0.0f), Vec3f(0.0f));
           weight = powerHeuristic(prevBsdfPdf, lightPdf);
         }
-        *sink += beta * Le * weight;
+        *sink += beta * Le * (weight * emissionScale);
       }
       break;
     }
@@ -154,9 +204,10 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
                                  light.pdf(prevP, ray.dir, hit.p, hit.ng);
           weight = powerHeuristic(prevBsdfPdf, lightPdf);
         }
-        *sink += beta * Le * weight;
+        *sink += beta * Le * (weight * emissionScale);
       }
     }
+    emissionScale = 1.0f;
     // One texture lookup serves the albedo AOV and the BSDF.
     const bool scatter = hit.material != kNoMaterial && bounce < settings.maxDepth;
     const Rgb albedo = scatter || bounce == 0 ? scene.albedoAt(hit) : Rgb(0.0f);
@@ -198,6 +249,19 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       rng.uniform();
       rng.uniform();
       rng.uniform();
+    }
+
+    if (bounce == 0 && settings.firstHitBsdfSamples > 1 && !bsdf.isDelta() &&
+        material.type == MaterialType::kConductor) {
+      Rng peek = rng;
+      Rng more = Rng::forKeys(uint64_t{peek.nextU32()}, kFirstHitBsdfDomain);
+      const int n = settings.firstHitBsdfSamples;
+      Rgb caught(0.0f);
+      for (int k = 1; k < n; ++k) {
+        caught += bsdfSampledEmission(scene, hit, frame, bsdf, woLocal, more, skipSky);
+      }
+      *nextSink += beta * caught / static_cast<float>(n);
+      emissionScale = 1.0f / static_cast<float>(n);
     }
 
     const float uc = rng.uniform();

@@ -16,6 +16,12 @@ struct PathTracerSettings {
   // PBGI's direct light, where one camera sample costs a gather and a light sample is cheap.
   // Samples past the first draw from a stream of their own, so 1 leaves the path unchanged.
   int firstHitLightSamples = 1;
+  // BSDF samples at a first hit on a rough conductor, averaged (the BSDF-sampling half of its
+  // MIS estimate of direct light): a near-mirror lobe reflects a small light through its BSDF
+  // samples, which light samples almost never find. Only the emission they meet counts; the
+  // path goes on from the first as before, its emission at the next vertex weighted 1 / n.
+  // Samples past the first draw from a stream of their own, so 1 leaves the path unchanged.
+  int firstHitBsdfSamples = 1;
   // Whether a first hit on a diffuse material takes the environment's light (isSkyLight) from
   // its own light and BSDF samples. PBGI's records take it instead (sky_irradiance.h): they
   // clear this, and the path tracer keeps it.
