@@ -108,6 +108,24 @@ Rgb deltaLightsExactly(const Scene& scene, std::span<const int> deltas, const Su
   return sum;
 }
 
+// The MIS weight, against light sampling, of the emission a BSDF sample from p along dir (of
+// pdf bsdfPdf; delta: weight 1) meets: that of infinite light `index` when it escapes, or of
+// the emitter it hits at `at`.
+float escapedWeight(const Scene& scene, int index, const Vec3f& p, const Vec3f& dir, bool delta,
+                    float bsdfPdf) {
+  if (delta) return 1.0f;
+  const float lightPdf =
+      scene.lightProbability(index) * scene.lights()[index]->pdf(p, dir, Vec3f(0.0f), Vec3f(0.0f));
+  return powerHeuristic(bsdfPdf, lightPdf);
+}
+float emitterWeight(const Scene& scene, const SurfaceHit& at, const Vec3f& p, const Vec3f& dir,
+                    bool delta, float bsdfPdf, bool skipSky) {
+  if (delta) return 1.0f;
+  const float lightPdf = scene.lightProbability(at.light, skipSky) *
+                         scene.lights()[at.light]->pdf(p, dir, at.p, at.ng);
+  return powerHeuristic(bsdfPdf, lightPdf);
+}
+
 // The emission one BSDF sample from `hit` meets (an emitter, or the infinite lights it escapes
 // to, less the sky with skipSky), MIS-weighted against light sampling as the path weighs the
 // emission it meets: what an extra BSDF sample at the first hit adds.
@@ -133,27 +151,14 @@ Rgb bsdfSampledEmission(const Scene& scene, const SurfaceHit& hit, const Frame& 
       if (skipSky && isSkyLight(*light)) continue;
       const Rgb Le = light->escaped(ray.dir);
       if (isBlack(Le)) continue;
-      float weight = 1.0f;
-      if (!bs->delta) {
-        const float lightPdf =
-            scene.lightProbability(index) * light->pdf(hit.p, ray.dir, Vec3f(0.0f), Vec3f(0.0f));
-        weight = powerHeuristic(bs->pdf, lightPdf);
-      }
-      sum += beta * Le * weight;
+      sum += beta * Le * escapedWeight(scene, index, hit.p, ray.dir, bs->delta, bs->pdf);
     }
     return sum;
   }
   if (next.light < 0) return sum;
-  const Light& light = *scene.lights()[next.light];
-  const Rgb Le = light.emitted(next.ng, -ray.dir);
+  const Rgb Le = scene.lights()[next.light]->emitted(next.ng, -ray.dir);
   if (isBlack(Le)) return sum;
-  float weight = 1.0f;
-  if (!bs->delta) {
-    const float lightPdf =
-        scene.lightProbability(next.light, skipSky) * light.pdf(hit.p, ray.dir, next.p, next.ng);
-    weight = powerHeuristic(bs->pdf, lightPdf);
-  }
-  return beta * Le * weight;
+  return beta * Le * emitterWeight(scene, next, hit.p, ray.dir, bs->delta, bs->pdf, skipSky);
 }
 
 PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
@@ -177,12 +182,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
         if (skipSky && isSkyLight(*light)) continue;
         const Rgb Le = light->escaped(ray.dir);
         if (isBlack(Le)) continue;
-        float weight = 1.0f;
-        if (!prevDelta) {
-          const float lightPdf =
-              scene.lightProbability(index) * light->pdf(prevP, ray.dir, Vec3f(0.0f), Vec3f(0.0f));
-          weight = powerHeuristic(prevBsdfPdf, lightPdf);
-        }
+        const float weight = escapedWeight(scene, index, prevP, ray.dir, prevDelta, prevBsdfPdf);
         *sink += beta * Le * (weight * emissionScale);
       }
       break;
@@ -198,12 +198,8 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
       const Light& light = *scene.lights()[hit.light];
       const Rgb Le = light.emitted(hit.ng, wo);
       if (!isBlack(Le)) {
-        float weight = 1.0f;
-        if (!prevDelta) {
-          const float lightPdf = scene.lightProbability(hit.light, skipSky) *
-                                 light.pdf(prevP, ray.dir, hit.p, hit.ng);
-          weight = powerHeuristic(prevBsdfPdf, lightPdf);
-        }
+        const float weight =
+            emitterWeight(scene, hit, prevP, ray.dir, prevDelta, prevBsdfPdf, skipSky);
         *sink += beta * Le * (weight * emissionScale);
       }
     }
