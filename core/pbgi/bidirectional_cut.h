@@ -63,6 +63,7 @@
 // render unit.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -82,6 +83,15 @@ class Scene;
 // The near field's radius, in the tree's mean surfel radii (CutOptions::nearRays).
 inline constexpr float kNearFieldRadii = 4.0f;
 inline constexpr int kMaxNearRays = 4096;
+
+// The radiance a surface sends back along a ray that meets it at x (normal n, either way; the
+// ray's direction w), read from the tree's surfels around x as the near field reads a hit (see
+// "Near field" above: within two mean surfel radii, on x's surface, seen from x along it,
+// weighted by distance, the side w sees). nullopt where no surfel was read. Errors: the
+// source's, or DataLoss for a damaged tree.
+absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
+                                                       const Vec3f& x, const Vec3f& n,
+                                                       const Vec3f& w);
 
 struct CutOptions {
   float lightSolidAngle = 0.01f;   // eps_L (sr)

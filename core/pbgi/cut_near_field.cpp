@@ -79,3 +79,36 @@ void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, C
 }
 
 }  // namespace pbgi::cut_internal
+
+namespace pbgi {
+
+absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
+                                                       const Vec3f& x, const Vec3f& n,
+                                                       const Vec3f& w) {
+  using namespace cut_internal;
+  const NodeRef root = tree.root();
+  absl::StatusOr<std::shared_ptr<const TreePage>> rootPage = tree.page(root.page);
+  if (!rootPage.ok()) return rootPage.status();
+  absl::StatusOr<float> mean = rootSurfelRadius(**rootPage, root);
+  if (!mean.ok()) return mean.status();
+  NearHit hit{.x = x, .n = n, .w = w};
+  CutStats stats;
+  thread_local std::vector<NearStep> steps, stack;
+  steps.assign(1, NearStep{.at = root, .depth = 0, .hit = 0});
+  while (!steps.empty()) {
+    const NearStep step = steps.back();
+    steps.pop_back();
+    absl::StatusOr<std::shared_ptr<const TreePage>> page = tree.page(step.at.page);
+    if (!page.ok()) return page.status();
+    if (absl::Status s = readNearSurface(
+            scene, **page, step, kNearReadRadii * *mean, hit, stack,
+            [&](const NearStep& next) { steps.push_back(next); }, &stats);
+        !s.ok()) {
+      return s;
+    }
+  }
+  if (!(hit.weight > 0.0f)) return std::nullopt;
+  return hit.sum / hit.weight;
+}
+
+}  // namespace pbgi

@@ -500,3 +500,69 @@ TEST(BidirectionalCut, BadInputAndDamagedPagesAreErrors) {
 
 }  // namespace
 }  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+// readSurfaceRadiance reads a surface where a ray meets it as the near field reads a hit: on a
+// wall whose surfels all send one radiance, that radiance, on the side the ray sees (the front
+// or the back); nothing in the air; the source's error for a page it cannot give.
+TEST(ReadSurfaceRadiance, ReadsTheSideTheRaySeesOfTheSurfaceItMeets) {
+  BoxCase c = boxCase(20000, 0);
+  // By the normal: the surfels of one flat face send one radiance (the box's block is turned,
+  // so a face is told by its whole normal, not by its axis).
+  const auto colour = [](const Vec3f& n) { return (Rgb(1.0f) + n) * 0.5f; };
+  for (Surfel& s : c.surfels) {
+    s.radiance = colour(s.normal);
+    s.backRadiance = colour(s.normal) * 0.25f;
+  }
+  auto tree = memoryTree(c.surfels);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  Rng rng(3);
+  int read = 0, exact = 0, close = 0;
+  for (int i = 0; i < 200; ++i) {
+    const Vec3f origin(0.5f, 0.5f, -1.0f);
+    const Vec3f target(rng.uniform(), rng.uniform(), 0.8f + 0.2f * rng.uniform());
+    Ray ray{origin, normalize(target - origin)};
+    SurfaceHit hit;
+    if (!c.scene->intersect(ray, &hit) || hit.material == kNoMaterial) continue;
+    auto got = readSurfaceRadiance(**tree, *c.scene, hit.p, hit.ng, ray.dir);
+    ASSERT_TRUE(got.ok()) << got.status();
+    if (!got->has_value()) continue;  // a hit between surfels, at an edge
+    // The nearest surfel of the hit's surface, seen from the ray's side.
+    const Surfel* nearest = nullptr;
+    for (const Surfel& s : c.surfels) {
+      if (std::abs(dot(s.normal, hit.ng)) < 0.9f) continue;
+      if (nearest == nullptr ||
+          (s.position - hit.p).length2() < (nearest->position - hit.p).length2()) {
+        nearest = &s;
+      }
+    }
+    ASSERT_NE(nearest, nullptr);
+    const Rgb want =
+        dot(nearest->normal, ray.dir) < 0.0f ? nearest->radiance : nearest->backRadiance;
+    ++read;
+    // On a flat face, the face's radiance exactly; on the box's sphere, the weighted mean of
+    // the surfels within two radii, whose normals (and so radiance here) differ a little.
+    const float off = std::max(
+        {std::abs((**got).x - want.x), std::abs((**got).y - want.y), std::abs((**got).z - want.z)});
+    if (off < 0.06f) ++close;
+    if (off < 1e-4f) ++exact;
+  }
+  // (A hit where two surfaces meet reads both: the few that are neither.)
+  EXPECT_GT(read, 150);
+  EXPECT_GT(exact, read * 3 / 4) << exact << " of " << read;
+  EXPECT_GE(close, read * 95 / 100) << close << " of " << read;
+  // In the air, nothing; through a page the source cannot give, its error.
+  auto air = readSurfaceRadiance(**tree, *c.scene, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0));
+  ASSERT_TRUE(air.ok()) << air.status();
+  EXPECT_FALSE(air->has_value());
+  FailingPageSource damaged(tree->get(), (*tree)->root().page);
+  EXPECT_EQ(readSurfaceRadiance(damaged, *c.scene, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0))
+                .status()
+                .code(),
+            absl::StatusCode::kDataLoss);
+}
+
+}  // namespace
+}  // namespace pbgi

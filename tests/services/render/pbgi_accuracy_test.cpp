@@ -334,6 +334,20 @@ TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
   EXPECT_GT(around(pbgi), 0.75 * around(path));
   EXPECT_LT(around(pbgi), 2.0 * around(path));
   EXPECT_GT(got.inside / got.outside, 0.5 * want.inside / want.outside);
+  // What the glass hides from every gather (the wall and floor seen through it) reaches the
+  // tree through the chains that end on them: the image's mean indirect light, measured 0.987
+  // of the path tracer's with it, 0.900 without (when the chains brought the lights alone).
+  const auto meanIndirect = [](const Image& image) {
+    const int r = image.channelIndex("indirect.R");
+    double sum = 0.0;
+    for (int y = 0; y < image.height(); ++y)
+      for (int x = 0; x < image.width(); ++x)
+        for (int c = 0; c < 3; ++c) sum += image.at(x, y, r + c);
+    return sum;
+  };
+  const double indirect = meanIndirect(pbgi) / meanIndirect(path);
+  std::printf("mean indirect light: %.3f of the path tracer's\n", indirect);
+  EXPECT_NEAR(indirect, 1.0, 0.06);
   fs::remove_all(dir);
 }
 
