@@ -214,10 +214,11 @@ constexpr int kSmoothRays = 1;
 // BSDF sampled at the surface (lobe by uc), the ray traced on through every smooth surface it
 // meets, and the emission of the light it ends on (lights hit or escaped to), times the
 // chain's throughput. Where it ends on a rough surface, that surface's radiance as `tree`'s
-// surfels hold it there (readSurfaceRadiance; black without a tree). Black when it goes on too
-// long.
+// surfels within `readRadius` hold it there (readSurfaceRadiance; black without a tree). Black
+// when it goes on too long.
 Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame, const Bsdf& bsdf,
-                          const Vec3f& out, float uc, Rng& rng, TreePageSource* tree) {
+                          const Vec3f& out, float uc, Rng& rng, TreePageSource* tree,
+                          float readRadius) {
   const std::optional<BsdfSample> first =
       bsdf.sample(frame.toLocal(out), uc, Vec2f(rng.uniform(), rng.uniform()));
   if (!first || !(first->pdf > 0.0f) || isBlack(first->f)) return Rgb(0.0f);
@@ -237,7 +238,7 @@ Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame
     if (!next.isDelta()) {
       if (tree == nullptr) return Rgb(0.0f);
       const absl::StatusOr<std::optional<Rgb>> seen =
-          readSurfaceRadiance(*tree, scene, hit.p, hit.ng, dir);
+          readSurfaceRadiance(*tree, scene, readRadius, hit.p, hit.ng, dir);
       return seen.ok() && seen->has_value() ? beta * **seen : Rgb(0.0f);
     }
     const Frame at(hit.ns);
@@ -386,7 +387,20 @@ void GlossyLeafBaker::reflectIncoming(Leaf& leaf, uint64_t leafKey) const {
 // wall seen through the glass, which the glass hides from every gather, is not lost; without
 // an incoming tree it brings nothing.
 void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
+  if (leaf.smooth.empty()) return;
   const size_t texels = leaf.cube->directions.size();
+  // The reading radius once a leaf, not once a chain; a tree whose root cannot be read lends
+  // the chains nothing, as a chain's failed reading does.
+  TreePageSource* tree = incoming_;
+  float readRadius = 0.0f;
+  if (tree != nullptr) {
+    const absl::StatusOr<float> radius = surfaceReadRadius(*tree);
+    if (radius.ok()) {
+      readRadius = *radius;
+    } else {
+      tree = nullptr;
+    }
+  }
   for (const Leaf::Glossy& g : leaf.smooth) {
     if (leaf.reflects(g.material)) continue;
     Vec3f n(0.0f), p(0.0f);
@@ -411,7 +425,7 @@ void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
             leaf.cube->directions[t] +
             Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f) * jitter);
         const float uc = (static_cast<float>(k) + rng.uniform()) / kSmoothRays;
-        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng, incoming_);
+        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng, tree, readRadius);
       }
       if (isFinite(sum)) table[t] = sum / static_cast<float>(kSmoothRays);
     }

@@ -84,13 +84,17 @@ class Scene;
 inline constexpr float kNearFieldRadii = 4.0f;
 inline constexpr int kMaxNearRays = 4096;
 
+// How far from a hit readSurfaceRadiance reads the tree's surfels: the near field's reading
+// radius (kNearReadRadii mean surfel radii of the tree's root). Errors: the source's, or
+// DataLoss for a damaged root.
+absl::StatusOr<float> surfaceReadRadius(TreePageSource& tree);
 // The radiance a surface sends back along a ray that meets it at x (normal n, either way; the
-// ray's direction w), read from the tree's surfels around x as the near field reads a hit (see
-// "Near field" above: within two mean surfel radii, on x's surface, seen from x along it,
+// ray's direction w), read from the tree's surfels within `radius` (surfaceReadRadius) of x as
+// the near field reads a hit (see "Near field" above: on x's surface, seen from x along it,
 // weighted by distance, the side w sees). nullopt where no surfel was read. Errors: the
 // source's, or DataLoss for a damaged tree.
 absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
-                                                       const Vec3f& x, const Vec3f& n,
+                                                       float radius, const Vec3f& x, const Vec3f& n,
                                                        const Vec3f& w);
 
 struct CutOptions {

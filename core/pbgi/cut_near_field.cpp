@@ -101,18 +101,23 @@ void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, C
 
 namespace pbgi {
 
-absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
-                                                       const Vec3f& x, const Vec3f& n,
-                                                       const Vec3f& w) {
+absl::StatusOr<float> surfaceReadRadius(TreePageSource& tree) {
   using namespace cut_internal;
   const NodeRef root = tree.root();
   absl::StatusOr<std::shared_ptr<const TreePage>> rootPage = tree.page(root.page);
   if (!rootPage.ok()) return rootPage.status();
   absl::StatusOr<float> mean = rootSurfelRadius(**rootPage, root);
   if (!mean.ok()) return mean.status();
+  return kNearReadRadii * *mean;
+}
+
+absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
+                                                       float radius, const Vec3f& x, const Vec3f& n,
+                                                       const Vec3f& w) {
+  using namespace cut_internal;
   NearHit hit{.x = x, .n = n, .w = w};
   CutStats stats;
-  if (absl::Status s = readHit(tree, scene, root, kNearReadRadii * *mean, hit, &stats); !s.ok()) {
+  if (absl::Status s = readHit(tree, scene, tree.root(), radius, hit, &stats); !s.ok()) {
     return s;
   }
   if (!(hit.weight > 0.0f)) return std::nullopt;

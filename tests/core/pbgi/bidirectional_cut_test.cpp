@@ -518,6 +518,9 @@ TEST(ReadSurfaceRadiance, ReadsTheSideTheRaySeesOfTheSurfaceItMeets) {
   }
   auto tree = memoryTree(c.surfels);
   ASSERT_TRUE(tree.ok()) << tree.status();
+  const absl::StatusOr<float> radius = surfaceReadRadius(**tree);
+  ASSERT_TRUE(radius.ok()) << radius.status();
+  EXPECT_NEAR(*radius, 2.0f * c.surfels.front().radius, 0.5f * c.surfels.front().radius);
   Rng rng(3);
   int read = 0, exact = 0, close = 0;
   for (int i = 0; i < 200; ++i) {
@@ -526,7 +529,7 @@ TEST(ReadSurfaceRadiance, ReadsTheSideTheRaySeesOfTheSurfaceItMeets) {
     Ray ray{origin, normalize(target - origin)};
     SurfaceHit hit;
     if (!c.scene->intersect(ray, &hit) || hit.material == kNoMaterial) continue;
-    auto got = readSurfaceRadiance(**tree, *c.scene, hit.p, hit.ng, ray.dir);
+    auto got = readSurfaceRadiance(**tree, *c.scene, *radius, hit.p, hit.ng, ray.dir);
     ASSERT_TRUE(got.ok()) << got.status();
     if (!got->has_value()) continue;  // a hit between surfels, at an edge
     // The nearest surfel of the hit's surface, seen from the ray's side.
@@ -554,14 +557,17 @@ TEST(ReadSurfaceRadiance, ReadsTheSideTheRaySeesOfTheSurfaceItMeets) {
   EXPECT_GT(exact, read * 3 / 4) << exact << " of " << read;
   EXPECT_GE(close, read * 95 / 100) << close << " of " << read;
   // In the air, nothing; through a page the source cannot give, its error.
-  auto air = readSurfaceRadiance(**tree, *c.scene, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0));
+  auto air =
+      readSurfaceRadiance(**tree, *c.scene, *radius, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0));
   ASSERT_TRUE(air.ok()) << air.status();
   EXPECT_FALSE(air->has_value());
   FailingPageSource damaged(tree->get(), (*tree)->root().page);
-  EXPECT_EQ(readSurfaceRadiance(damaged, *c.scene, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0))
-                .status()
-                .code(),
-            absl::StatusCode::kDataLoss);
+  EXPECT_EQ(surfaceReadRadius(damaged).status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(
+      readSurfaceRadiance(damaged, *c.scene, *radius, Vec3f(0.5f), Vec3f(0, 1, 0), Vec3f(0, -1, 0))
+          .status()
+          .code(),
+      absl::StatusCode::kDataLoss);
 }
 
 }  // namespace
