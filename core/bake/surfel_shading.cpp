@@ -8,7 +8,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
-#include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/render/path_tracer.h"
 #include "core/sampling/rng.h"
@@ -213,12 +212,9 @@ constexpr int kSmoothRays = 1;
 // The light leaving a smooth (delta) surface at p towards unit world direction `out`: the
 // BSDF sampled at the surface (lobe by uc), the ray traced on through every smooth surface it
 // meets, and the emission of the light it ends on (lights hit or escaped to), times the
-// chain's throughput. Where it ends on a rough surface, that surface's radiance as `tree`'s
-// surfels within `readRadius` hold it there (readSurfaceRadiance; black without a tree). Black
-// when it goes on too long.
+// chain's throughput. Black when it ends on a rough surface or goes on too long.
 Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame, const Bsdf& bsdf,
-                          const Vec3f& out, float uc, Rng& rng, TreePageSource* tree,
-                          float readRadius) {
+                          const Vec3f& out, float uc, Rng& rng) {
   const std::optional<BsdfSample> first =
       bsdf.sample(frame.toLocal(out), uc, Vec2f(rng.uniform(), rng.uniform()));
   if (!first || !(first->pdf > 0.0f) || isBlack(first->f)) return Rgb(0.0f);
@@ -235,12 +231,7 @@ Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame
     if (hit.light >= 0) return beta * scene.lights()[hit.light]->emitted(hit.ng, -dir);
     if (hit.material == kNoMaterial) return Rgb(0.0f);
     const Bsdf next(scene.material(hit.material), scene.albedoAt(hit));
-    if (!next.isDelta()) {
-      if (tree == nullptr) return Rgb(0.0f);
-      const absl::StatusOr<std::optional<Rgb>> seen =
-          readSurfaceRadiance(*tree, scene, readRadius, hit.p, hit.ng, dir);
-      return seen.ok() && seen->has_value() ? beta * **seen : Rgb(0.0f);
-    }
+    if (!next.isDelta()) return Rgb(0.0f);
     const Frame at(hit.ns);
     const std::optional<BsdfSample> bs =
         next.sample(at.toLocal(-dir), rng.uniform(), Vec2f(rng.uniform(), rng.uniform()));
@@ -381,26 +372,10 @@ void GlossyLeafBaker::reflectIncoming(Leaf& leaf, uint64_t leafKey) const {
 // Mirrors and glass (delta BSDFs): the lights seen through them, each texel's direction traced
 // back through their specular chain (up to kMaxSpecularChain surfaces, each lobe picked by the
 // BSDF's own sampling) to the light it ends on, from the centroid of the leaf's smooth surfels,
-// kSmoothRays jittered rays a texel. This is what puts a glass sphere's caustic on the floor
-// under it. A chain that ends on a rough surface brings the radiance the incoming tree's
-// surfels hold there (the final tree's pass has that tree: every bounce's light), so that the
-// wall seen through the glass, which the glass hides from every gather, is not lost; without
-// an incoming tree it brings nothing.
+// kSmoothRays jittered rays a texel. A chain that ends on a rough surface brings nothing here:
+// that light is the tree's. This is what puts a glass sphere's caustic on the floor under it.
 void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
-  if (leaf.smooth.empty()) return;
   const size_t texels = leaf.cube->directions.size();
-  // The reading radius once a leaf, not once a chain; a tree whose root cannot be read lends
-  // the chains nothing, as a chain's failed reading does.
-  TreePageSource* tree = incoming_;
-  float readRadius = 0.0f;
-  if (tree != nullptr) {
-    const absl::StatusOr<float> radius = surfaceReadRadius(*tree);
-    if (radius.ok()) {
-      readRadius = *radius;
-    } else {
-      tree = nullptr;
-    }
-  }
   for (const Leaf::Glossy& g : leaf.smooth) {
     if (leaf.reflects(g.material)) continue;
     Vec3f n(0.0f), p(0.0f);
@@ -425,7 +400,7 @@ void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
             leaf.cube->directions[t] +
             Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f) * jitter);
         const float uc = (static_cast<float>(k) + rng.uniform()) / kSmoothRays;
-        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng, tree, readRadius);
+        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng);
       }
       if (isFinite(sum)) table[t] = sum / static_cast<float>(kSmoothRays);
     }

@@ -106,12 +106,6 @@ void traceNearField(const Scene& scene, std::span<const CutReceiver> receivers, 
 // none. Hits come grouped by receiver (traceNearField).
 void addNearLight(std::span<const NearHit> hits, int rays, std::span<Rgb> out, CutStats* stats);
 
-// Reads `hit` from the root down as readNearSurface reads a page (below), each page asked of
-// the source in turn (the reference's reading and readSurfaceRadiance's; the cut reads in its
-// own page sweep).
-absl::Status readHit(TreePageSource& tree, const Scene& scene, NodeRef root, float radius,
-                     NearHit& hit, CutStats* stats);
-
 // Reads into `hit` the surfels of `page` on the hit's surface within `radius` of it that the
 // hit sees along that surface (a wall's surfels below a floor that meets it, in the dark, are
 // not the wall's light above it), from node `step.at` down (children whose ghosts lie farther

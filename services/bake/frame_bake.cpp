@@ -2,9 +2,7 @@
 
 #include <malloc.h>
 
-#include <algorithm>
 #include <atomic>
-#include <cctype>
 #include <filesystem>
 #include <functional>
 #include <optional>
@@ -38,26 +36,6 @@ constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
 // differ, so that no bake made before it is reused (the commit log says what each changed).
 constexpr int kBounceRevision = 13;
-// How a bake with bounces traces mirrors' and glass's specular chains, for the hash of a shot
-// that may have such surfaces (mayHaveSmoothSurfaces), raised whenever their light changes:
-// 1, chains that end on a rough surface read its radiance from the final tree. Shots without
-// them keep their hash, so that a diffuse scene's bake is the same file as before.
-constexpr int kSpecularChainRevision = 1;
-// Whether the shot may hold a mirror or glass: a conductor or dielectric of its own, or a mesh
-// format whose materials may be metallic (OBJ's MTL materials are diffuse or emissive).
-bool mayHaveSmoothSurfaces(const ShotDesc& shot) {
-  for (const MaterialDesc& m : shot.materials) {
-    if (m.type == MaterialType::kConductor || m.type == MaterialType::kDielectric) return true;
-  }
-  for (const GeometryDesc& g : shot.geometry) {
-    std::string ext = std::filesystem::path(g.file).extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(),
-                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-    if (ext != ".obj") return true;
-  }
-  return false;
-}
-
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -142,18 +120,14 @@ uint64_t bakeHash(const ShotDesc& shot, const FrameBakeRequest& request) {
       "|frame={}|points={}|light_samples={}|bounces={}|bounce_cut={}|encoding={}|leaf={}"
       "|page={}|power={}|area={}|exact={}|wavelets={} {} {}|payload={}|version={}",
       request.frame, points, request.lightSamples, request.bounces,
-      request.bounces > 0
-          ? fmt::format("{} chunk {} tail {} spacing {} revision {}",
-                        request.bounceCut.toString(), kBounceChunkSurfels, request.bounceTail,
-                        request.bounceSpacing, kBounceRevision)
-          : "",
+      request.bounces > 0 ? fmt::format("{} chunk {} tail {} spacing {} revision {}",
+                                        request.bounceCut.toString(), kBounceChunkSurfels,
+                                        request.bounceTail, request.bounceSpacing, kBounceRevision)
+                          : "",
       treeEncodingName(request.tree.encoding), request.tree.build.leafSize, request.tree.pageSize,
       request.tree.powerCentres, request.tree.areaCentres, request.tree.exactNodes,
       request.waveletResolution, request.tree.wavelets.relativeError,
       request.tree.wavelets.maxNodes, kTreePayloadVersion, request.pbgiVersion);
-  if (request.bounces > 0 && mayHaveSmoothSurfaces(shot)) {
-    text += fmt::format("|specular_chains={}", kSpecularChainRevision);
-  }
   // Only when set, so that bakes made before the setting keep their hash.
   if (request.glossyPairThreshold > 0.0f) {
     text += fmt::format("|glossy_pairs={}", request.glossyPairThreshold);

@@ -316,8 +316,8 @@ TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
   // The light on the floor where the path tracer's caustic is (rows 29 to 31, 7 pixels wide
   // around the pixel nearest its centroid; the rows above are the sphere itself, path traced
   // by both): without the glass's specular chains PBGI has 0.60 of the path tracer's light
-  // there (measured), with them 1.83, and 1.86 since they also read the surfaces they end on:
-  // the caustic is there, too concentrated at 64 x 48 (the cube maps' 16 texels a face).
+  // there (measured), with them 1.83: the caustic is there, too concentrated at 64 x 48 (the
+  // cube maps' 16 texels a face).
   auto around = [&](const Image& image) {
     const int r = image.channelIndex("indirect.R");
     double sum = 0.0;
@@ -334,9 +334,10 @@ TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
   EXPECT_GT(around(pbgi), 0.75 * around(path));
   EXPECT_LT(around(pbgi), 2.0 * around(path));
   EXPECT_GT(got.inside / got.outside, 0.5 * want.inside / want.outside);
-  // What the glass hides from every gather (the wall and floor seen through it) reaches the
-  // tree through the chains that end on them: the image's mean indirect light, measured 0.987
-  // of the path tracer's with it, 0.900 without (when the chains brought the lights alone).
+  // The image's mean indirect light: measured 0.900 of the path tracer's. The glass hides the
+  // wall and floor behind it from every gather, and its chains bring the lights alone. Chains
+  // that read the surfaces they end on measured 0.987, but cost the render 25 % at 4 spp for
+  // no gain in relMSE, so they are not built; this bounds the bias as it stands.
   const auto meanIndirect = [](const Image& image) {
     const int r = image.channelIndex("indirect.R");
     double sum = 0.0;
@@ -347,7 +348,7 @@ TEST(PbgiAccuracy, ACausticUnderAGlassSphereLandsWhereThePathTracerPutsIt) {
   };
   const double indirect = meanIndirect(pbgi) / meanIndirect(path);
   std::printf("mean indirect light: %.3f of the path tracer's\n", indirect);
-  EXPECT_NEAR(indirect, 1.0, 0.06);
+  EXPECT_NEAR(indirect, 0.9, 0.05);
   fs::remove_all(dir);
 }
 
