@@ -92,13 +92,14 @@ absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats) {
     for (size_t first = 0; first < n; first += kBounceChunkSurfels) {
       keys.push_back(hashKeys(request.seed, request.frame, request.bounce, done + first));
     }
-    // After the first bounce, sides that gathered nothing so far are shut.
+    // After the first bounce, sides that gathered nothing so far are shut; in the second,
+    // only those that see no surface (BounceGatherer::gather).
     if (auto s = bouncer.gather(*request.from, *request.scene, chunk, kBounceChunkSurfels, keys,
                                 request.groupsTogether, added, stats,
                                 request.previous != nullptr
                                     ? std::span<const SurfelIrradiance>(previous)
                                     : std::span<const SurfelIrradiance>(),
-                                request.shutSides);
+                                request.shutSides, request.bounce == 2);
         !s.ok()) {
       return s;
     }

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "core/sampling/rng.h"
+#include "core/sampling/sampling.h"
 #include "core/util/check.h"
 
 namespace pbgi {
@@ -156,12 +157,26 @@ void BounceGatherer::spread(std::span<const Surfel> surfels, size_t first, const
   }
 }
 
+bool seesNoSurface(const Scene& scene, const Vec3f& p, const Vec3f& n, uint64_t key) {
+  const Frame frame(n);
+  Rng rng(key);
+  constexpr int kSide = 4;  // kShutProbeRays strata, kSide x kSide
+  static_assert(kSide * kSide == kShutProbeRays);
+  for (int k = 0; k < kShutProbeRays; ++k) {
+    const Vec2f u((static_cast<float>(k % kSide) + rng.uniform()) / kSide,
+                  (static_cast<float>(k / kSide) + rng.uniform()) / kSide);
+    const Ray ray = scene.spawnRay(p, n, frame.toWorld(sampleCosineHemisphere(u)));
+    if (scene.occluded(ray)) return false;
+  }
+  return true;
+}
+
 absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
                                     std::span<const Surfel> surfels, size_t groupSize,
                                     std::span<const uint64_t> keys, size_t groupsTogether,
                                     std::span<SurfelIrradiance> irradiance, CutStats* stats,
                                     std::span<const SurfelIrradiance> previous,
-                                    uint64_t* shutSides) {
+                                    uint64_t* shutSides, bool probeBlackSides) {
   PBGI_CHECK_GT(groupSize, size_t{0});
   PBGI_CHECK_EQ(irradiance.size(), surfels.size());
   PBGI_CHECK(previous.empty() || previous.size() == surfels.size());
@@ -192,14 +207,15 @@ absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
         c.recordOf.clear();
         for (uint32_t k = 0; k < patches.recordOf.size(); ++k) {
           const uint32_t i = patches.recordOf[k];
-          if (!previous.empty() && isBlack(side == 0 ? previous[i].front : previous[i].back)) {
-            if (shutSides != nullptr) ++*shutSides;
-            continue;
-          }
           const Surfel& s = surfels[i];
           // A surfel lies on its triangle: its shadow rays leave from its centre along the
           // side's normal.
           const Vec3f n = side == 0 ? s.normal : -s.normal;
+          if (!previous.empty() && isBlack(side == 0 ? previous[i].front : previous[i].back) &&
+              (!probeBlackSides || seesNoSurface(scene, s.position, n, hashKeys(keys[g], side, k)))) {
+            if (shutSides != nullptr) ++*shutSides;
+            continue;
+          }
           c.receivers.push_back({.p = s.position, .n = n, .ng = n});
           c.recordOf.push_back(k);
         }
@@ -235,11 +251,17 @@ void addReflected(Surfel& s, const SurfelIrradiance& e) {
   s.backRadiance += s.albedo * kInvPi * e.back;
 }
 
-Rgb tailFactor(const std::array<double, 3>& last, const std::array<double, 3>& previous) {
+Rgb tailFactor(std::span<const std::array<double, 3>> power) {
   Rgb f(0.0f);
+  const size_t k = power.size();
+  if (k < 2) return f;
+  const size_t steps = k > 3 ? 2 : 1;  // P_K over P_{K-2} from the third bounce (power[3]) on
+  const std::array<double, 3>& last = power[k - 1];
+  const std::array<double, 3>& before = power[k - 1 - steps];
   for (int c = 0; c < 3; ++c) {
-    if (!(last[c] > 0.0) || !(previous[c] > 0.0)) continue;
-    const double r = std::min<double>(last[c] / previous[c], kMaxBounceRatio);
+    if (!(last[c] > 0.0) || !(before[c] > 0.0)) continue;
+    const double ratio = last[c] / before[c];
+    const double r = std::min<double>(steps == 2 ? std::sqrt(ratio) : ratio, kMaxBounceRatio);
     f[c] = static_cast<float>(r / (1.0 - r));
   }
   return f;

@@ -16,9 +16,12 @@
 // receivers do.
 //
 // The light past the last bounce. K bounces leave out bounces K+1, K+2, ...: with power P_k in
-// bounce k, their sum is close to a geometric tail, P_K r / (1 - r) with r = P_K / P_{K-1},
-// spread as the last bounce spreads (higher bounces converge to the same distribution). So the
-// last bounce's light is scaled by 1 + r / (1 - r) instead of being baked further.
+// bounce k, their sum is close to a geometric tail, P_K r / (1 - r), spread as the last bounce
+// spreads (higher bounces converge to the same distribution). So the last bounce's light is
+// scaled by 1 + r / (1 - r) instead of being baked further. The ratio of successive bounces
+// swings about its limit while the light settles (a pool of light on a ceiling sends the floor
+// its first bounce, which sends the ceiling its second), so from three bounces on r is taken
+// over the last two steps, sqrt(P_K / P_{K-2}), where the swings cancel; else P_K / P_{K-1}.
 #include <array>
 #include <cstdint>
 #include <span>
@@ -95,13 +98,18 @@ class BounceGatherer {
   // receivers), so the batch is what bounds the bounce's memory.
   //
   // Shut sides. `previous`, when given (bounces after the first), is each surfel's irradiance
-  // so far: a record whose side gathered exactly nothing in every bounce before sees no surface
-  // that light reached (the inside of a closed object, a wall's far face), and gathers nothing
-  // now either; its cut is not run (counted in shutSides).
+  // so far. A record whose side gathered exactly nothing in every bounce before gathers nothing
+  // now either, and its cut is not run (counted in shutSides), unless `probeBlackSides` is set
+  // and it sees a surface (seesNoSurface): light that reached no surface it sees in one bounce
+  // may in the next (the floor under a table sees no lit surface in the first bounce, and the
+  // lit walls in the second). The bake probes in its second bounce, so that a side stays shut
+  // from the third on only when it saw nothing, or gathered nothing even then (the inside of a
+  // closed object, a wall's far face).
   absl::Status gather(TreePageSource& tree, const Scene& scene, std::span<const Surfel> surfels,
                       size_t groupSize, std::span<const uint64_t> keys, size_t groupsTogether,
                       std::span<SurfelIrradiance> irradiance, CutStats* stats,
-                      std::span<const SurfelIrradiance> previous = {}, uint64_t* shutSides = nullptr);
+                      std::span<const SurfelIrradiance> previous = {}, uint64_t* shutSides = nullptr,
+                      bool probeBlackSides = false);
 
  private:
   struct Side {
@@ -131,15 +139,24 @@ class BounceGatherer {
   std::vector<Patches> patches_;  // group g's
 };
 
+// Rays a record's side that gathered nothing so far sends to learn whether it sees any surface.
+inline constexpr int kShutProbeRays = 16;
+// Whether a side at p facing n (unit) sees no surface: none of kShutProbeRays cosine-weighted
+// rays, stratified and jittered from `key`, meets anything. A side that sees surfaces only
+// through a small fraction of its hemisphere may pass for one that sees none.
+bool seesNoSurface(const Scene& scene, const Vec3f& p, const Vec3f& n, uint64_t key);
+
 // The power (per channel, area times radiance, both sides) that a surfel reflects from `e`.
 Rgb reflectedPower(const Surfel& s, const SurfelIrradiance& e);
 
 // A surfel lit by `e` on top of its direct light: radiance += albedo / pi * (front, back).
 void addReflected(Surfel& s, const SurfelIrradiance& e);
 
-// The factor r / (1 - r), per channel, that estimates bounces K+1, K+2, ... from bounce K's
-// power over bounce K-1's (r held to [0, kMaxBounceRatio]; 0 where either power is 0).
+// The factor r / (1 - r), per channel, that estimates bounces K+1, K+2, ... from the powers of
+// the bounces so far, `power[k]` bounce k's (power[0] the direct light's reflected power):
+// r = sqrt(P_K / P_{K-2}) from K = 3 on, else P_K / P_{K-1} (held to [0, kMaxBounceRatio]; 0
+// where a power it divides or is divided by is 0, and without two powers).
 inline constexpr float kMaxBounceRatio = 0.95f;
-Rgb tailFactor(const std::array<double, 3>& lastPower, const std::array<double, 3>& previousPower);
+Rgb tailFactor(std::span<const std::array<double, 3>> power);
 
 }  // namespace pbgi

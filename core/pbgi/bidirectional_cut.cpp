@@ -249,12 +249,17 @@ struct ReceiverTree {
     }
   }
 
-  // A random receiver of an item: where its shadow rays leave from.
-  uint32_t originOf(uint32_t item, Rng& rng) const {
+  // A random receiver of an item: where its shadow rays leave from; with `strata` > 1, of the
+  // `stratum`th of that many equal runs of its receivers in the tree's order (octants in turn,
+  // so the runs spread over the node).
+  uint32_t originOf(uint32_t item, Rng& rng, uint32_t stratum = 0, uint32_t strata = 1) const {
     if (item & kReceiverBit) return item & ~kReceiverBit;
     const ReceiverNode& n = nodes[item];
-    const uint32_t k = std::min(n.count - 1, static_cast<uint32_t>(rng.uniform() * n.count));
-    return order[n.first + k];
+    const uint32_t begin = static_cast<uint32_t>(uint64_t{stratum} * n.count / strata);
+    const uint32_t end = static_cast<uint32_t>(uint64_t{stratum + 1} * n.count / strata);
+    const uint32_t size = std::max(end - begin, 1u);
+    const uint32_t k = std::min(size - 1, static_cast<uint32_t>(rng.uniform() * size));
+    return order[n.first + std::min(begin + k, n.count - 1)];
   }
   uint64_t served(uint32_t item) const { return (item & kReceiverBit) ? 1 : nodes[item].count; }
   // Each node's field pushed down to its children (re-centred), then read at each receiver,
@@ -551,23 +556,25 @@ struct BidirectionalCut::State {
     if (cosGamma * rv.cosAngle - sinGamma * rv.sinAngle > 0.0f) {
       ++stats.clusterPairs;
       stats.receiversServed += tree.served(pair.receiver);
-      const PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
+      PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
       if (isBlack(src.intensity)) return absl::OkStatus();
       Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
-      const uint32_t origin = tree.originOf(pair.receiver, rng);
-      // Towards one of the cluster's surfels, picked in proportion to the light it sends:
-      // the fraction of rays that arrive is then the fraction of the cluster's light that
-      // does, wherever the light sits in the cluster (a floor cluster reaching under a block
-      // has its centroid, or points of its bounds, where no light is). The descent starts
-      // from the cluster's own estimate at the ray's origin, which its corrections divide: at
-      // a single receiver, the source's, seen at the cosine and distance just measured.
-      const CutReceiver& from = tree.receivers[origin];
-      const float estimate = rv.single ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
-                                       : nodeContribution(a, page.waveletOf(node), from.p, from.n);
-      absl::StatusOr<Descent> target =
-          descend(page, pair.light, pair.depth, estimate, 1.0f, from, opts.coneDescent, rng);
-      if (!target.ok()) return target.status();
-      resolve(*target, pair.receiver, origin, rng, src);
+      const uint32_t rays =
+          rv.single ? 1u
+                    : std::min<uint32_t>(static_cast<uint32_t>(opts.clusterRays),
+                                         static_cast<uint32_t>(tree.served(pair.receiver)));
+      if (rays > 1) {
+        // Each ray carries its share of the light.
+        const float share = 1.0f / static_cast<float>(rays);
+        src.intensity *= share;
+        for (Vec3f& g : src.gradient) g *= share;
+      }
+      for (uint32_t ray = 0; ray < rays; ++ray) {
+        if (absl::Status s = traceCluster(pair, page, node, rv, src, cosGamma, d2, ray, rays, rng);
+            !s.ok()) {
+          return s;
+        }
+      }
       return absl::OkStatus();
     }
     // cos(gamma - angle) < 0: the centroid is below the horizon of every receiver.
@@ -576,6 +583,29 @@ struct BidirectionalCut::State {
       return absl::OkStatus();
     }
     refineReceiver(pair, page.id);  // some receivers see it above, some below
+    return absl::OkStatus();
+  }
+
+  // One of a cluster pair's shadow rays (evaluateSmall), from a receiver of the `ray`th of
+  // `rays` runs of the pair's receivers, with `src` its share of the light.
+  absl::Status traceCluster(const Pair& pair, const TreePage& page, const TreeNode& node,
+                            const ReceiverView& rv, const PointSource& src, float cosGamma,
+                            float d2, uint32_t ray, uint32_t rays, Rng& rng) {
+    const NodeAttributes& a = node.attributes;
+    const uint32_t origin = tree.originOf(pair.receiver, rng, ray, rays);
+    // Towards one of the cluster's surfels, picked in proportion to the light it sends:
+    // the fraction of rays that arrive is then the fraction of the cluster's light that
+    // does, wherever the light sits in the cluster (a floor cluster reaching under a block
+    // has its centroid, or points of its bounds, where no light is). The descent starts
+    // from the cluster's own estimate at the ray's origin, which its corrections divide: at
+    // a single receiver, the source's, seen at the cosine and distance just measured.
+    const CutReceiver& from = tree.receivers[origin];
+    const float estimate = rv.single ? std::max(0.0f, luminance(src.intensity)) * cosGamma / d2
+                                     : nodeContribution(a, page.waveletOf(node), from.p, from.n);
+    absl::StatusOr<Descent> target =
+        descend(page, pair.light, pair.depth, estimate, 1.0f, from, opts.coneDescent, rng);
+    if (!target.ok()) return target.status();
+    resolve(*target, pair.receiver, origin, rng, src);
     return absl::OkStatus();
   }
 

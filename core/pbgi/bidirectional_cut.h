@@ -82,6 +82,7 @@ class Scene;
 // The near field's radius, in the tree's mean surfel radii (CutOptions::nearRays).
 inline constexpr float kNearFieldRadii = 4.0f;
 inline constexpr int kMaxNearRays = 4096;
+inline constexpr int kMaxClusterRays = 64;
 
 struct CutOptions {
   float lightSolidAngle = 0.01f;   // eps_L (sr)
@@ -96,6 +97,14 @@ struct CutOptions {
   // radiance the tree's surfels hold there, in place of the surfels whose centres lie that
   // near (0: those surfels, as disks). See "Near field" above.
   int nearRays = 0;
+  // Shadow rays (each with its own descent to a surfel) that decide a cluster's light at a
+  // receiver node, leaving from receivers spread over the node (one from each of as many equal
+  // runs of its receivers in the tree's order), each carrying its share. One ray decides the
+  // light of every receiver under the node at once: its visibility and the descent's
+  // correction, a random factor per pair that shows as a patch the node's size, with steps where
+  // nodes meet. More rays shrink those patches' contrast by their square root. Single
+  // receivers take one.
+  int clusterRays = 1;
   // How a shadow ray's descent weighs a cluster's children (descend() in the .cpp): false, by
   // what each one's SH sends the receiver; true, by its power and normal cone alone (no SH:
   // faster, and noisier where children face different ways). The bake's first bounce uses it.

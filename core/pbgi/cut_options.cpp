@@ -26,6 +26,10 @@ absl::Status CutOptions::validate() const {
     return absl::InvalidArgumentError(
         fmt::format("cut options: nearRays must be in [0, {}], got {}", kMaxNearRays, nearRays));
   }
+  if (clusterRays < 1 || clusterRays > kMaxClusterRays) {
+    return absl::InvalidArgumentError(fmt::format(
+        "cut options: clusterRays must be in [1, {}], got {}", kMaxClusterRays, clusterRays));
+  }
   if (receiverLeafSize < 1 || receiverLeafSize > 64) {
     return absl::InvalidArgumentError(
         fmt::format("cut options: receiverLeafSize must be in [1, 64], got {}", receiverLeafSize));
@@ -64,13 +68,15 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
       fmt::format("cut preset \"{}\" unknown; known presets: draft, default, high", name));
 }
 
-// (nearRays only where there are some: a bake's hash holds its bounces' cut.)
+// (nearRays and clusterRays only where they are set: a bake's hash holds its bounces' cut.)
 std::string CutOptions::toString() const {
   return fmt::format(
       "cut(lightSolidAngle={:g} lightBound={:g} receiverBound={:g} normalAngle={:g} "
-      "receiverLeafSize={} selfSkipRadius={:g}{}{})",
+      "receiverLeafSize={} selfSkipRadius={:g}{}{}{})",
       lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius,
-      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "", coneDescent ? " coneDescent" : "");
+      nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "",
+      clusterRays > 1 ? fmt::format(" clusterRays={}", clusterRays) : "",
+      coneDescent ? " coneDescent" : "");
 }
 
 CutStats& CutStats::operator+=(const CutStats& o) {

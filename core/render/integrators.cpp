@@ -61,6 +61,11 @@ const std::vector<ParamSpec>& pbgiParams() {
        .defaultText = "the preset's",
        .help = "bidirectional: rays per record that take the light of what lies within four "
                "surfel radii from the surfaces they meet (0: those surfels, as disks)"},
+      {.key = "cluster_rays", .type = ParamType::kInt, .lo = 1, .hi = kMaxClusterRays,
+       .defaultText = "the preset's",
+       .help = "bidirectional: shadow rays, each from its own part of the records under a "
+               "receiver cluster, that decide a light cluster's light there (more: smaller "
+               "patches' contrast)"},
       {.key = "light_samples", .type = ParamType::kInt, .lo = 1, .hi = 1024, .defaultText = "16",
        .help = "light samples for the direct light at each camera sample's first hit (a camera "
                "sample costs a gather; a light sample is one shadow ray)"},
@@ -134,6 +139,7 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   s.cut.normalAngle = radians(
       static_cast<float>(p.floatOr("normal_angle_deg", degrees(s.cut.normalAngle))));
   s.cut.nearRays = static_cast<int>(p.intOr("near_rays", s.cut.nearRays));
+  s.cut.clusterRays = static_cast<int>(p.intOr("cluster_rays", s.cut.clusterRays));
   s.blockSize = static_cast<int>(p.intOr("cut_block", 64));
   s.recordSpacing = static_cast<int>(p.intOr("record_spacing", 2));
   s.skyAtRecords = p.choiceOr("sky", "records") == "records";

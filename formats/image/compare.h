@@ -11,6 +11,18 @@
 //            which is OIIO's (ImageBufAlgo::compare, idiff) definition. A fixed peak keeps
 //            PSNR comparable between renders of different scenes; for HDR images with values
 //            above 1 it is only a relative figure. +infinity when the images are equal.
+// Artefacts, which more samples do not fix (noise does not survive either measure):
+//   low-frequency relMSE = relMSE of the two images after both are box-blurred over
+//            (2 blurRadius + 1)^2 pixels (7 x 7 by default), over the compared pixels (the
+//            box is clipped at the image's edges and at left-out pixels, the same for both).
+//            Patches and a wrong mean show; noise falls by the box's area.
+//   seam step ratio = the mean squared step of the error across the borders of the render's
+//            cut blocks (a grid of `blockSize` pixels from the image's origin), against the
+//            mean squared step between every other pair of neighbouring pixels. The error is
+//            (a - b) / sqrt(b_blurred^2 + epsilon) summed over R, G and B, averaged along the
+//            border's direction over 2 blurRadius + 1 pixels, so that a step that runs along
+//            a border stands out of the noise. 1 where blocks join seamlessly; NaN when the
+//            image has no border (no larger than one block).
 // The means run over the pixels compared. Pixels where either image has a NaN or an
 // infinity in R, G or B are counted and left out of every metric: one firefly would
 // otherwise make every figure NaN or infinite. When no pixel is left, the metrics are NaN.
@@ -45,13 +57,24 @@ struct ImageMetrics {
   // Pixels with a non-finite R, G or B value in each image.
   int64_t nonFiniteImage = 0;
   int64_t nonFiniteReference = 0;
+  // Artefacts (above).
+  double lowFrequencyRelMse = 0.0;
+  std::array<double, 3> lowFrequencyRelMseChannels{};
+  double seamStepRatio = 0.0;
+};
+
+struct CompareOptions {
+  int blockSize = 64;  // the render's cut_block
+  int blurRadius = 3;  // 7 x 7
 };
 
 // Compares `image` against `reference`; both must have the same width and height
 // (InvalidArgument naming both sizes otherwise) and at least one pixel and channel. When
 // `diffOut` is not null it receives |image - reference| per pixel as channels R, G, B
-// (non-finite where either input is).
+// (non-finite where either input is). Options out of range (a block or radius below 1) are
+// InvalidArgument.
 absl::StatusOr<ImageMetrics> compareImages(const Image& image, const Image& reference,
-                                           Image* diffOut = nullptr);
+                                           Image* diffOut = nullptr,
+                                           const CompareOptions& options = {});
 
 }  // namespace pbgi

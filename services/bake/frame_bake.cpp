@@ -35,7 +35,7 @@ namespace {
 constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
 // differ, so that no bake made before it is reused (the commit log says what each changed).
-constexpr int kBounceRevision = 13;
+constexpr int kBounceRevision = 15;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -624,13 +624,9 @@ absl::StatusOr<FrameBakeReport> runBake(const ShotDesc& shot, const FrameBakeReq
   if (request.bounces > 0) {
     PBGI_ASSIGN_OR_RETURN(BouncedLight light, bounceLight(scene, shot, request, *sorted, treePath,
                                                           treeOptions, glossy, clock, &report));
-    const auto power = [&](int k) {
-      const Rgb& p = report.bouncePower[static_cast<size_t>(k)];
-      return std::array<double, 3>{p.x, p.y, p.z};
-    };
-    report.tail = request.bounceTail
-                      ? tailFactor(power(request.bounces), power(request.bounces - 1))
-                      : Rgb(0.0f);
+    std::vector<std::array<double, 3>> power;
+    for (const Rgb& p : report.bouncePower) power.push_back({p.x, p.y, p.z});
+    report.tail = request.bounceTail ? tailFactor(power) : Rgb(0.0f);
     const uint64_t surfels = report.sampling.surfels;
     // Written first without wavelets when glossy surfels then gather from it.
     PBGI_ASSIGN_OR_RETURN(

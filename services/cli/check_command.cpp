@@ -55,7 +55,8 @@ nlohmann::ordered_json toJson(const ShotDesc& shot, const ShotCheck& check) {
           {"output", check.output},
           {"output_format", toString(check.format)},
           {"frames", frames},
-          {"glossy_materials", glossy}};
+          {"glossy_materials", glossy},
+          {"slower_than_path_traced", check.slowerThanPathTraced}};
 }
 
 std::string counted(size_t n, const char* one, const char* many) {
@@ -85,6 +86,9 @@ void printText(const ShotDesc& shot, const ShotCheck& check) {
   }
   for (const GlossyMaterialCheck& g : check.glossy) {
     std::printf("%s\n", describeGlossyMaterial(g).c_str());
+  }
+  for (const std::string& note : check.slowerThanPathTraced) {
+    std::fprintf(stderr, "pbgi: note: %s\n", note.c_str());
   }
   std::printf("ok: %zu frame%s can render\n", check.frames.size(),
               check.frames.size() == 1 ? "" : "s");

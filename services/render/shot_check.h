@@ -46,6 +46,9 @@ struct ShotCheck {
   OutputFormat format = OutputFormat::kExr;
   std::vector<FrameCheck> frames;
   std::vector<GlossyMaterialCheck> glossy;  // the first frame's scene's
+  // Where the shot's integrator is likely slower than the path tracer at equal error, and why
+  // (PBGI: a glossy material whose lobe the wavelet product cannot hold): one line each.
+  std::vector<std::string> slowerThanPathTraced;
 };
 
 // Checks `frames` of the shot (empty: every frame) as a render of them would meet them, and

@@ -140,5 +140,40 @@ TEST_F(SurfelBounceRecords, SidesThatGatheredNothingAreShutInLaterBounces) {
   EXPECT_NEAR(shutSum / openSum, 1.0, 0.01);
 }
 
+// The second bounce probes the sides that gathered nothing: those that see a surface gather
+// (the dark room's, and the sides facing into the wall between the rooms, which the first bounce
+// found dark), and only those that see none (facing out of the closed rooms) stay shut. The light
+// gathered is what every side gathering gathers.
+TEST_F(SurfelBounceRecords, ASideThatSeesASurfaceIsGatheredAgainInTheSecondBounce) {
+  BounceGatherer bouncer(CutOptions{});
+  std::vector<SurfelIrradiance> first(n), open(n), probed(n), shut(n);
+  CutStats stats, openStats, probedStats, shutStats;
+  ASSERT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, first, &stats).ok());
+  ASSERT_TRUE(bouncer.gather(*tree, *scene, surfels, kGroupSize, keys, 2, open, &openStats).ok());
+  uint64_t probedShut = 0, allShut = 0;
+  ASSERT_TRUE(bouncer
+                  .gather(*tree, *scene, surfels, kGroupSize, keys, 2, probed, &probedStats, first,
+                          &probedShut, /*probeBlackSides=*/true)
+                  .ok());
+  ASSERT_TRUE(bouncer
+                  .gather(*tree, *scene, surfels, kGroupSize, keys, 2, shut, &shutStats, first,
+                          &allShut)
+                  .ok());
+  std::printf("[ measured ] black records' sides shut: %llu probed, %llu without probing, of %llu\n",
+              static_cast<unsigned long long>(probedShut),
+              static_cast<unsigned long long>(allShut),
+              static_cast<unsigned long long>(openStats.receivers));
+  EXPECT_GT(probedShut, 0u);
+  EXPECT_LT(probedShut, allShut);
+  EXPECT_EQ(probedStats.receivers + probedShut, openStats.receivers);
+  // The light as every side gathering has it: the shut sides see nothing to gather.
+  double openSum = 0.0, probedSum = 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    openSum += luminance(open[i].front) + luminance(open[i].back);
+    probedSum += luminance(probed[i].front) + luminance(probed[i].back);
+  }
+  EXPECT_NEAR(probedSum / openSum, 1.0, 0.01);
+}
+
 }  // namespace
 }  // namespace pbgi

@@ -1,6 +1,7 @@
 #include "formats/image/compare.h"
 
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include <gtest/gtest.h>
@@ -124,6 +125,83 @@ TEST(CompareTest, SizeMismatchNamesBothSizes) {
   EXPECT_EQ(m.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(m.status().message().find("64x32"), std::string::npos) << m.status();
   EXPECT_NE(m.status().message().find("32x64"), std::string::npos) << m.status();
+}
+
+// A deterministic normal deviate per (pixel, channel, stream): a hash, Box-Muller.
+double gaussian(uint64_t i) {
+  auto unit = [](uint64_t x) {
+    x ^= x >> 33;
+    x *= 0xff51afd7ed558ccdULL;
+    x ^= x >> 33;
+    x *= 0xc4ceb9fe1a85ec53ULL;
+    x ^= x >> 33;
+    return (static_cast<double>(x >> 11) + 0.5) / 9007199254740992.0;
+  };
+  return std::sqrt(-2.0 * std::log(unit(2 * i + 1))) * std::cos(6.283185307179586 * unit(2 * i + 2));
+}
+
+// Noise and patches of the same relMSE: only the patches keep their error after the blur.
+TEST(CompareTest, LowFrequencyErrorSeparatesPatchesFromNoise) {
+  const int w = 128, h = 128;
+  const Image ref = constantImage(w, h, 0.5f, 0.5f, 0.5f);
+  Image noisy = ref, patchy = ref;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        const uint64_t pixel = (static_cast<uint64_t>(y) * w + x) * 3 + c;
+        const uint64_t patch = (static_cast<uint64_t>(y / 8) * (w / 8) + x / 8) * 3 + c;
+        noisy.at(x, y, c) += static_cast<float>(0.05 * gaussian(pixel));
+        patchy.at(x, y, c) += static_cast<float>(0.05 * gaussian(1u << 30 | patch));
+      }
+    }
+  }
+  const absl::StatusOr<ImageMetrics> n = compareImages(noisy, ref);
+  const absl::StatusOr<ImageMetrics> p = compareImages(patchy, ref);
+  ASSERT_TRUE(n.ok() && p.ok());
+  EXPECT_NEAR(n->relMse / p->relMse, 1.0, 0.3);
+  // Noise: about 1/49 of its relMSE (a 7 x 7 box); 8 x 8 patches: most of it.
+  EXPECT_LT(n->lowFrequencyRelMse, n->relMse / 30.0);
+  EXPECT_GT(p->lowFrequencyRelMse, p->relMse / 3.0);
+  EXPECT_NEAR(n->seamStepRatio, 1.0, 0.25);
+  for (int c = 0; c < 3; ++c) EXPECT_GT(p->lowFrequencyRelMseChannels[c], 0.0);
+}
+
+// A step at every 16-pixel block border, smaller than the noise: the seam ratio sees it at
+// --block 16 and not at a grid it does not follow.
+TEST(CompareTest, SeamRatioFindsStepsAtTheBlockBorders) {
+  const int w = 128, h = 96;
+  const Image ref = constantImage(w, h, 1.0f, 1.0f, 1.0f);
+  Image seamed = ref, noisy = ref;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float block = static_cast<float>(((x / 16) + (y / 16)) % 2) * 0.03f;
+      for (int c = 0; c < 3; ++c) {
+        const float noise =
+            static_cast<float>(0.05 * gaussian((static_cast<uint64_t>(y) * w + x) * 3 + c));
+        noisy.at(x, y, c) += noise;
+        seamed.at(x, y, c) += noise + block;
+      }
+    }
+  }
+  const absl::StatusOr<ImageMetrics> atBlocks = compareImages(seamed, ref, nullptr, {.blockSize = 16});
+  const absl::StatusOr<ImageMetrics> offGrid = compareImages(seamed, ref, nullptr, {.blockSize = 13});
+  const absl::StatusOr<ImageMetrics> clean = compareImages(noisy, ref, nullptr, {.blockSize = 16});
+  ASSERT_TRUE(atBlocks.ok() && offGrid.ok() && clean.ok());
+  EXPECT_GT(atBlocks->seamStepRatio, 2.0);
+  EXPECT_NEAR(clean->seamStepRatio, 1.0, 0.25);
+  EXPECT_LT(offGrid->seamStepRatio, atBlocks->seamStepRatio / 2.0);
+  // No border inside one block: no ratio.
+  const absl::StatusOr<ImageMetrics> one = compareImages(seamed, ref, nullptr, {.blockSize = 256});
+  ASSERT_TRUE(one.ok());
+  EXPECT_TRUE(std::isnan(one->seamStepRatio));
+}
+
+TEST(CompareTest, ArtefactOptionsOutOfRangeAreRejected) {
+  const Image a = constantImage(4, 4, 1, 1, 1);
+  EXPECT_EQ(compareImages(a, a, nullptr, {.blockSize = 0}).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(compareImages(a, a, nullptr, {.blurRadius = 0}).status().code(),
+            absl::StatusCode::kInvalidArgument);
 }
 
 TEST(CompareTest, EmptyImagesAreRejected) {

@@ -41,6 +41,28 @@ TEST(CheckCliTest, TheSampleChecksFrameByFrameAsTextAndJson) {
   EXPECT_EQ(parsed["frames"][0]["triangles"], 30);
   EXPECT_TRUE(parsed["frames"][0]["warnings"].empty());
   EXPECT_TRUE(parsed["glossy_materials"].empty()) << "the sample is diffuse";
+  EXPECT_TRUE(parsed["slower_than_path_traced"].empty()) << parsed;
+}
+
+// Glossy materials whose lobes are too narrow for the wavelet product: check says that PBGI
+// would render frames of them slower than the path tracer, and why, once for each of them and
+// for none of those the product holds.
+TEST(CheckCliTest, NarrowLobesAreSaidToRenderFasterPathTraced) {
+  const auto plates = testing::sourceDir() / "config/scenes/glossy-plates/plates.shot.toml";
+  const auto text = runPbgi("check " + shellQuote(plates.string()));
+  ASSERT_EQ(text.exitCode, 0) << text.output();
+  EXPECT_NE(text.err.find("pbgi: note: glossy material"), std::string::npos) << text.output();
+  EXPECT_NE(text.err.find("--integrator path"), std::string::npos) << text.output();
+  const auto json = runPbgi("check " + shellQuote(plates.string()) + " --json");
+  ASSERT_EQ(json.exitCode, 0) << json.output();
+  const auto parsed = nlohmann::json::parse(json.out);
+  size_t narrow = 0;
+  for (const auto& g : parsed["glossy_materials"]) {
+    narrow += g["lobe_texels"][0].get<double>() < kMinProductLobeTexels ? 1 : 0;
+  }
+  EXPECT_GT(narrow, 0u) << parsed;
+  EXPECT_LT(narrow, parsed["glossy_materials"].size()) << parsed;
+  EXPECT_EQ(parsed["slower_than_path_traced"].size(), narrow) << parsed;
 }
 
 // A glossy shot's materials as the wavelet product would reflect with them: their BSDFs'
