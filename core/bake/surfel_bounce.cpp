@@ -28,7 +28,10 @@ CutOptions bounceCutOptions(const CutOptions& first, int bounce) {
 
 absl::StatusOr<CutOptions> bounceCutPreset(std::string_view quality) {
   absl::StatusOr<CutOptions> cut = cutPreset(quality);
-  if (cut.ok()) cut->nearRays = 0;
+  if (cut.ok()) {
+    cut->nearRays = 0;
+    cut->recordVisibility = false;
+  }
   return cut;
 }
 

@@ -249,6 +249,29 @@ struct ReceiverTree {
     }
   }
 
+  // A source's light, times `weight`, at receiver r of node `node` alone: the source's
+  // intensity towards the node's centre, changed by its gradient for r's place, at r's own
+  // distance and cosine.
+  void depositAt(uint32_t r, uint32_t node, const PointSource& src, float weight) {
+    const Vec3f v = src.position - receivers[r].p;
+    const float d2 = v.length2();
+    const float cosR = dot(receivers[r].n, v);
+    if (!(cosR > 0.0f) || !(d2 > 0.0f)) return;
+    const Vec3f u = src.position - nodes[node].center;
+    const float dc2 = u.length2();
+    Rgb intensity = src.intensity;
+    if (dc2 > 0.0f) {
+      const float dc = std::sqrt(dc2);
+      const Vec3f w = u / dc;
+      const Vec3f delta = receivers[r].p - nodes[node].center;
+      for (int c = 0; c < 3; ++c) {
+        const Vec3f g = src.gradient[c] - w * dot(w, src.gradient[c]);
+        intensity[c] = std::max(0.0f, intensity[c] + dot(g, delta) / dc);
+      }
+    }
+    single[r] += intensity * (weight * cosR / (std::sqrt(d2) * (d2 + src.softening2)));
+  }
+
   // A random receiver of an item: where its shadow rays leave from; with `strata` > 1, of the
   // `stratum`th of that many equal runs of its receivers in the tree's order (octants in turn,
   // so the runs spread over the node).
@@ -397,11 +420,18 @@ struct BidirectionalCut::State {
   TreePageSource* source = nullptr;
   const Scene* scn = nullptr;
   uint64_t key = 0;
+  std::optional<uint64_t> lightKey;
   CutStats stats;
+
+  // The random numbers of a pair's evaluation (CutJob::lightKey).
+  Rng rngFor(const Pair& pair) const {
+    return lightKey ? Rng::forKeys(*lightKey, lightId(pair.light))
+                    : Rng::forKeys(key, lightId(pair.light), pair.receiver);
+  }
 
   absl::Status begin(TreePageSource& treeSource, const Scene& scene,
                      std::span<const CutReceiver> cutReceivers, uint64_t cutKey,
-                     const CutOptions& options);
+                     const CutOptions& options, std::optional<uint64_t> cutLightKey);
   // The highest page with pairs waiting; nullopt when the cut is done.
   std::optional<uint32_t> nextPage() const {
     if (pages.empty()) return std::nullopt;
@@ -441,6 +471,17 @@ struct BidirectionalCut::State {
       case Descent::Kind::kNothing:
         return;
       case Descent::Kind::kSurfel:
+        if (opts.recordVisibility && !(receiver & kReceiverBit)) {
+          // Each receiver of the node its own ray to the surfel the descent picked.
+          const ReceiverNode& n = tree.nodes[receiver];
+          for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+            const uint32_t r = tree.order[k];
+            if (visibleSurfel(*scn, tree.receivers[r], d.surfel, &stats)) {
+              tree.depositAt(r, receiver, src, d.scale);
+            }
+          }
+          return;
+        }
         if (visibleSurfel(*scn, tree.receivers[origin], d.surfel, &stats)) {
           tree.deposit(receiver, src, d.scale);
         }
@@ -510,7 +551,7 @@ struct BidirectionalCut::State {
         opts.lightSolidAngle > 0.0f
             ? std::clamp<size_t>(static_cast<size_t>(std::ceil(solidAngle / opts.lightSolidAngle)), 1, n)
             : n;
-    Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
+    Rng rng = rngFor(pair);
     for (size_t g = 0; g < strata; ++g) {
       const size_t begin = g * n / strata, end = (g + 1) * n / strata;
       size_t candidates = 0;
@@ -558,7 +599,7 @@ struct BidirectionalCut::State {
       stats.receiversServed += tree.served(pair.receiver);
       PointSource src = clusterSource(a, page.waveletOf(node), view, -dir);
       if (isBlack(src.intensity)) return absl::OkStatus();
-      Rng rng = Rng::forKeys(key, lightId(pair.light), pair.receiver);
+      Rng rng = rngFor(pair);
       const uint32_t rays =
           rv.single ? 1u
                     : std::min<uint32_t>(static_cast<uint32_t>(opts.clusterRays),
@@ -725,7 +766,8 @@ BidirectionalCut::BidirectionalCut(BidirectionalCut&&) noexcept = default;
 
 absl::Status BidirectionalCut::State::begin(TreePageSource& treeSource, const Scene& scene,
                                             std::span<const CutReceiver> cutReceivers,
-                                            uint64_t cutKey, const CutOptions& options) {
+                                            uint64_t cutKey, const CutOptions& options,
+                                            std::optional<uint64_t> cutLightKey) {
   for (size_t i = 0; i < cutReceivers.size(); ++i) {
     if (absl::Status s = checkReceiver(cutReceivers[i], i); !s.ok()) return s;
   }
@@ -733,6 +775,7 @@ absl::Status BidirectionalCut::State::begin(TreePageSource& treeSource, const Sc
   source = &treeSource;
   scn = &scene;
   key = cutKey;
+  lightKey = cutLightKey;
   stats = CutStats{};
   stats.cuts = 1;
   stats.receivers = cutReceivers.size();
@@ -840,10 +883,13 @@ absl::Status BidirectionalCut::State::finish(std::span<Rgb> out, CutStats* stats
 
 absl::Status BidirectionalCut::irradiance(TreePageSource& tree, const Scene& scene,
                                           std::span<const CutReceiver> receivers, uint64_t key,
-                                          std::span<Rgb> out, CutStats* statsOut) {
+                                          std::span<Rgb> out, CutStats* statsOut,
+                                          std::optional<uint64_t> lightKey) {
   PBGI_CHECK_EQ(out.size(), receivers.size());
   State& st = *state_;
-  if (absl::Status s = st.begin(tree, scene, receivers, key, options_); !s.ok()) return s;
+  if (absl::Status s = st.begin(tree, scene, receivers, key, options_, lightKey); !s.ok()) {
+    return s;
+  }
   if (absl::Status s = st.sweep(0); !s.ok()) return s;
   return st.finish(out, statsOut);
 }
@@ -870,7 +916,7 @@ absl::Status cutTogether(TreePageSource& tree, const Scene& scene,
   if (absl::Status s = forEachCut([&](size_t i) {
         PBGI_CHECK_EQ(jobs[i].out.size(), jobs[i].receivers.size());
         return cuts[i]->state_->begin(tree, scene, jobs[i].receivers, jobs[i].key,
-                                      cuts[i]->options());
+                                      cuts[i]->options(), jobs[i].lightKey);
       });
       !s.ok()) {
     return s;

@@ -63,6 +63,7 @@
 // render unit.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -105,6 +106,12 @@ struct CutOptions {
   // nodes meet. More rays shrink those patches' contrast by their square root. Single
   // receivers take one.
   int clusterRays = 1;
+  // Whether a cluster pair's shadow ray is traced from every receiver of the node (to the one
+  // surfel its descent picked), each receiver taking the cluster's light exactly when its own
+  // ray arrives: visibility per receiver, with no step where receiver nodes meet, at the cost
+  // of a ray per receiver served. Otherwise one ray, from a random receiver, decides for the
+  // whole node, which takes the light as a linear field.
+  bool recordVisibility = false;
   // How a shadow ray's descent weighs a cluster's children (descend() in the .cpp): false, by
   // what each one's SH sends the receiver; true, by its power and normal cone alone (no SH:
   // faster, and noisier where children face different ways). The bake's first bounce uses it.
@@ -171,6 +178,12 @@ struct CutJob {
   std::span<const CutReceiver> receivers;
   uint64_t key = 0;
   std::span<Rgb> out;
+  // When set, the random numbers of each light node's evaluations (its shadow rays' descents
+  // and origins) come from this key and the node alone, not from `key` and the receiver node:
+  // cuts that share it (a frame's blocks) pick the same surfels of a cluster for neighbouring
+  // receivers, so that what one cluster's sampling gets wrong varies smoothly across receiver
+  // nodes and blocks instead of stepping where they meet.
+  std::optional<uint64_t> lightKey;
 };
 
 // How many pages cutTogether's cuts sweep at a time: one, so that a cache of two pages loads
@@ -207,7 +220,8 @@ class BidirectionalCut {
   // that makes the result non-finite.
   absl::Status irradiance(TreePageSource& tree, const Scene& scene,
                           std::span<const CutReceiver> receivers, uint64_t key,
-                          std::span<Rgb> out, CutStats* stats);
+                          std::span<Rgb> out, CutStats* stats,
+                          std::optional<uint64_t> lightKey = std::nullopt);
 
  private:
   friend absl::Status cutTogether(TreePageSource&, const Scene&, std::span<BidirectionalCut* const>,

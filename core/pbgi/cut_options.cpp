@@ -50,6 +50,9 @@ constexpr CutPreset kCutPresets[] = {
     {"default", 0.02f, 0.2f, 0.03f, 30.0f, 32},
     {"high", 0.005f, 0.05f, 0.01f, 20.0f, 64},
 };
+// Every preset's cluster pairs take their visibility per receiver (CutOptions::recordVisibility);
+// the bake's bounces, whose records stand for patches of surfels, keep one ray a pair
+// (bounceCutPreset).
 
 }  // namespace
 
@@ -62,6 +65,7 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
     o.receiverBound = p.receiverBound;
     o.normalAngle = radians(p.normalAngleDeg);
     o.nearRays = p.nearRays;
+    o.recordVisibility = true;
     return o;
   }
   return absl::InvalidArgumentError(
@@ -72,11 +76,11 @@ absl::StatusOr<CutOptions> cutPreset(std::string_view name) {
 std::string CutOptions::toString() const {
   return fmt::format(
       "cut(lightSolidAngle={:g} lightBound={:g} receiverBound={:g} normalAngle={:g} "
-      "receiverLeafSize={} selfSkipRadius={:g}{}{}{})",
+      "receiverLeafSize={} selfSkipRadius={:g}{}{}{}{})",
       lightSolidAngle, lightBound, receiverBound, normalAngle, receiverLeafSize, selfSkipRadius,
       nearRays > 0 ? fmt::format(" nearRays={}", nearRays) : "",
       clusterRays > 1 ? fmt::format(" clusterRays={}", clusterRays) : "",
-      coneDescent ? " coneDescent" : "");
+      recordVisibility ? " recordVisibility" : "", coneDescent ? " coneDescent" : "");
 }
 
 CutStats& CutStats::operator+=(const CutStats& o) {

@@ -50,6 +50,9 @@ struct RenderCounters {
 struct UnitBlock {
   size_t firstPixel = 0;
   size_t pixelCount = 0;
+  // Pixels just past the block's far borders (Integrator::blockHalo) that follow its own in
+  // the unit's pixels: the integrator may use their samples, and the renderer writes none.
+  size_t haloCount = 0;
   uint64_t key = 0;
 };
 
@@ -65,6 +68,8 @@ struct TileSamples {
   // For an integrator with blocks (blockSize() > 0): the unit's blocks, whose pixels follow
   // one another in `pixels`. Work that spans pixels stays within a block. Empty for a tile.
   std::span<const UnitBlock> blocks;
+  // Keyed (seed, frame) alone: random numbers that every block of the frame shares.
+  uint64_t frameKey = 0;
   // Set while the unit renders when its render is to stop (a cancelled farm task); an
   // integrator checks it between pixels and returns cancelledError().
   const std::atomic<bool>* cancel = nullptr;
@@ -97,6 +102,11 @@ class Integrator {
   // How many blocks (consecutive in Morton order over the grid) a unit holds at most: blocks
   // of one unit may share traversals of the tree (its pages), never their results.
   virtual int blocksPerUnit() const { return 1; }
+  // n > 0: each block also gets the samples of the pixels one past its right and bottom
+  // borders (in its own view, inside the view) whose coordinates are multiples of n, as a halo
+  // (UnitBlock::haloCount), for work that reaches across the border (records the block's last
+  // pixels interpolate towards). 0: none.
+  virtual int blockHalo() const { return 0; }
   // Fills out[s] for every sample of the unit. Must be deterministic in its inputs (whatever
   // the scratch held before) and safe to call from many threads, each with its own scratch.
   virtual absl::Status render(const TileSamples& samples, std::span<PathSample> out,

@@ -291,6 +291,9 @@ class BidirectionalPbgi final : public Integrator {
   }
   int blockSize() const override { return settings_.blockSize; }
   int blocksPerUnit() const override { return settings_.blocksPerUnit; }
+  // The record pixels past a block's far borders: its last pixels interpolate towards them as
+  // every other pixel between records does, so the border is not a seam.
+  int blockHalo() const override { return settings_.recordSpacing > 1 ? settings_.recordSpacing : 0; }
 
   // Each block: its camera samples traced to their first hits (glossy ones gather there), its
   // diffuse ones the receivers of its cut; the unit's cuts then run together (cutTogether),
@@ -319,8 +322,10 @@ class BidirectionalPbgi final : public Integrator {
     for (size_t b = 0; b < count; ++b) {
       BidirectionalBlock& block = *state.blocks[b];
       cuts[b] = &block.cut;
-      jobs[b] = {
-          .receivers = block.receivers, .key = samples.blocks[b].key, .out = block.irradiance};
+      jobs[b] = {.receivers = block.receivers,
+                 .key = samples.blocks[b].key,
+                 .out = block.irradiance,
+                 .lightKey = samples.frameKey};
     }
     CutStats cutStats;
     if (absl::Status s = cutTogether(tree_, scene_, cuts, jobs, &cutStats); !s.ok()) return s;
@@ -351,12 +356,14 @@ class BidirectionalPbgi final : public Integrator {
     const int spacing = settings_.recordSpacing;
     const size_t spp = static_cast<size_t>(samples.spp);
     const size_t first = unitBlock.firstPixel;
+    // The block's pixels and its halo's (record pixels only: their records serve the block).
+    const size_t pixels = unitBlock.pixelCount + unitBlock.haloCount;
     block.anchorRecords.clear();
-    block.anchorRange.assign(unitBlock.pixelCount, {0, 0});
+    block.anchorRange.assign(pixels, {0, 0});
     block.between.clear();
     const auto isAnchor = [&](const Vec2i& p) { return p.x % spacing == 0 && p.y % spacing == 0; };
     if (absl::Status s = traceFirstHits(
-            scene_, lobes_, tree_, settings_, samples, first, first + unitBlock.pixelCount, out,
+            scene_, lobes_, tree_, settings_, samples, first, first + pixels, out,
             block.pixel, &stats, &block.counters,
             [&](size_t k, const Receiver& r) {
               if (spacing > 1 && !isAnchor(samples.pixels[k / spp])) {
@@ -395,8 +402,10 @@ class BidirectionalPbgi final : public Integrator {
   // The samples of pixels between the records' (recordSpacing > 1): each takes the records of
   // the four record pixels around it that lie on its surface (the test a pixel's samples share
   // by), weighted bilinearly by its place among them; a sample that finds none, at an edge or
-  // a crease, gathers its own record, shared within its pixel. Only the block's own pixels
-  // count, so a block's records and pixels depend on the block alone.
+  // a crease, or whose record pixels are not all there (past the image's edge), gathers its own
+  // record, shared within its pixel. Only the block's own pixels and its halo's count (the
+  // record pixels past its far borders, whose records its own cut gathers), so a block's
+  // records and pixels depend on the block alone, and its last pixels interpolate as the rest.
   void interpolateBetween(const TileSamples& samples, const UnitBlock& unitBlock,
                           BidirectionalBlock& block) const {
     const int spacing = settings_.recordSpacing;
@@ -406,7 +415,7 @@ class BidirectionalPbgi final : public Integrator {
       return (uint64_t{static_cast<uint32_t>(y)} << 32) | static_cast<uint32_t>(x);
     };
     block.pixelAt.clear();
-    for (size_t i = 0; i < unitBlock.pixelCount; ++i) {
+    for (size_t i = 0; i < unitBlock.pixelCount + unitBlock.haloCount; ++i) {
       block.pixelAt.emplace(key(samples.pixels[first + i].x, samples.pixels[first + i].y),
                             static_cast<uint32_t>(i));
     }
@@ -420,12 +429,21 @@ class BidirectionalPbgi final : public Integrator {
       const float fy = static_cast<float>(p.y - ay) / static_cast<float>(spacing);
       const size_t firstUse = block.uses.size();
       float total = 0.0f;
-      for (int corner = 0; corner < 4; ++corner) {
+      bool enclosed = true;
+      for (int corner = 0; corner < 4 && enclosed; ++corner) {
         const int cx = corner & 1, cy = corner >> 1;
         const float w = (cx ? fx : 1.0f - fx) * (cy ? fy : 1.0f - fy);
         if (!(w > 0.0f)) continue;
         const auto at = block.pixelAt.find(key(ax + cx * spacing, ay + cy * spacing));
-        if (at == block.pixelAt.end()) continue;
+        if (at == block.pixelAt.end()) {
+          // A record pixel outside the block and its halo (past the image's edge): the records
+          // on this side would stand for light they were not gathered for. The pixel gathers
+          // its own.
+          block.uses.resize(firstUse);
+          total = 0.0f;
+          enclosed = false;
+          continue;
+        }
         const auto [begin, end] = block.anchorRange[at->second];
         const std::span<const SharedGather> records(block.anchorRecords.data() + begin,
                                                     end - begin);

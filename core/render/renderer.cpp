@@ -174,6 +174,7 @@ std::string describe(const RenderUnit& u) {
 // The buffers one thread reuses from unit to unit.
 struct UnitBuffers {
   std::vector<Vec2i> pixels;
+  std::vector<uint8_t> halo;  // by pixel: a block's halo, not written
   std::vector<UnitBlock> blocks;
   std::vector<Ray> rays;
   std::vector<Rng> rngs;
@@ -191,6 +192,7 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
   buf.blocks.clear();
   if (unit.block) {
     const Vec2i views = camera.views();
+    const int halo = integrator.blockHalo();
     for (const GridBlock& b : unit.blocks) {
       const std::vector<Vec2i> order = mortonOrder(b.rect.width(), b.rect.height());
       const size_t first = buf.pixels.size();
@@ -202,8 +204,26 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
           }
         }
       }
+      const size_t own = buf.pixels.size() - first;
+      if (halo > 0) {
+        // The column past the right border and the row past the bottom one (with their
+        // corner), where they lie inside the view.
+        const int vw = camera.viewWidth(), vh = camera.viewHeight();
+        for (int row = 0; row < views.y; ++row) {
+          for (int col = 0; col < views.x; ++col) {
+            const auto add = [&](int x, int y) {
+              const Vec2i p{col * vw + x, row * vh + y};
+              if (p.x % halo != 0 || p.y % halo != 0 || x >= vw || y >= vh) return;
+              buf.pixels.push_back(p);
+            };
+            for (int y = b.rect.y0; y < b.rect.y1; ++y) add(b.rect.x1, y);
+            for (int x = b.rect.x0; x <= b.rect.x1; ++x) add(x, b.rect.y1);
+          }
+        }
+      }
       buf.blocks.push_back({.firstPixel = first,
-                            .pixelCount = buf.pixels.size() - first,
+                            .pixelCount = own,
+                            .haloCount = buf.pixels.size() - first - own,
                             .key = blockKey(settings.seed, frame, b.index.x, b.index.y)});
     }
   } else {
@@ -241,15 +261,21 @@ absl::Status renderUnit(const Integrator& integrator, const Camera& camera,
                             .rays = buf.rays,
                             .rngs = buf.rngs,
                             .blocks = buf.blocks,
+                            .frameKey = frameKey(settings.seed, frame),
                             .cancel = cancel};
   if (absl::Status s = integrator.render(samples, buf.samples, buf.scratch.get(), counters);
       !s.ok()) {
     return absl::Status(s.code(), fmt::format("{}: {}", describe(unit), s.message()));
   }
+  buf.halo.assign(buf.pixels.size(), 0);
+  for (const UnitBlock& b : buf.blocks) {
+    const size_t haloFirst = b.firstPixel + b.pixelCount;
+    std::fill_n(buf.halo.begin() + static_cast<std::ptrdiff_t>(haloFirst), b.haloCount, 1);
+  }
   for (size_t i = 0; i < buf.pixels.size(); ++i) {
     const int x = buf.pixels[i].x, y = buf.pixels[i].y;
-    // A block renders whole, but writes only the pixels asked for.
-    if (!raster.wanted(x, y)) continue;
+    // A block renders whole, but writes only the pixels asked for, and none of its halo.
+    if (buf.halo[i] || !raster.wanted(x, y)) continue;
     Rgb sum(0.0f), direct(0.0f), indirect(0.0f), albedo(0.0f);
     Vec3f normal(0.0f);
     double depth = 0.0;
@@ -387,6 +413,10 @@ std::vector<TileRect> makeTiles(int width, int height, int tileSize) {
 
 uint64_t blockKey(uint64_t seed, int frame, int bx, int by) {
   return hashKeys(seed, frame, 0x626c6f636bull /* "block" */, bx, by);
+}
+
+uint64_t frameKey(uint64_t seed, int frame) {
+  return hashKeys(seed, frame, 0x6672616d65ull /* "frame" */);
 }
 
 void RenderCounters::add(const RenderCounters& o) {

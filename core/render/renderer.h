@@ -76,6 +76,8 @@ std::vector<Vec2i> mortonOrder(int nx, int ny);
 // The random key of block (bx, by) of a frame: what an integrator's work across the block's
 // pixels draws from.
 uint64_t blockKey(uint64_t seed, int frame, int bx, int by);
+// The random key every block of a frame shares (TileSamples::frameKey).
+uint64_t frameKey(uint64_t seed, int frame);
 
 // OutOfRange unless every region is non-empty and inside a width x height image; the error
 // names the first that is not.
