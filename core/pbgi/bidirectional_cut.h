@@ -85,6 +85,19 @@ inline constexpr float kNearFieldRadii = 4.0f;
 inline constexpr int kMaxNearRays = 4096;
 inline constexpr int kMaxClusterRays = 64;
 
+// How far from a hit readSurfaceRadiance reads the tree's surfels: the near field's reading
+// radius (kNearReadRadii mean surfel radii of the tree's root). Errors: the source's, or
+// DataLoss for a damaged root.
+absl::StatusOr<float> surfaceReadRadius(TreePageSource& tree);
+// The radiance a surface sends back along a ray that meets it at x (normal n, either way; the
+// ray's direction w), read from the tree's surfels within `radius` (surfaceReadRadius) of x as
+// the near field reads a hit (see "Near field" above: on x's surface, seen from x along it,
+// weighted by distance, the side w sees). nullopt where no surfel was read. Errors: the
+// source's, or DataLoss for a damaged tree.
+absl::StatusOr<std::optional<Rgb>> readSurfaceRadiance(TreePageSource& tree, const Scene& scene,
+                                                       float radius, const Vec3f& x, const Vec3f& n,
+                                                       const Vec3f& w);
+
 struct CutOptions {
   float lightSolidAngle = 0.01f;   // eps_L (sr)
   float lightBound = 0.1f;         // eps~_L (sr)

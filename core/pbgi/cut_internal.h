@@ -101,6 +101,10 @@ float boxGap2(const Bounds3f& b, const Vec3f& center, const Vec3f& halfExtent);
 // geometric surface sees nothing.
 void traceNearField(const Scene& scene, std::span<const CutReceiver> receivers, int rays,
                     float radius, std::vector<NearHit>* hits, CutStats* stats);
+// Reads into `hit` the surfels of the tree around it from `root` down (readNearSurface, page by
+// page as the source gives them).
+absl::Status readHit(TreePageSource& tree, const Scene& scene, NodeRef root, float radius,
+                     NearHit& hit, CutStats* stats);
 // Adds each hit's radiance, pi / rays of it (a cosine-weighted estimate), to its receiver. A hit
 // where no surfel was read takes the mean of its receiver's other hits, or nothing when it has
 // none. Hits come grouped by receiver (traceNearField).

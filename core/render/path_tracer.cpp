@@ -172,6 +172,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
   Rgb* sink = &out.direct;  // emission found at bounce <= 1 is direct light
   bool skipSky = false;     // the last vertex left the environment's light to the records
   float emissionScale = 1.0f;  // of the emission the path meets next (firstHitBsdfSamples)
+  bool specularSoFar = true;   // every scattering since the camera was a delta one
 
   for (int bounce = 0;; ++bounce) {
     if (bounce >= 2) sink = &out.indirect;
@@ -212,6 +213,13 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
     const Material& material = scene.material(hit.material);
     const Bsdf bsdf(material, albedo);
     if (bsdf.isBlack()) break;
+    if (bounce >= 1 && specularSoFar && settings.specularChainEnd &&
+        material.type == MaterialType::kDiffuse) {
+      if (const std::optional<Rgb> sent = settings.specularChainEnd(hit, wo)) {
+        out.indirect += beta * *sent;
+        break;
+      }
+    }
 
     const Frame frame = shadingFrame(hit);
     const Vec3f woLocal = frame.toLocal(wo);
@@ -273,6 +281,7 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
     if (!isFinite(beta)) break;
     prevBsdfPdf = bs->pdf;
     prevDelta = bs->delta;
+    specularSoFar = specularSoFar && bs->delta;
     prevP = hit.p;
     ray = scene.spawnRay(hit.p, hit.ng, wi);
 

@@ -3,6 +3,9 @@
 // multiple importance sampling (power heuristic), Russian roulette after a set depth.
 // Every other integrator is measured against this one.
 
+#include <functional>
+#include <optional>
+
 #include "core/math/vec.h"
 #include "core/sampling/rng.h"
 #include "core/scene/scene.h"
@@ -26,6 +29,13 @@ struct PathTracerSettings {
   // its own light and BSDF samples. PBGI's records take it instead (sky_irradiance.h): they
   // clear this, and the path tracer keeps it.
   bool skyAtDiffuseFirstHit = true;
+  // When set: where a path that has only scattered specularly since the camera (mirrors,
+  // smooth glass) meets a diffuse surface, the light that surface sends back along the path
+  // (all of it: its direct light and every bounce's), or nullopt to trace on. PBGI reads it
+  // from its tree, so that what glass and mirrors show is as smooth as the rest of its image.
+  // Must be safe to call from many threads.
+  std::function<std::optional<Rgb>(const SurfaceHit& hit, const Vec3f& towardsViewer)>
+      specularChainEnd;
 };
 
 // What one camera sample brings back: radiance split into direct (emitters seen directly

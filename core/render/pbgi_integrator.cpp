@@ -32,6 +32,25 @@ PbgiSettings withSky(const Scene& scene, PbgiSettings settings) {
   return settings;
 }
 
+// The settings as a PBGI integrator over `tree` runs them: the sky where the records take it
+// (withSky), and camera paths through mirrors and glass that end on a diffuse surface taking
+// the light it sends back from the tree's surfels there (PathTracerSettings::specularChainEnd),
+// so that what they show is as smooth as the rest of the image; where no surfel is read there
+// (or the tree cannot give a page, which the cut then reports), the path goes on.
+PbgiSettings forTree(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings) {
+  PbgiSettings s = withSky(scene, settings);
+  const absl::StatusOr<float> radius = surfaceReadRadius(tree);
+  if (!radius.ok() || !(*radius > 0.0f)) return s;
+  s.pathTracer.specularChainEnd = [&scene, &tree, r = *radius](
+                                      const SurfaceHit& hit,
+                                      const Vec3f& towardsViewer) -> std::optional<Rgb> {
+    const absl::StatusOr<std::optional<Rgb>> sent =
+        readSurfaceRadiance(tree, scene, r, hit.p, hit.ng, -towardsViewer);
+    return sent.ok() ? *sent : std::nullopt;
+  };
+  return s;
+}
+
 // The environment's irradiance at each of `count` gathers, gather(i) giving where gather i
 // lies and how it faces (black when the samples take the environment themselves). Counts its
 // rays.
@@ -167,7 +186,7 @@ class PerPixelScratch final : public IntegratorScratch {
 class PerPixelPbgi final : public Integrator {
  public:
   PerPixelPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), lobes_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+      : scene_(scene), lobes_(scene), tree_(tree), settings_(forTree(scene, tree, settings)) {
     if (settings_.skyAtRecords) sky_.emplace(scene);
   }
 
@@ -280,7 +299,7 @@ class BidirectionalScratch final : public IntegratorScratch {
 class BidirectionalPbgi final : public Integrator {
  public:
   BidirectionalPbgi(const Scene& scene, TreePageSource& tree, const PbgiSettings& settings)
-      : scene_(scene), lobes_(scene), tree_(tree), settings_(withSky(scene, settings)) {
+      : scene_(scene), lobes_(scene), tree_(tree), settings_(forTree(scene, tree, settings)) {
     if (settings_.skyAtRecords) sky_.emplace(scene);
   }
 

@@ -5,7 +5,8 @@
 // numbers and differ only in indirect light), and what its first hit needs:
 //   - nothing, when the ray escapes, or the hit reflects nothing (an emitter, black albedo);
 //   - the path tracer, for mirrors and glass (delta or refractive BSDFs), whose indirect light
-//     PBGI cannot gather;
+//     PBGI cannot gather: its paths through them read, on the first diffuse surface they
+//     reach, the light the tree's surfels there send back (PathTracerSettings::specularChainEnd);
 //   - the adaptive microbuffer gather for glossy receivers (Wang et al. 2016), or the warped
 //     one (Ritschel et al. 2009) or the wavelet product when the settings ask for it, shared
 //     between a pixel's samples that see the same material the same way;
