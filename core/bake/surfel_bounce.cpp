@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "core/bake/surfel_sampler.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
 #include "core/util/check.h"
@@ -254,9 +255,20 @@ void addReflected(Surfel& s, const SurfelIrradiance& e) {
   s.backRadiance += s.albedo * kInvPi * e.back;
 }
 
-Rgb tailFactor(std::span<const std::array<double, 3>> power) {
+float largestBounceRatio(const Scene& scene) {
+  float largest = 0.0f;
+  for (const Material& m : scene.materials()) {
+    if (materialClassOf(m) == MaterialClass::kEmissive) continue;
+    const bool unbounded = m.albedoTexture != nullptr || m.type == MaterialType::kDielectric;
+    largest = std::max(largest, unbounded ? 1.0f : maxComponent(hemisphericalAlbedo(m)));
+  }
+  return std::min(largest, kMaxBounceRatio);
+}
+
+Rgb tailFactor(std::span<const std::array<double, 3>> power, float maxRatio) {
   Rgb f(0.0f);
   const size_t k = power.size();
+  const double held = std::clamp(std::isfinite(maxRatio) ? maxRatio : 0.0f, 0.0f, kMaxBounceRatio);
   if (k < 2) return f;
   const size_t steps = k > 3 ? 2 : 1;  // P_K over P_{K-2} from the third bounce (power[3]) on
   const std::array<double, 3>& last = power[k - 1];
@@ -264,7 +276,7 @@ Rgb tailFactor(std::span<const std::array<double, 3>> power) {
   for (int c = 0; c < 3; ++c) {
     if (!(last[c] > 0.0) || !(before[c] > 0.0)) continue;
     const double ratio = last[c] / before[c];
-    const double r = std::min<double>(steps == 2 ? std::sqrt(ratio) : ratio, kMaxBounceRatio);
+    const double r = std::min<double>(steps == 2 ? std::sqrt(ratio) : ratio, held);
     f[c] = static_cast<float>(r / (1.0 - r));
   }
   return f;

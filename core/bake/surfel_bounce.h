@@ -155,9 +155,17 @@ void addReflected(Surfel& s, const SurfelIrradiance& e);
 
 // The factor r / (1 - r), per channel, that estimates bounces K+1, K+2, ... from the powers of
 // the bounces so far, `power[k]` bounce k's (power[0] the direct light's reflected power):
-// r = sqrt(P_K / P_{K-2}) from K = 3 on, else P_K / P_{K-1} (held to [0, kMaxBounceRatio]; 0
-// where a power it divides or is divided by is 0, and without two powers).
+// r = sqrt(P_K / P_{K-2}) from K = 3 on, else P_K / P_{K-1}, held to [0, maxRatio] (0 where a
+// power it divides or is divided by is 0, and without two powers). r stands for the limit of
+// the bounces' ratio, which no scene's light exceeds its largest reflectance in: pass
+// largestBounceRatio(scene), so that bounces whose powers rise (light that reaches the diffuse
+// surfels late, by way of glossy ones, whose own power the sums leave out) do not extrapolate
+// to a tail many times the light there is.
 inline constexpr float kMaxBounceRatio = 0.95f;
-Rgb tailFactor(std::span<const std::array<double, 3>> power);
+Rgb tailFactor(std::span<const std::array<double, 3>> power, float maxRatio = kMaxBounceRatio);
+// The largest fraction of the light arriving at any of the scene's surfaces that it sends on
+// (per channel, the most of any material's hemispherical albedo; 1 for a textured albedo and
+// for glass), at most kMaxBounceRatio.
+float largestBounceRatio(const Scene& scene);
 
 }  // namespace pbgi

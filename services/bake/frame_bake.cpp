@@ -35,7 +35,7 @@ namespace {
 constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
 // differ, so that no bake made before it is reused (the commit log says what each changed).
-constexpr int kBounceRevision = 15;
+constexpr int kBounceRevision = 16;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -626,7 +626,7 @@ absl::StatusOr<FrameBakeReport> runBake(const ShotDesc& shot, const FrameBakeReq
                                                           treeOptions, glossy, clock, &report));
     std::vector<std::array<double, 3>> power;
     for (const Rgb& p : report.bouncePower) power.push_back({p.x, p.y, p.z});
-    report.tail = request.bounceTail ? tailFactor(power) : Rgb(0.0f);
+    report.tail = request.bounceTail ? tailFactor(power, largestBounceRatio(scene)) : Rgb(0.0f);
     const uint64_t surfels = report.sampling.surfels;
     // Written first without wavelets when glossy surfels then gather from it.
     PBGI_ASSIGN_OR_RETURN(

@@ -9,6 +9,8 @@
 #include <span>
 #include <vector>
 
+#include "tests/core/render/test_scenes.h"
+
 namespace pbgi {
 namespace {
 
@@ -86,6 +88,37 @@ TEST(SurfelBounce, TheTailIsAGeometricSeriesHeldBelowOne) {
   const Powers dark = {{1.0, 1.0, 1.0}, {0.0, -1.0, 1e300}, {1.0, 1.0, 1.0}};
   EXPECT_FLOAT_EQ(tailFactor(dark).x, 0.0f);
   EXPECT_FLOAT_EQ(tailFactor(Powers{{1.0, 1.0, 1.0}}).x, 0.0f);  // no bounce: no tail
+}
+
+// Bounces whose powers rise (the diffuse surfels of a room whose light reaches them by way of a
+// metal floor gather more in the second bounce than in the first) are no geometric series: the
+// tail holds their ratio to the scene's largest reflectance, not to kMaxBounceRatio's 19x.
+TEST(SurfelBounce, TheTailIsHeldToTheLargestReflectance) {
+  using Powers = std::vector<std::array<double, 3>>;
+  const Powers rising = {{1.0, 1.0, 1.0}, {0.007, 0.007, 0.007}, {0.104, 0.104, 0.104},
+                         {0.048, 0.048, 0.048}};
+  EXPECT_FLOAT_EQ(tailFactor(rising).x, kMaxBounceRatio / (1.0f - kMaxBounceRatio));
+  EXPECT_FLOAT_EQ(tailFactor(rising, 0.8f).x, 0.8f / (1.0f - 0.8f));
+  EXPECT_FLOAT_EQ(tailFactor(rising, 2.0f).x, kMaxBounceRatio / (1.0f - kMaxBounceRatio));
+  EXPECT_FLOAT_EQ(tailFactor(rising, -1.0f).x, 0.0f);
+  // A ratio below the bound is the series' own.
+  const Powers falling = {{1.0, 1.0, 1.0}, {0.5, 0.5, 0.5}};
+  EXPECT_FLOAT_EQ(tailFactor(falling, 0.8f).x, 1.0f);
+
+  // The scene's largest reflectance: its brightest channel of any material, emitters aside.
+  SceneBuilder b;
+  Material grey;
+  grey.albedo = Rgb(0.5f, 0.7f, 0.3f);
+  Material lamp;
+  lamp.type = MaterialType::kEmissive;
+  lamp.radiance = Rgb(10.0f);
+  const uint32_t m = b.addMaterial(grey);
+  const uint32_t l = b.addMaterial(lamp);
+  b.addMesh(testing::makeQuadMesh({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, m));
+  b.addMesh(testing::makeQuadMesh({0, 0, 2}, {1, 0, 0}, {0, 1, 0}, l));
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  EXPECT_FLOAT_EQ(largestBounceRatio(**scene), 0.7f);
 }
 
 // Ratios that swing about their limit (0.6, 0.5, 0.6, 0.5, ...: light passed back and forth
