@@ -53,18 +53,18 @@ std::optional<Sight> sightOf(const NodeAttributes& a, const Vec3f& p, const Vec3
 // A cluster's SH can send a receiver light that none of its children's estimates, or none of a
 // leaf's surfels, does (SH ringing past a face that looks away: a wall's two faces, the lit one
 // turned from the receiver). The descent then finds nothing (kNothing) and the light is
-// dropped, the finer estimate being the better one (the correction is 0). It used to be
-// deposited unseen ("nothing to hide"): a receiver facing into a wall (each surfel gathers on
-// both sides) then got the light of the room beyond it, a third of a Sponza bounce's light went
-// into the insides of walls, and camera points gathered 3 % more than the sum over every surfel
+// dropped, the finer estimate being the better one (the correction is 0). Deposited unseen
+// instead, it would give a receiver facing into a wall (each surfel gathers on both sides) the
+// light of the room beyond it: on Sponza a third of a bounce's light would go into the insides
+// of walls, and camera points would gather 3 % more than the sum over every surfel
 // (transfer_bench --light bounce, --light direct --brute).
 //
 // The product is held below kMaxDescentCorrection: a child its parent all but missed is
 // picked rarely, and would be weighed by a spike.
 //
 // With CutOptions::coneDescent the children are weighed by coneContribution instead: their
-// power and normal cones, no SH (a Sponza bake's first bounce 20.2 s against 27.5 s in one
-// run). What the descent is worth in expectation does not change, since the estimates between
+// power and normal cones, no SH (a quarter less time in a Sponza bake's first bounce,
+// as `pbgi bake` prints its stages). What the descent is worth in expectation does not change, since the estimates between
 // the cluster and the surfel cancel in the product; only its spread does. Those estimates are in
 // other units than the cluster's own, which starts the product, and the surfels', which ends
 // it, so the product is held only at the end, below kMaxConeDescentCorrection: it runs wider

@@ -213,7 +213,8 @@ PathSample tracePath(const Scene& scene, const Ray& cameraRay, Rng& rng,
     const Material& material = scene.material(hit.material);
     const Bsdf bsdf(material, albedo);
     if (bsdf.isBlack()) break;
-    if (bounce >= 1 && specularSoFar && settings.specularChainEnd &&
+    // Not on an emitter: its surfels' radiance holds the emission just added.
+    if (bounce >= 1 && specularSoFar && settings.specularChainEnd && hit.light < 0 &&
         material.type == MaterialType::kDiffuse) {
       if (const std::optional<Rgb> sent = settings.specularChainEnd(hit, wo)) {
         out.indirect += beta * *sent;

@@ -69,7 +69,7 @@ void addCutStats(const CutStats& s, RenderCounters* counters);
 
 enum class ReceiverKind { kNone, kBlack, kPathTraced, kGlossy, kDiffuse };
 
-// Glossy materials whose first hits reflect as diffuse ones (issue 31's skip): a rough
+// Glossy materials whose first hits reflect as diffuse ones: a rough
 // conductor whose lobes the tree's SH hold (needsWavelets false, so that the bake made its
 // surfels diffuse ones of its hemispherical albedo) takes the diffuse gather, and reflects the
 // irradiance E it gathers by its directional albedo towards the camera: rho(wo) / pi E, exact
