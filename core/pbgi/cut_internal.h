@@ -20,10 +20,9 @@ using namespace gather_internal;
 // Shadow rays stop this fraction of their length short of their target.
 constexpr float kShortFraction = 1e-4f;
 
-// Whether the segment from a receiver (off its surface) to `to`, less `stopShort`, is free.
-bool visible(const Scene& scene, const CutReceiver& from, const Vec3f& to, float stopShort,
-             CutStats* stats);
-// Towards a surfel's centre, which lies on its surface: stop just short of it.
+// Whether the segment from a receiver to a surfel's centre is free: from off the receiver's
+// surface to off the surfel's, on the sides that face each other (Scene::spawnSegment), stopping
+// just short of it.
 bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s, CutStats* stats);
 
 // The light one surfel sends one receiver, into `light` (cut_surfel_light.cpp): as a virtual

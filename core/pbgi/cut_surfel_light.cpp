@@ -85,27 +85,15 @@ float projectedSolidAngle(const ClippedPolygon& polygon, const Vec3f& n) {
 
 }  // namespace
 
-// Whether the segment from a receiver (off its surface) to `to`, less `stopShort`, is free.
-bool visible(const Scene& scene, const CutReceiver& from, const Vec3f& to, float stopShort,
-             CutStats* stats) {
-  Vec3f dir = to - from.p;
-  const float dist = length(dir);
-  if (!(dist > 0.0f)) return true;
-  dir /= dist;
-  Ray ray = scene.spawnRay(from.p, from.ng, dir);
-  ray.tMax = std::max(0.0f, dist - stopShort);
+bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s, CutStats* stats) {
+  const float stop = kShortFraction * length(s.position - from.p) +
+                     1e-5f * std::max(maxAbsComponent(s.position), 1e-20f);
+  const Ray ray = scene.spawnSegment(from.p, from.ng, s.position, s.normal, stop);
   if (!(ray.tMax > 0.0f)) return true;
   ++stats->shadowRays;
   const bool blocked = scene.occluded(ray);
   if (blocked) ++stats->occluded;
   return !blocked;
-}
-
-// Towards a surfel's centre, which lies on its surface: stop just short of it.
-bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s, CutStats* stats) {
-  const float stop = kShortFraction * length(s.position - from.p) +
-                     1e-5f * std::max(maxAbsComponent(s.position), 1e-20f);
-  return visible(scene, from, s.position, stop, stats);
 }
 
 // The light one surfel sends one receiver (the side facing it: surfels are two-sided). Far, a

@@ -62,27 +62,29 @@ Ray Scene::spawnRay(const Vec3f& p, const Vec3f& ng, const Vec3f& dir) const {
 }
 
 Ray Scene::spawnShadowRay(const Vec3f& p, const Vec3f& ng, const LightSample& sample) const {
-  Ray ray = spawnRay(p, ng, sample.wi);
-  if (!std::isfinite(sample.distance)) return ray;
-  // Both ends leave their surfaces along their normals. Aiming from the offset origin at the
-  // sample itself would not do: the origin's offset shortens the way to the light's plane by
-  // offset / cos(angle at the light), which at grazing angles outgrows any fixed margin and
-  // lands the segment's end on the light's own surface, which then blocks it.
-  Vec3f target = sample.point;
-  if (sample.normal != Vec3f(0.0f)) {
+  if (!std::isfinite(sample.distance)) return spawnRay(p, ng, sample.wi);
+  return spawnSegment(p, ng, sample.point, sample.normal);
+}
+
+Ray Scene::spawnSegment(const Vec3f& p, const Vec3f& ng, const Vec3f& q, const Vec3f& nq,
+                        float stopShort) const {
+  Ray ray = spawnRay(p, ng, q - p);
+  Vec3f target = q;
+  if (nq != Vec3f(0.0f)) {
     const float eps = offsetScale(target);
-    target += sample.normal * (dot(ray.origin - target, sample.normal) >= 0.0f ? eps : -eps);
+    target += nq * (dot(ray.origin - target, nq) >= 0.0f ? eps : -eps);
   }
   const Vec3f d = target - ray.origin;
   const float length = pbgi::length(d);
   if (!(length > 0.0f)) {
+    ray.dir = ng;
     ray.tMax = 0.0f;
     return ray;
   }
   ray.dir = d / length;
   // A margin for Embree's rounding of t near the end, which the offset alone may not cover
-  // where the light is small beside the scene.
-  ray.tMax = std::max(0.0f, length * (1.0f - 1e-5f) - offsetScale(target));
+  // where the surface at q is small beside the scene.
+  ray.tMax = std::max(0.0f, length * (1.0f - 1e-5f) - offsetScale(target) - stopShort);
   return ray;
 }
 

@@ -57,6 +57,14 @@ class Scene {
   // surface on the sample's side, to the sampled point, offset off the light's surface
   // towards p, so that it cannot meet either surface at any angle.
   Ray spawnShadowRay(const Vec3f& p, const Vec3f& ng, const LightSample& sample) const;
+  // A segment from surface point p (geometric normal ng) to surface point q (normal nq; zero
+  // for a point on no surface), each end offset off its surface on the side that faces the
+  // other, and the direction taken between the offset ends: aiming from the offset origin at
+  // q itself would shorten the way to q's plane by the offset over the cosine at q, which at
+  // grazing angles outgrows any margin and lands the end on q's surface, which then blocks it.
+  // tMax stops `stopShort` before the end, less a margin for Embree's rounding of t.
+  Ray spawnSegment(const Vec3f& p, const Vec3f& ng, const Vec3f& q, const Vec3f& nq,
+                   float stopShort = 0.0f) const;
 
   const Material& material(uint32_t index) const { return materials_[index]; }
   const std::vector<Material>& materials() const { return materials_; }
