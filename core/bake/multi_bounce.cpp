@@ -1,6 +1,7 @@
 #include "core/bake/multi_bounce.h"
 
 #include <algorithm>
+#include <array>
 #include <vector>
 
 #include <fmt/format.h>
@@ -124,26 +125,59 @@ absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats) {
   return Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
 }
 
-absl::Status finalLight(SpillFile& sorted, SpillFile& last, SpillFile* previous, const Rgb& tail,
+Rgb tailLight(const Rgb& added, const Rgb& addedBefore, const Rgb& addedEarlier, const Rgb& tail,
+              bool local) {
+  Rgb out(0.0f);
+  for (int c = 0; c < 3; ++c) {
+    const float f = tail[c];
+    if (!(f > 0.0f)) continue;
+    out[c] = added[c] * f;
+    if (!local) continue;
+    const float r = f / (1.0f + f);
+    // x_k = dE_k - r dE_{k-1}: the part of the light that does not go as r^k, C q^(k-1) (q - r).
+    const float x = added[c] - r * addedBefore[c];
+    const float xBefore = addedBefore[c] - r * addedEarlier[c];
+    if (!(x * xBefore > 0.0f)) continue;  // not one exponential: the geometric tail
+    const float q = std::min(x / xBefore, r);
+    out[c] = std::max(0.0f, out[c] + x * q / ((1.0f - q) * (1.0f - r)));
+  }
+  return out;
+}
+
+absl::Status finalLight(SpillFile& sorted, std::span<SpillFile* const> cumulative, const Rgb& tail,
                         uint64_t surfels, const SurfelSink& out) {
-  for (SpillFile* f : {&sorted, &last, previous}) {
-    if (f == nullptr) continue;
+  PBGI_CHECK(!cumulative.empty() && cumulative.size() <= kTailBounces &&
+             cumulative.back() != nullptr);
+  if (auto s = sorted.rewind(); !s.ok()) return s;
+  for (SpillFile* f : cumulative) {
     if (auto s = f->rewind(); !s.ok()) return s;
   }
+  // E_K, E_{K-1}, ... (the irradiance so far after each of the last bounces), black before the
+  // first: with three bounces or more, each surfel's light past the last follows its own.
+  const size_t kept = cumulative.size();
+  const bool local = kept >= 3;
+  std::array<std::vector<SurfelIrradiance>, kTailBounces> e;
   std::vector<SortedSurfel> batch;
-  std::vector<SurfelIrradiance> e, ePrevious;
   std::vector<uint8_t> bytes;
-  const auto withTail = [&](const Rgb& now, const Rgb& before) {
-    return now + vmax(now - before, Rgb(0.0f)) * tail;
+  const auto withTail = [&](size_t i, bool front) {
+    std::array<Rgb, kTailBounces> sums;  // sums[j]: E_{K-j}
+    for (size_t j = 0; j < kTailBounces; ++j) {
+      sums[j] = front ? e[j][i].front : e[j][i].back;
+    }
+    const auto addedAt = [&](size_t j) {
+      return j + 1 < kTailBounces ? vmax(sums[j] - sums[j + 1], Rgb(0.0f)) : Rgb(0.0f);
+    };
+    return sums[0] + tailLight(addedAt(0), addedAt(1), addedAt(2), tail, local);
   };
   for (uint64_t done = 0; done < surfels;) {
     const size_t n = static_cast<size_t>(std::min<uint64_t>(surfels - done, kBounceBatchSurfels));
     if (auto s = readSurfels(sorted, n, bytes, batch); !s.ok()) return s;
-    if (auto s = readIrradiance(&last, n, bytes, e); !s.ok()) return s;
-    if (auto s = readIrradiance(previous, n, bytes, ePrevious); !s.ok()) return s;
+    for (size_t j = 0; j < kTailBounces; ++j) {
+      SpillFile* spill = j < kept ? cumulative[kept - 1 - j] : nullptr;
+      if (auto s = readIrradiance(spill, n, bytes, e[j]); !s.ok()) return s;
+    }
     for (size_t i = 0; i < n; ++i) {
-      addReflected(batch[i].surfel, {withTail(e[i].front, ePrevious[i].front),
-                                     withTail(e[i].back, ePrevious[i].back)});
+      addReflected(batch[i].surfel, {withTail(i, true), withTail(i, false)});
       if (auto s = out(batch[i]); !s.ok()) return s;
     }
     done += n;

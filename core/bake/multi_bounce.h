@@ -10,13 +10,14 @@
 // batch size. It keeps each surfel's irradiance so far in a spill (the last bounce's plus its
 // own), and hands on the light it adds (albedo / pi of its irradiance, on diffuse surfels) for
 // the next bounce's tree. After the last, finalLight gives each surfel its direct light plus
-// what all bounces reflect, with the estimated tail (surfel_bounce.h).
+// what all bounces reflect, with the estimated tail (tailFactor in surfel_bounce.h, tailLight).
 //
 // The caller owns the files: it opens the tree a bounce reads (through a page cache) and
 // builds the trees from what the sinks receive.
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <span>
 
 #include <absl/status/status.h>
 #include <absl/status/statusor.h>
@@ -64,10 +65,28 @@ struct BounceRequest {
 // the spills', the cuts' (a damaged tree, a page the source cannot give).
 absl::StatusOr<Rgb> runBounce(const BounceRequest& request, CutStats* stats);
 
-// Every surfel of `sorted` with its direct light plus albedo / pi of E_K + (E_K - E_{K-1}) tail
-// on each side (E_K: `last`, the irradiance after the last bounce; E_{K-1}: `previous`, or
-// black), into `out`.
-absl::Status finalLight(SpillFile& sorted, SpillFile& last, SpillFile* previous, const Rgb& tail,
+// The light of bounces K+1, K+2, ... on one side of a surfel, from what bounces K, K-1 and K-2
+// added there (dE_K `added`, `addedBefore`, `addedEarlier`: irradiance) and the scene's tail
+// factor f = r / (1 - r) (tailFactor: r the bounces' ratio in the limit). The scene's light
+// goes as r^k in the end, but a surface's need not yet: a room lit through a door gets its
+// light a bounce or more after the room next door, so that its light still rises when the
+// scene's falls, and the geometric tail dE_K f leaves out much of what follows. So with
+// `local` each surface's light is taken as A r^k + C q^k, the scene's mode and one of its own:
+// x_k = dE_k - r dE_{k-1} = C q^(k-1) (q - r) gives q = x_K / x_{K-1} (held to [0, r]; where
+// the two differ in sign, no second mode: the geometric tail), and the bounces past K add
+// dE_K f + x_K q / ((1 - q)(1 - r)) (at least nothing). Light that rises (x > 0) gets more than
+// the geometric tail, and as much as the series k r^(k-1) of two like rooms where q = r; light
+// that falls faster than the scene's (a surface lit directly) less.
+Rgb tailLight(const Rgb& added, const Rgb& addedBefore, const Rgb& addedEarlier, const Rgb& tail,
+              bool local);
+// The bounces' irradiance the tail reads: E_K, E_{K-1}, E_{K-2}, E_{K-3}.
+inline constexpr size_t kTailBounces = 4;
+
+// Every surfel of `sorted` with its direct light plus albedo / pi of E_K and its tail
+// (tailLight) on each side. `cumulative` holds the irradiance so far after each of the last
+// bounces, up to kTailBounces of them, the last one last (..., E_{K-1}, E_K); the tail follows
+// each surface's own light (`local`) from three bounces on. Into `out`.
+absl::Status finalLight(SpillFile& sorted, std::span<SpillFile* const> cumulative, const Rgb& tail,
                         uint64_t surfels, const SurfelSink& out);
 
 }  // namespace pbgi

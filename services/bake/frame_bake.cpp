@@ -35,7 +35,7 @@ namespace {
 constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
 // differ, so that no bake made before it is reused (the commit log says what each changed).
-constexpr int kBounceRevision = 16;
+constexpr int kBounceRevision = 17;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
@@ -430,11 +430,19 @@ absl::StatusOr<DirectTree> buildDirectTree(ExternalSurfelSorter& sorter, const s
                             static_cast<float>(power[2]))};
 }
 
-// What the bounces leave for the final tree: the last two bounces' irradiance per surfel.
+// What the bounces leave for the final tree: the last bounces' irradiance per surfel (so far),
+// which the tail is estimated from.
 struct BouncedLight {
+  static constexpr size_t kKept = kTailBounces;
   std::vector<SpillFile> irradiance;  // the last bounce's last
-  SpillFile& last() { return irradiance.back(); }
-  SpillFile* beforeLast() { return irradiance.size() == 2 ? &irradiance[0] : nullptr; }
+  SpillFile* beforeLast() {
+    return irradiance.size() >= 2 ? &irradiance[irradiance.size() - 2] : nullptr;
+  }
+  std::vector<SpillFile*> kept() {
+    std::vector<SpillFile*> out;
+    for (SpillFile& f : irradiance) out.push_back(&f);
+    return out;
+  }
 };
 
 // Stages "bounce k": bounce k gathers from tree k - 1 (the light bounce k - 1 added; the direct
@@ -450,7 +458,9 @@ absl::StatusOr<BouncedLight> bounceLight(const Scene& scene, const ShotDesc& sho
   for (int bounce = 1; bounce <= request.bounces; ++bounce) {
     PBGI_ASSIGN_OR_RETURN(SpillFile spill,
                           SpillFile::create(request.tempDir, "pbgi-bake-irradiance"));
-    if (light.irradiance.size() == 2) light.irradiance.erase(light.irradiance.begin());
+    if (light.irradiance.size() == BouncedLight::kKept) {
+      light.irradiance.erase(light.irradiance.begin());
+    }
     light.irradiance.push_back(std::move(spill));
     const bool last = bounce == request.bounces;
     const std::string to = treePath(bounce);
@@ -485,7 +495,7 @@ absl::StatusOr<TreeWriteResult> writeFinalTree(const std::string& path,
                                                const Rgb& tail, uint64_t surfels) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<TreeFileWriter> writer,
                         TreeFileWriter::create(path, options));
-  PBGI_RETURN_IF_ERROR(finalLight(sorted, light.last(), light.beforeLast(), tail, surfels,
+  PBGI_RETURN_IF_ERROR(finalLight(sorted, light.kept(), tail, surfels,
                                   [w = writer.get()](const SortedSurfel& s) { return w->add(s); }));
   return writer->finish();
 }

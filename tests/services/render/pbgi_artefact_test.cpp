@@ -34,44 +34,51 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class PbgiArtefacts : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    dir_ = new fs::path(testing::makeTempDir("pbgi-artefacts"));
+// A shot of the scene suite (config/scenes/<name>) with its own bake, in a temporary folder.
+class OwnBake {
+ public:
+  explicit OwnBake(const std::string& name) : dir_(testing::makeTempDir("pbgi-" + name)) {
     auto shot = loadShotFile(
-        (testing::sourceDir() / "config/scenes/uplit-room/uplit-room.shot.toml").string());
-    ASSERT_TRUE(shot.ok()) << shot.status();
-    shot_ = new ShotDesc(*shot);
-    ASSERT_EQ(shot_->width, 256);
-    ASSERT_EQ(shot_->height, 256);
+        (testing::sourceDir() / "config/scenes" / name / (name + ".shot.toml")).string());
+    if (!shot.ok()) {
+      status_ = shot.status();
+      return;
+    }
+    shot_ = *std::move(shot);
     // The shot's own bake: its surfels, bounces and bounce gathers.
-    auto request = shotBakeRequest(*shot_, 1);
-    ASSERT_TRUE(request.ok()) << request.status();
-    request->outDir = (*dir_ / "bake").string();
+    auto request = shotBakeRequest(shot_, 1);
+    if (!request.ok()) {
+      status_ = request.status();
+      return;
+    }
+    request->outDir = (dir_ / "bake").string();
     request->pointCloud = PointCloudMode::kNever;
-    auto report = bakeShotFrame(*shot_, *request);
-    ASSERT_TRUE(report.ok()) << report.status();
-    tree_ = new std::string(report->treePath);
+    auto report = bakeShotFrame(shot_, *request);
+    if (!report.ok()) {
+      status_ = report.status();
+      return;
+    }
+    tree_ = report->treePath;
   }
-  static void TearDownTestSuite() {
-    fs::remove_all(*dir_);
-    delete dir_;
-    delete shot_;
-    delete tree_;
-  }
+  ~OwnBake() { fs::remove_all(dir_); }
 
-  // The shot as it stands (PBGI, default preset, 16 spp), with `params` on top.
-  static Image render(const std::string& name, const std::string& integrator, int spp,
-                      const std::vector<std::pair<std::string, std::string>>& params = {}) {
+  // Whether the shot loaded and baked.
+  const absl::Status& status() const { return status_; }
+  const ShotDesc& shot() const { return shot_; }
+
+  // The shot as it stands (PBGI at its preset, or the path tracer), at `spp`, with `params` on
+  // top.
+  Image render(const std::string& name, const std::string& integrator, int spp,
+               const std::vector<std::pair<std::string, std::string>>& params = {}) const {
     FrameRenderRequest r;
     r.frame = 1;
     r.overrides.integrator = integrator;
     r.overrides.spp = spp;
     for (const auto& [key, value] : params) testing::setParam(r.overrides.params, key, value);
-    r.treePath = integrator == "pbgi" ? *tree_ : std::string();
+    r.treePath = integrator == "pbgi" ? tree_ : std::string();
     r.preview = false;
-    r.outPath = (*dir_ / (name + ".exr")).string();
-    auto report = renderShotFrame(*shot_, r);
+    r.outPath = (dir_ / (name + ".exr")).string();
+    auto report = renderShotFrame(shot_, r);
     EXPECT_TRUE(report.ok()) << report.status();
     if (!report.ok()) return Image();
     auto image = readImage(r.outPath);
@@ -79,14 +86,32 @@ class PbgiArtefacts : public ::testing::Test {
     return image.ok() ? *image : Image();
   }
 
-  static fs::path* dir_;
-  static ShotDesc* shot_;
-  static std::string* tree_;
+ private:
+  fs::path dir_;
+  absl::Status status_;
+  ShotDesc shot_;
+  std::string tree_;
 };
 
-fs::path* PbgiArtefacts::dir_ = nullptr;
-ShotDesc* PbgiArtefacts::shot_ = nullptr;
-std::string* PbgiArtefacts::tree_ = nullptr;
+class PbgiArtefacts : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    room_ = new OwnBake("uplit-room");
+    ASSERT_TRUE(room_->status().ok()) << room_->status();
+    ASSERT_EQ(room_->shot().width, 256);
+    ASSERT_EQ(room_->shot().height, 256);
+  }
+  static void TearDownTestSuite() { delete room_; }
+
+  static Image render(const std::string& name, const std::string& integrator, int spp,
+                      const std::vector<std::pair<std::string, std::string>>& params = {}) {
+    return room_->render(name, integrator, spp, params);
+  }
+
+  static OwnBake* room_;
+};
+
+OwnBake* PbgiArtefacts::room_ = nullptr;
 
 // The mean of R, G and B over columns [x0, x1) of every row.
 double meanOver(const Image& image, int x0, int x1) {
@@ -214,29 +239,10 @@ TEST_F(PbgiArtefacts, TheRoomAwayFromItsLightGetsAllItsBouncedLight) {
 // sphere's pixels and the mirror's match the path tracer's (256 spp) on average, and their
 // error is a small part of what the path tracer's own 16 spp leave there.
 TEST(PbgiGlassRoom, GlassAndAMirrorShowTheRoomTheyFace) {
-  const fs::path dir = testing::makeTempDir("pbgi-glass-room");
-  auto shot = loadShotFile(
-      (testing::sourceDir() / "config/scenes/glass-room/glass-room.shot.toml").string());
-  ASSERT_TRUE(shot.ok()) << shot.status();
-  auto request = shotBakeRequest(*shot, 1);
-  ASSERT_TRUE(request.ok()) << request.status();
-  request->outDir = (dir / "bake").string();
-  request->pointCloud = PointCloudMode::kNever;
-  auto baked = bakeShotFrame(*shot, *request);
-  ASSERT_TRUE(baked.ok()) << baked.status();
+  const OwnBake room("glass-room");
+  ASSERT_TRUE(room.status().ok()) << room.status();
   const auto render = [&](const std::string& name, const std::string& integrator, int spp) {
-    FrameRenderRequest r;
-    r.frame = 1;
-    r.overrides.integrator = integrator;
-    r.overrides.spp = spp;
-    r.treePath = integrator == "pbgi" ? baked->treePath : std::string();
-    r.preview = false;
-    r.outPath = (dir / (name + ".exr")).string();
-    auto report = renderShotFrame(*shot, r);
-    EXPECT_TRUE(report.ok()) << report.status();
-    auto image = readImage(r.outPath);
-    EXPECT_TRUE(image.ok()) << image.status();
-    return image.ok() ? *image : Image();
+    return room.render(name, integrator, spp);
   };
   const Image pbgi = render("pbgi", "pbgi", 16);
   const Image path16 = render("path16", "path", 16);
@@ -246,7 +252,7 @@ TEST(PbgiGlassRoom, GlassAndAMirrorShowTheRoomTheyFace) {
   ASSERT_GE(albedo, 0);
   // The glass's albedo AOV is white, the mirror's its reflectance, 0.9.
   for (const auto& [name, value, meanBound] :
-       {std::tuple{"glass", 1.0f, 0.05}, std::tuple{"mirror", 0.9f, 0.2}}) {
+       {std::tuple{"glass", 1.0f, 0.05}, std::tuple{"mirror", 0.9f, 0.1}}) {
     double sumPbgi = 0.0, sumPath = 0.0, errPbgi = 0.0, errPath16 = 0.0;
     int pixels = 0;
     for (int y = 0; y < path.height(); ++y) {
@@ -272,7 +278,29 @@ TEST(PbgiGlassRoom, GlassAndAMirrorShowTheRoomTheyFace) {
     EXPECT_NEAR(sumPbgi / sumPath, 1.0, meanBound) << name;
     EXPECT_LT(errPbgi, 0.25 * errPath16) << name;
   }
-  fs::remove_all(dir);
+}
+
+// A room lit only through a door ajar (config/scenes/door-ajar), at its 256 x 256, 16 spp and
+// own bake: everything in view gets the light that comes through the gap, most of it after
+// several bounces in the room, which gets its light a bounce or more after the room next door.
+// PBGI's light within 4 % of the path tracer's (64 spp: its mean is within 0.5 % of 256 spp's)
+// on each channel. A tail that extrapolates the scene's geometric series from bounce 3 alone
+// leaves out 10 % here, and shadow rays that graze the far room's wall through the gap, a fifth.
+TEST(PbgiDoorAjar, TheRoomBehindTheDoorGetsAllItsLight) {
+  const OwnBake room("door-ajar");
+  ASSERT_TRUE(room.status().ok()) << room.status();
+  const Image pbgi = room.render("pbgi", "pbgi", 16);
+  const Image path = room.render("path", "path", 64);
+  ASSERT_EQ(pbgi.width(), 256);
+  ASSERT_EQ(path.width(), 256);
+  for (int c = 0; c < 3; ++c) {
+    double a = 0.0, b = 0.0;
+    for (int y = 0; y < path.height(); ++y) {
+      for (int x = 0; x < path.width(); ++x) a += pbgi.at(x, y, c), b += path.at(x, y, c);
+    }
+    std::printf("[ measured ] door ajar, channel %d: mean PBGI / path tracer %.4f\n", c, a / b);
+    EXPECT_NEAR(a / b, 1.0, 0.04) << "channel " << c;
+  }
 }
 
 }  // namespace
