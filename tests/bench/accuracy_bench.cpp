@@ -19,10 +19,17 @@
 // pages and without a limit, reporting hit rates, pages read over pages in the file, and
 // whether the images are bit-identical (they must be).
 //
+// With --suite FOLDER (config/scenes) instead of --shot: every scene of the folder at its own
+// size, samples, preset and bake, one row each in one table (and OUT/suite.csv): PBGI's channel
+// means over the reference's, its relMSE, low-frequency relMSE and seam step ratio, the
+// reference's own relMSE (estimated from the path tracer's sweep, --pt-spp), and the path
+// tracer's render time at PBGI's relMSE against PBGI's.
+//
 // Render seconds are the render stage alone (the scene load, the bake and the EXR write are
 // reported apart). Reports numbers; never fails on time.
 //
 // Run: build/bin/accuracy_bench --shot ../shared/scenes/cornell-box/cornell.shot.toml
+//      build/bin/accuracy_bench --suite config/scenes --pt-spp 16,64,256 [--reference-spp N]
 //        [--out DIR] [--cache DIR] [--frame N] [--reference-spp 4096] [--pt-spp 4,16,...]
 //        [--pbgi-spp 1,4,...] [--gathers bidirectional,per-pixel] [--qualities draft,default,high]
 //        [--threads N] [--no-cache-runs] [--bake-points N] [--bake-bounces K] [--set KEY=VALUE]
@@ -62,6 +69,7 @@ namespace fs = std::filesystem;
 
 struct Args {
   std::string shot;
+  std::string suite;  // a folder of scenes, each a folder with its shot file
   std::string out = "accuracy";
   std::string cache;
   std::optional<int> frame;
@@ -338,27 +346,56 @@ int cacheRuns(ShotDesc shot, FrameRenderRequest request, const std::string& gath
   return 0;
 }
 
-int runBench(const Args& args) {
-  auto shot = loadShotFile(args.shot);
-  if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+// The request every run of a shot's frame starts from.
+FrameRenderRequest baseRequest(const Args& args, int frame) {
+  FrameRenderRequest base;
+  base.frame = frame;
+  base.threads = args.threads;
+  base.bakeDir = (fs::path(args.out) / "bake").string();
+  base.regions = cropRegions(args);
+  return base;
+}
+
+// The path tracer at each of --pt-spp.
+absl::StatusOr<std::vector<Run>> pathSweep(const Args& args, const ShotDesc& shot,
+                                           const FrameRenderRequest& base, const Image& ref) {
+  std::vector<Run> path;
+  for (const int spp : args.ptSpp) {
+    auto run = measure(shot, base, ref, args.out, Run{.integrator = "path", .spp = spp});
+    if (!run.ok()) return run.status();
+    path.push_back(*run);
+  }
+  return path;
+}
+
+// The shot as the flags change it (bake points and bounces, --set, --resolution); an exit code
+// (2) after printing why, or 0.
+int adjustShot(const Args& args, ShotDesc& shot) {
   if (args.bakePoints > 0) {
-    testing::setParam(shot->render.params, "bake_points", std::to_string(args.bakePoints));
+    testing::setParam(shot.render.params, "bake_points", std::to_string(args.bakePoints));
   }
   if (args.bakeBounces >= 0) {
-    testing::setParam(shot->render.params, "bake_bounces", std::to_string(args.bakeBounces));
+    testing::setParam(shot.render.params, "bake_bounces", std::to_string(args.bakeBounces));
   }
   for (const std::string& line : args.set) {
     const size_t eq = line.find('=');
     if (eq == std::string::npos) return std::fprintf(stderr, "--set %s: expected KEY=VALUE\n", line.c_str()), 2;
-    testing::setParam(shot->render.params, line.substr(0, eq), line.substr(eq + 1));
+    testing::setParam(shot.render.params, line.substr(0, eq), line.substr(eq + 1));
   }
   if (!args.resolution.empty()) {
     if (args.resolution.size() != 2 || args.resolution[0] < 1 || args.resolution[1] < 1) {
       return std::fprintf(stderr, "--resolution: expected W,H\n"), 2;
     }
-    shot->width = args.resolution[0];
-    shot->height = args.resolution[1];
+    shot.width = args.resolution[0];
+    shot.height = args.resolution[1];
   }
+  return 0;
+}
+
+int runBench(const Args& args) {
+  auto shot = loadShotFile(args.shot);
+  if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+  if (const int rc = adjustShot(args, *shot); rc != 0) return rc;
   if (!args.crop.empty() && args.crop.size() != 4) {
     return std::fprintf(stderr, "--crop: expected X0,Y0,X1,Y1\n"), 2;
   }
@@ -374,18 +411,10 @@ int runBench(const Args& args) {
   auto ref = reference(*shot, frame, args);
   if (!ref.ok()) return std::fprintf(stderr, "%s\n", ref.status().ToString().c_str()), 1;
 
-  FrameRenderRequest base;
-  base.frame = frame;
-  base.threads = args.threads;
-  base.bakeDir = (fs::path(args.out) / "bake").string();
-  base.regions = cropRegions(args);
-
-  std::vector<Run> path;
-  for (const int spp : args.ptSpp) {
-    auto run = measure(*shot, base, *ref, args.out, Run{.integrator = "path", .spp = spp});
-    if (!run.ok()) return std::fprintf(stderr, "%s\n", run.status().ToString().c_str()), 1;
-    path.push_back(*run);
-  }
+  const FrameRenderRequest base = baseRequest(args, frame);
+  auto sweep = pathSweep(args, *shot, base, *ref);
+  if (!sweep.ok()) return std::fprintf(stderr, "%s\n", sweep.status().ToString().c_str()), 1;
+  const std::vector<Run>& path = *sweep;
   std::vector<std::vector<Run>> pbgi;
   double bakeSeconds = 0.0;
   std::string treePath;
@@ -484,13 +513,118 @@ int runBench(const Args& args) {
   return rc;
 }
 
+// One scene of the suite: PBGI at the shot's own settings against the reference and the path
+// tracer's sweep.
+struct SuiteRow {
+  std::string name;
+  int width = 0, height = 0, spp = 0;
+  Run pbgi;
+  double referenceRelMse = 0.0;  // the reference's own, estimated from the path tracer's sweep
+  double ptSeconds = 0.0;        // the path tracer's time to PBGI's relMSE
+  bool extrapolated = false;     // past the sweep, at the path tracer's 1/spp rate
+};
+
+// The scenes of `folder` (each subfolder's *.shot.toml), in name order.
+std::vector<fs::path> suiteShots(const fs::path& folder) {
+  std::vector<fs::path> shots;
+  std::error_code ec;
+  for (const fs::directory_entry& d : fs::directory_iterator(folder, ec)) {
+    if (!d.is_directory()) continue;
+    for (const fs::directory_entry& f : fs::directory_iterator(d.path(), ec)) {
+      const std::string name = f.path().filename().string();
+      if (name.size() > 10 && name.ends_with(".shot.toml")) shots.push_back(f.path());
+    }
+  }
+  std::sort(shots.begin(), shots.end());
+  return shots;
+}
+
+// The suite: every scene at its own size, samples, preset and bake, one row each: PBGI's channel
+// means against the reference's, its relMSE, low-frequency relMSE and seam step ratio, the
+// reference's own relMSE (c / N, c fitted to the path tracer's sweep as relMSE(n) = c (1/n +
+// 1/N)), PBGI's render and bake seconds, and the path tracer's render seconds to reach PBGI's
+// relMSE (interpolated along its sweep, or extrapolated past it at its 1/spp rate: marked ~).
+int runSuite(const Args& args) {
+  const std::vector<fs::path> shots = suiteShots(args.suite);
+  if (shots.empty()) return std::fprintf(stderr, "%s: no scene folders with a .shot.toml\n", args.suite.c_str()), 1;
+  std::error_code ec;
+  fs::create_directories(args.out, ec);
+  std::vector<SuiteRow> rows;
+  for (const fs::path& file : shots) {
+    auto shot = loadShotFile(file.string());
+    if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
+    if (const int rc = adjustShot(args, *shot); rc != 0) return rc;
+    std::printf("== %s (%dx%d)\n", shot->name.c_str(), shot->width, shot->height);
+    const int frame = args.frame.value_or(shot->firstFrame);
+    auto ref = reference(*shot, frame, args);
+    if (!ref.ok()) return std::fprintf(stderr, "%s\n", ref.status().ToString().c_str()), 1;
+    const FrameRenderRequest base = baseRequest(args, frame);
+    auto sweep = pathSweep(args, *shot, base, *ref);
+    if (!sweep.ok()) return std::fprintf(stderr, "%s\n", sweep.status().ToString().c_str()), 1;
+    const std::vector<Run>& path = *sweep;
+    auto pbgi = measure(*shot, base, *ref, args.out, Run{.integrator = "pbgi", .spp = shot->render.spp});
+    if (!pbgi.ok()) return std::fprintf(stderr, "%s\n", pbgi.status().ToString().c_str()), 1;
+    SuiteRow row{.name = shot->name, .width = shot->width, .height = shot->height,
+                 .spp = shot->render.spp, .pbgi = *pbgi};
+    if (!path.empty()) {
+      const Run& last = path.back();
+      const double n = last.spp, big = args.referenceSpp;
+      const double c = last.rgb.relMse / (1.0 / n + 1.0 / big);
+      row.referenceRelMse = c / big;
+      if (std::optional<double> t = timeToReach(path, pbgi->rgb.relMse)) {
+        row.ptSeconds = *t;
+      } else {
+        row.ptSeconds = last.renderSeconds * (c / std::max(pbgi->rgb.relMse, 1e-30)) / n;
+        row.extrapolated = true;
+      }
+    }
+    rows.push_back(row);
+  }
+  const std::string csvPath = (fs::path(args.out) / "suite.csv").string();
+  std::FILE* csv = std::fopen(csvPath.c_str(), "w");
+  if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
+  std::fprintf(csv, "scene,width,height,spp,mean_r,mean_g,mean_b,relmse,lowfreq_relmse,"
+                    "seam_step_ratio,reference_relmse,pbgi_seconds,bake_seconds,"
+                    "path_seconds_equal_error,extrapolated\n");
+  std::printf("\nthe suite against path-traced references at %d spp (means: PBGI over the "
+              "reference; PT: the path tracer's render time at PBGI's relMSE, ~ past its sweep)\n",
+              args.referenceSpp);
+  std::printf("%-16s %9s %4s  %-20s %9s %9s %6s %9s %8s %8s %9s %8s\n", "scene", "size", "spp",
+              "means R G B", "relMSE", "low-freq", "seams", "ref rel", "PBGI s", "bake s",
+              "PT s", "speed-up");
+  for (const SuiteRow& r : rows) {
+    double mean[3];
+    for (int c = 0; c < 3; ++c) {
+      const ChannelMetrics& m = r.pbgi.rgb.channels[c];
+      mean[c] = m.meanReference != 0.0 ? m.meanImage / m.meanReference : 0.0;
+    }
+    const std::string size = fmt::format("{}x{}", r.width, r.height);
+    std::printf("%-16s %9s %4d  %.3f %.3f %.3f  %9.2e %9.2e %6.2f %9.2e %8.2f %8.2f %s%8.1f %7.1fx\n",
+                r.name.c_str(), size.c_str(), r.spp, mean[0], mean[1], mean[2], r.pbgi.rgb.relMse,
+                r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio, r.referenceRelMse,
+                r.pbgi.renderSeconds, r.pbgi.bakeSeconds, r.extrapolated ? "~" : " ", r.ptSeconds,
+                r.ptSeconds / std::max(r.pbgi.renderSeconds, 1e-9));
+    std::fprintf(csv, "%s,%d,%d,%d,%.5f,%.5f,%.5f,%.6g,%.6g,%.4f,%.6g,%.4f,%.4f,%.4f,%d\n",
+                 r.name.c_str(), r.width, r.height, r.spp, mean[0], mean[1], mean[2],
+                 r.pbgi.rgb.relMse, r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio,
+                 r.referenceRelMse, r.pbgi.renderSeconds, r.pbgi.bakeSeconds, r.ptSeconds,
+                 r.extrapolated ? 1 : 0);
+  }
+  std::fclose(csv);
+  std::printf("wrote %s\n", csvPath.c_str());
+  return 0;
+}
+
 }  // namespace
 }  // namespace pbgi
 
 int main(int argc, char** argv) {
   pbgi::Args args;
   CLI::App app("Run time against error: the path tracer and PBGI against a path-traced reference");
-  app.add_option("--shot", args.shot, "Shot file")->required();
+  app.add_option("--shot", args.shot, "Shot file");
+  app.add_option("--suite", args.suite,
+                 "A folder of scenes (each a folder with its .shot.toml, as config/scenes): PBGI "
+                 "at each shot's own settings, one table");
   app.add_option("--out", args.out, "Output folder (default: ./accuracy)");
   app.add_option("--cache", args.cache, "Reference cache folder (default: OUT/reference)");
   app.add_option("--frame", args.frame, "Frame (default: the shot's first)");
@@ -513,5 +647,9 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   CLI11_PARSE(app, argc, argv);
   args.cacheRuns = !noCache;
-  return pbgi::runBench(args);
+  if (args.shot.empty() == args.suite.empty()) {
+    std::fprintf(stderr, "accuracy_bench: give --shot or --suite\n");
+    return 2;
+  }
+  return args.suite.empty() ? pbgi::runBench(args) : pbgi::runSuite(args);
 }
