@@ -356,16 +356,25 @@ FrameRenderRequest baseRequest(const Args& args, int frame) {
   return base;
 }
 
-// The path tracer at each of --pt-spp.
-absl::StatusOr<std::vector<Run>> pathSweep(const Args& args, const ShotDesc& shot,
-                                           const FrameRenderRequest& base, const Image& ref) {
+// A shot's frame measured against its reference: the reference, the request every run starts
+// from, and the path tracer at each of --pt-spp.
+struct Measured {
+  Image reference;
+  FrameRenderRequest base;
   std::vector<Run> path;
+};
+absl::StatusOr<Measured> referenceAndPathSweep(const Args& args, const ShotDesc& shot, int frame) {
+  Measured m;
+  auto ref = reference(shot, frame, args);
+  if (!ref.ok()) return ref.status();
+  m.reference = *std::move(ref);
+  m.base = baseRequest(args, frame);
   for (const int spp : args.ptSpp) {
-    auto run = measure(shot, base, ref, args.out, Run{.integrator = "path", .spp = spp});
+    auto run = measure(shot, m.base, m.reference, args.out, Run{.integrator = "path", .spp = spp});
     if (!run.ok()) return run.status();
-    path.push_back(*run);
+    m.path.push_back(*run);
   }
-  return path;
+  return m;
 }
 
 // The shot as the flags change it (bake points and bounces, --set, --resolution); an exit code
@@ -408,13 +417,11 @@ int runBench(const Args& args) {
   const int frame = args.frame.value_or(shot->firstFrame);
   std::error_code ec;
   fs::create_directories(args.out, ec);
-  auto ref = reference(*shot, frame, args);
-  if (!ref.ok()) return std::fprintf(stderr, "%s\n", ref.status().ToString().c_str()), 1;
-
-  const FrameRenderRequest base = baseRequest(args, frame);
-  auto sweep = pathSweep(args, *shot, base, *ref);
-  if (!sweep.ok()) return std::fprintf(stderr, "%s\n", sweep.status().ToString().c_str()), 1;
-  const std::vector<Run>& path = *sweep;
+  auto measured = referenceAndPathSweep(args, *shot, frame);
+  if (!measured.ok()) return std::fprintf(stderr, "%s\n", measured.status().ToString().c_str()), 1;
+  const Image* ref = &measured->reference;
+  const FrameRenderRequest& base = measured->base;
+  const std::vector<Run>& path = measured->path;
   std::vector<std::vector<Run>> pbgi;
   double bakeSeconds = 0.0;
   std::string treePath;
@@ -556,13 +563,11 @@ int runSuite(const Args& args) {
     if (const int rc = adjustShot(args, *shot); rc != 0) return rc;
     std::printf("== %s (%dx%d)\n", shot->name.c_str(), shot->width, shot->height);
     const int frame = args.frame.value_or(shot->firstFrame);
-    auto ref = reference(*shot, frame, args);
-    if (!ref.ok()) return std::fprintf(stderr, "%s\n", ref.status().ToString().c_str()), 1;
-    const FrameRenderRequest base = baseRequest(args, frame);
-    auto sweep = pathSweep(args, *shot, base, *ref);
-    if (!sweep.ok()) return std::fprintf(stderr, "%s\n", sweep.status().ToString().c_str()), 1;
-    const std::vector<Run>& path = *sweep;
-    auto pbgi = measure(*shot, base, *ref, args.out, Run{.integrator = "pbgi", .spp = shot->render.spp});
+    auto measured = referenceAndPathSweep(args, *shot, frame);
+    if (!measured.ok()) return std::fprintf(stderr, "%s\n", measured.status().ToString().c_str()), 1;
+    const std::vector<Run>& path = measured->path;
+    auto pbgi = measure(*shot, measured->base, measured->reference, args.out,
+                        Run{.integrator = "pbgi", .spp = shot->render.spp});
     if (!pbgi.ok()) return std::fprintf(stderr, "%s\n", pbgi.status().ToString().c_str()), 1;
     SuiteRow row{.name = shot->name, .width = shot->width, .height = shot->height,
                  .spp = shot->render.spp, .pbgi = *pbgi};
