@@ -63,9 +63,10 @@ std::optional<Sight> sightOf(const NodeAttributes& a, const Vec3f& p, const Vec3
 // picked rarely, and would be weighed by a spike.
 //
 // With CutOptions::coneDescent the children are weighed by coneContribution instead: their
-// power and normal cones, no SH (a quarter less time in a Sponza bake's first bounce,
-// as `pbgi bake` prints its stages). What the descent is worth in expectation does not change, since the estimates between
-// the cluster and the surfel cancel in the product; only its spread does. Those estimates are in
+// power and normal cones, no SH (a quarter less time in a Sponza bake's first bounce, as
+// `pbgi bake` prints its stages). What the descent is worth in expectation does not change,
+// since the estimates between the cluster and the surfel cancel in the product; only its
+// spread does. Those estimates are in
 // other units than the cluster's own, which starts the product, and the surfels', which ends
 // it, so the product is held only at the end, below kMaxConeDescentCorrection: it runs wider
 // (transfer_bench, Sponza 300k, direct light, cut / brute force at the bake's first-bounce

@@ -25,20 +25,10 @@ absl::Status bruteForceIrradiance(TreePageSource& tree, const Scene& scene,
     nearRadius = kNearFieldRadii * *mean;
     std::vector<NearHit> hits;
     traceNearField(scene, receivers, options.nearRays, nearRadius, &hits, &stats);
-    std::vector<NearStep> steps, stack;
-    for (uint32_t i = 0; i < hits.size(); ++i) {
-      steps.push_back({.at = root, .depth = 0, .hit = i});
-      while (!steps.empty()) {
-        const NearStep step = steps.back();
-        steps.pop_back();
-        absl::StatusOr<std::shared_ptr<const TreePage>> at = tree.page(step.at.page);
-        if (!at.ok()) return at.status();
-        if (absl::Status s = readNearSurface(
-                scene, **at, step, kNearReadRadii * *mean, hits[i], stack,
-                [&](const NearStep& next) { steps.push_back(next); }, &stats);
-            !s.ok()) {
-          return s;
-        }
+    for (NearHit& hit : hits) {
+      if (absl::Status s = readHit(tree, scene, root, kNearReadRadii * *mean, hit, &stats);
+          !s.ok()) {
+        return s;
       }
     }
     addNearLight(hits, options.nearRays, out, &stats);
