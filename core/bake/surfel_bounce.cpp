@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include <tbb/parallel_for.h>
+
 #include "core/bake/surfel_sampler.h"
 #include "core/sampling/rng.h"
 #include "core/sampling/sampling.h"
@@ -56,10 +58,25 @@ uint64_t cellKey(const std::array<int32_t, 3>& c) {
                   static_cast<uint32_t>(c[2]));
 }
 
+constexpr uint8_t kFrontSeen = 1, kBackSeen = 2;
+
+// On which of their sides two surfels of one surface see each other (kFrontSeen, kBackSeen):
+// a wall between them hides one side or both. Each end is lifted by the bulge a convex surface
+// whose normals turn by their angle has between them, (d / 2) tan(angle / 4), twice over.
+uint8_t sidesSeen(const Scene& scene, const Surfel& a, const Surfel& b) {
+  const float d = length(b.position - a.position);
+  const float angle = std::acos(std::clamp(dot(a.normal, b.normal), -1.0f, 1.0f));
+  const float lift = d * std::tan(0.25f * angle);
+  uint8_t seen = 0;
+  if (scene.seeAlongSurface(a.position, a.normal, b.position, b.normal, lift)) seen |= kFrontSeen;
+  if (scene.seeAlongSurface(a.position, -a.normal, b.position, -b.normal, lift)) seen |= kBackSeen;
+  return seen;
+}
+
 }  // namespace
 
-void BounceGatherer::makePatches(std::span<const Surfel> surfels, size_t first, size_t end,
-                                 Patches& out) const {
+void BounceGatherer::makePatches(const Scene& scene, std::span<const Surfel> surfels, size_t first,
+                                 size_t end, Patches& out) const {
   out.recordOf.clear();
   out.cellOf.clear();
   out.inCell.clear();
@@ -85,8 +102,10 @@ void BounceGatherer::makePatches(std::span<const Surfel> surfels, size_t first, 
     std::vector<uint32_t>& inCell = out.inCell[cellKey(c)];
     uint32_t patch = Patches::kNoPatch;
     // A spacing of 1: every surfel is its own patch and record.
+    // A patch it faces the way of, whose first surfel it sees on both sides.
     for (const uint32_t k : receiverSpacing_ == 1 ? std::span<const uint32_t>{} : inCell) {
-      if (out.cellOf[k] == c && dot(heads[k], s.normal) >= kPatchNormalCos) {
+      if (out.cellOf[k] == c && dot(heads[k], s.normal) >= kPatchNormalCos &&
+          sidesSeen(scene, surfels[out.recordOf[k]], s) == (kFrontSeen | kBackSeen)) {
         patch = k;
         break;
       }
@@ -119,10 +138,21 @@ void BounceGatherer::makePatches(std::span<const Surfel> surfels, size_t first, 
   }
 }
 
-void BounceGatherer::spread(std::span<const Surfel> surfels, size_t first, const Patches& patches,
-                            const Side& front, const Side& back,
+void BounceGatherer::spread(const Scene& scene, std::span<const Surfel> surfels, size_t first,
+                            const Patches& patches, const Side& front, const Side& back,
                             std::span<SurfelIrradiance> irradiance) const {
   const float reach = kRecordReachCells * patches.cell;
+  // Which sides of each patch's record see which other records, as asked.
+  std::vector<std::vector<std::pair<uint32_t, uint8_t>>> seen(patches.recordOf.size());
+  auto sides = [&](uint32_t own, uint32_t k) {
+    for (const auto& [other, mask] : seen[own]) {
+      if (other == k) return mask;
+    }
+    const uint8_t mask =
+        sidesSeen(scene, surfels[patches.recordOf[own]], surfels[patches.recordOf[k]]);
+    seen[own].emplace_back(k, mask);
+    return mask;
+  };
   for (size_t at = 0; at < patches.patchOf.size(); ++at) {
     const uint32_t own = patches.patchOf[at];
     if (own == Patches::kNoPatch) continue;
@@ -134,7 +164,7 @@ void BounceGatherer::spread(std::span<const Surfel> surfels, size_t first, const
     const Surfel& s = surfels[i];
     const std::array<int32_t, 3>& c = patches.cellOf[own];
     SurfelIrradiance sum;
-    float total = 0.0f;
+    float frontTotal = 0.0f, backTotal = 0.0f;
     for (int dz = -1; dz <= 1; ++dz) {
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
@@ -147,17 +177,24 @@ void BounceGatherer::spread(std::span<const Surfel> surfels, size_t first, const
             if (k != own && dot(s.normal, r.normal) < kPatchNormalCos) continue;
             float w = std::max(0.0f, 1.0f - length(s.position - r.position) / reach);
             w *= w;
-            // The surfel's own patch always counts: it joined it by the same tests.
+            // The surfel's own patch always counts: it joined it by the same tests. Another
+            // counts on the sides its record and the own one see each other.
             if (k == own) w = std::max(w, 1e-3f);
             if (!(w > 0.0f)) continue;
-            sum.front += front.byRecord[k] * w;
-            sum.back += back.byRecord[k] * w;
-            total += w;
+            const uint8_t mask = k == own ? (kFrontSeen | kBackSeen) : sides(own, k);
+            if (mask & kFrontSeen) {
+              sum.front += front.byRecord[k] * w;
+              frontTotal += w;
+            }
+            if (mask & kBackSeen) {
+              sum.back += back.byRecord[k] * w;
+              backTotal += w;
+            }
           }
         }
       }
     }
-    irradiance[i] = {sum.front / total, sum.back / total};
+    irradiance[i] = {sum.front / frontTotal, sum.back / backTotal};
   }
 }
 
@@ -201,10 +238,12 @@ absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
     const size_t batchEnd = std::min(groups, batch + groupsTogether);
     cuts.clear();
     jobs.clear();
-    for (size_t g = batch; g < batchEnd; ++g) {
+    // Each group's patches and the records each side gathers at, in parallel (their rays).
+    std::vector<uint64_t> shut(batchEnd - batch, 0);
+    tbb::parallel_for(batch, batchEnd, [&](size_t g) {
       const size_t first = g * groupSize, end = std::min(surfels.size(), first + groupSize);
       Patches& patches = patches_[g - batch];
-      makePatches(surfels, first, end, patches);
+      makePatches(scene, surfels, first, end, patches);
       for (const int side : {0, 1}) {
         Side& c = sides_[2 * g + side];
         c.receivers.clear();
@@ -217,13 +256,19 @@ absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
           const Vec3f n = side == 0 ? s.normal : -s.normal;
           if (!previous.empty() && isBlack(side == 0 ? previous[i].front : previous[i].back) &&
               (!probeBlackSides || seesNoSurface(scene, s.position, n, hashKeys(keys[g], side, k)))) {
-            if (shutSides != nullptr) ++*shutSides;
+            ++shut[g - batch];
             continue;
           }
           c.receivers.push_back({.p = s.position, .n = n, .ng = n});
           c.recordOf.push_back(k);
         }
         c.gathered.resize(c.receivers.size());
+      }
+    });
+    for (size_t g = batch; g < batchEnd; ++g) {
+      if (shutSides != nullptr) *shutSides += shut[g - batch];
+      for (const int side : {0, 1}) {
+        Side& c = sides_[2 * g + side];
         cuts.push_back(&c.cut);
         jobs.push_back(
             {.receivers = c.receivers, .key = hashKeys(keys[g], side), .out = c.gathered});
@@ -237,10 +282,10 @@ absl::Status BounceGatherer::gather(TreePageSource& tree, const Scene& scene,
       byRecord.assign(patches_[k / 2 - batch].recordOf.size(), Rgb(0.0f));
       for (size_t r = 0; r < c.recordOf.size(); ++r) byRecord[c.recordOf[r]] = c.gathered[r];
     }
-    for (size_t g = batch; g < batchEnd; ++g) {
-      spread(surfels, g * groupSize, patches_[g - batch], sides_[2 * g], sides_[2 * g + 1],
+    tbb::parallel_for(batch, batchEnd, [&](size_t g) {
+      spread(scene, surfels, g * groupSize, patches_[g - batch], sides_[2 * g], sides_[2 * g + 1],
              irradiance);
-    }
+    });
   }
   return absl::OkStatus();
 }

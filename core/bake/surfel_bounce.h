@@ -8,10 +8,13 @@
 // bounce light and the image agree on how light is gathered.
 //
 // Records, not every surfel. The surfels of a group that share a cell of a grid (about
-// sqrt(receiverSpacing) surfel spacings wide) and face within kPatchNormalCos of each other make
-// a patch; the member nearest its centre is the record, gathered on both sides. Each surfel
-// reads the records of the patches in its cell and the cells around it that face its way,
-// weighted by distance: what a frame's pixels between records do (pbgi_integrator.cpp).
+// sqrt(receiverSpacing) surfel spacings wide), face within kPatchNormalCos of each other and see
+// each other on both sides along their surface (Scene::seeAlongSurface) make a patch; the member
+// nearest its centre is the record, gathered on both sides. Each surfel reads the records of the
+// patches in its cell and the cells around it that face its way, weighted by distance, each on
+// the sides its record and the surfel's own see each other: what a frame's pixels between
+// records do (pbgi_integrator.cpp). A floor that runs on under a wall is two floors: the light
+// of one room never reaches the other through a record.
 // Bounce light is smooth at the scale of a few surfels, and a bounce costs what its cuts'
 // receivers do.
 //
@@ -130,9 +133,11 @@ class BounceGatherer {
     std::vector<std::array<int32_t, 3>> cellOf;
     std::unordered_map<uint64_t, std::vector<uint32_t>> inCell;  // cell key -> its patches
   };
-  void makePatches(std::span<const Surfel> surfels, size_t first, size_t end, Patches& out) const;
-  void spread(std::span<const Surfel> surfels, size_t first, const Patches& patches, const Side& front,
-              const Side& back, std::span<SurfelIrradiance> irradiance) const;
+  void makePatches(const Scene& scene, std::span<const Surfel> surfels, size_t first, size_t end,
+                   Patches& out) const;
+  void spread(const Scene& scene, std::span<const Surfel> surfels, size_t first,
+              const Patches& patches, const Side& front, const Side& back,
+              std::span<SurfelIrradiance> irradiance) const;
 
   CutOptions options_;
   int receiverSpacing_;

@@ -88,6 +88,17 @@ Ray Scene::spawnSegment(const Vec3f& p, const Vec3f& ng, const Vec3f& q, const V
   return ray;
 }
 
+bool Scene::seeAlongSurface(const Vec3f& p, const Vec3f& np, const Vec3f& q, const Vec3f& nq,
+                            float lift) const {
+  const Vec3f from = p + np * (offsetScale(p) + lift);
+  const Vec3f to = q + nq * (offsetScale(q) + lift);
+  const Vec3f d = to - from;
+  const float length = pbgi::length(d);
+  if (!(length > 0.0f)) return true;
+  const Ray ray{from, d / length, 0.0f, std::max(0.0f, length * (1.0f - 1e-5f) - offsetScale(to))};
+  return !occluded(ray);
+}
+
 namespace {
 // Embree asserts on a ray with a NaN or Inf in it (and would return garbage without the
 // assertion): such a ray, from whatever arithmetic overflowed upstream, meets nothing.

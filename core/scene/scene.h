@@ -65,6 +65,12 @@ class Scene {
   // tMax stops `stopShort` before the end, less a margin for Embree's rounding of t.
   Ray spawnSegment(const Vec3f& p, const Vec3f& ng, const Vec3f& q, const Vec3f& nq,
                    float stopShort = 0.0f) const;
+  // Whether points p and q of one surface see each other on the side their unit normals np
+  // and nq face: the segment between them, each end lifted off the surface along its normal
+  // by the ray offset plus `lift` (what clears a convex surface's own bulge between them),
+  // meets nothing. A wall standing on a floor parts the floor's points on its two sides.
+  bool seeAlongSurface(const Vec3f& p, const Vec3f& np, const Vec3f& q, const Vec3f& nq,
+                       float lift) const;
 
   const Material& material(uint32_t index) const { return materials_[index]; }
   const std::vector<Material>& materials() const { return materials_; }
