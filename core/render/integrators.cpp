@@ -35,12 +35,15 @@ const std::vector<ParamSpec>& pbgiParams() {
        .help = "how diffuse receivers gather: one bidirectional cut per block of pixels, or a "
                "microbuffer per pixel"},
       {.key = "glossy_gather", .type = ParamType::kChoice,
-       .choices = {"adaptive", "warped", "product"},
+       .choices = {"adaptive", "warped", "product", "traced"},
        .defaultText = "product",
        .help = "how glossy receivers gather: a quadtree microbuffer refined by the BSDF and the "
-               "light, one warped by the BSDF, or the light gathered once per footprint and "
+               "light, one warped by the BSDF, the light gathered once per footprint and "
                "reflected by the wavelet product with each sample's BSDF (lobes too narrow for "
-               "its cube by the quadtree)"},
+               "its cube by the quadtree), or rays drawn from each sample's BSDF that read the "
+               "tree's light where they land (glossy_rays of them)"},
+      {.key = "glossy_rays", .type = ParamType::kInt, .lo = 1, .hi = 1024, .defaultText = "8",
+       .help = "traced glossy gather: BSDF-sampled rays per camera sample on a glossy surface"},
       {.key = "quality", .type = ParamType::kChoice, .choices = {"draft", "default", "high"},
        .defaultText = "default", .help = "preset of every threshold below"},
       {.key = "light_solid_angle", .type = ParamType::kFloat, .lo = 0.0, .hi = kFourPi,
@@ -128,7 +131,9 @@ PbgiSettings pbgiSettings(const RenderSettings& r) {
   const std::string glossy = p.choiceOr("glossy_gather", "product");
   s.glossyGather = glossy == "warped"    ? GlossyGatherKind::kWarped
                    : glossy == "product" ? GlossyGatherKind::kProduct
+                   : glossy == "traced"  ? GlossyGatherKind::kTraced
                                          : GlossyGatherKind::kAdaptive;
+  s.glossyRays = static_cast<int>(p.intOr("glossy_rays", 8));
   s.adaptive = adaptiveGatherOptions(s.perPixel);
   s.product = productGatherOptions(s.perPixel);
   s.maxGathersPerPixel = static_cast<int>(p.intOr("gathers_per_pixel", 4));
@@ -206,6 +211,10 @@ constexpr std::array<CounterSpec, kPbgiCounterCount> kPbgiCounters = {{
     {"glossy_as_diffuse",
      "rough glossy samples whose lobe the tree's SH hold: the diffuse gather, by their "
      "directional albedo"},
+    {"glossy_traced_rays", "traced glossy gather: BSDF-sampled rays"},
+    {"glossy_traced_unread",
+     "traced glossy gather: rays that met a surface with no surfel of the tree near the hit (or "
+     "a mirror, glass or a light): no light"},
     {"nodes_visited", "microbuffer traversals: nodes visited"},
     {"culled_plane", "nodes behind the receiver's tangent plane"},
     {"clusters", "nodes splatted as clusters"},

@@ -31,8 +31,11 @@ enum class PbgiGatherKind { kBidirectional, kPerPixel };
 // Glossy receivers' gather: a microbuffer warped by the BSDF (Ritschel et al. 2009), the
 // adaptive quadtree refined by the BSDF and the light (Wang et al. 2016, adaptive_gather.h), or
 // the light gathered once per footprint and reflected by the wavelet product with each
-// sample's BSDF slice (Wang et al. 2015, product_gather.h).
-enum class GlossyGatherKind { kWarped, kAdaptive, kProduct };
+// sample's BSDF slice (Wang et al. 2015, product_gather.h); or traced: rays drawn from each
+// sample's BSDF, each taking the light the tree's surfels send back from what it meets (a final
+// gather, whose visibility is the scene's own: no light through walls, which a microbuffer's
+// partly covering splats let through where a bright room lies behind a thin wall).
+enum class GlossyGatherKind { kWarped, kAdaptive, kProduct, kTraced };
 
 struct PbgiSettings {
   PbgiGatherKind gather = PbgiGatherKind::kBidirectional;
@@ -41,6 +44,7 @@ struct PbgiSettings {
   WarpedGatherOptions glossy;     // glossy receivers' warped microbuffer
   AdaptiveGatherOptions adaptive;  // ... or their adaptive one
   ProductGatherOptions product;    // ... or the product's cube and BSDF slices
+  int glossyRays = 8;              // ... or this many BSDF-sampled rays per camera sample
   int maxGathersPerPixel = 4;  // per-pixel gathers a pixel's samples make
   CutOptions cut;              // the bidirectional cut
   int blockSize = 64;          // the bidirectional cut's blocks, in view pixels

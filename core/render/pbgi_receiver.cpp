@@ -152,6 +152,9 @@ PixelGathers::PixelGathers(const PbgiSettings& settings, size_t maxGathersPerPix
       product_.emplace(settings.product);
       adaptive_.emplace(settings.adaptive);  // for lobes the product does not resolve
       break;
+    case GlossyGatherKind::kTraced:
+      tracedRays_ = std::max(settings.glossyRays, 1);
+      break;
   }
 }
 
@@ -227,9 +230,47 @@ absl::StatusOr<Rgb> PixelGathers::reflectByProduct(TreePageSource& tree, const W
   return lo;
 }
 
+absl::StatusOr<Rgb> PixelGathers::reflectByRays(TreePageSource& tree, const Scene& scene,
+                                                const Receiver& r, const Rgb& albedo, Rng& rng,
+                                                RenderCounters* counters) {
+  if (readRadius_ < 0.0f) {
+    PBGI_ASSIGN_OR_RETURN(readRadius_, surfaceReadRadius(tree));
+  }
+  const Bsdf bsdf(scene.material(r.hit.material), albedo);
+  const Frame frame(r.n);
+  const Vec3f wo = frame.toLocal(r.wo);
+  Rgb sum(0.0f);
+  for (int k = 0; k < tracedRays_; ++k) {
+    // Stratified in the first dimension of the lobe's own sampling.
+    const Vec2f u((static_cast<float>(k) + rng.uniform()) / static_cast<float>(tracedRays_),
+                  rng.uniform());
+    const std::optional<BsdfSample> s = bsdf.sample(wo, rng.uniform(), u);
+    if (!s || s->delta || !(s->pdf > 0.0f) || isBlack(s->f)) continue;
+    const Vec3f wi = frame.toWorld(s->wi);
+    ++(*counters)[kGlossyTracedRays];
+    SurfaceHit hit;
+    // What escapes is the environment's, and what meets a light is the light's: the samples'
+    // direct light takes both.
+    if (!scene.intersect(scene.spawnRay(r.hit.p, r.ng, wi), &hit) || hit.light >= 0) continue;
+    std::optional<Rgb> sent;
+    if (hit.material != kNoMaterial && !Bsdf(scene.material(hit.material), Rgb(1.0f)).isDelta()) {
+      PBGI_ASSIGN_OR_RETURN(sent, readSurfaceRadiance(tree, scene, readRadius_, hit.p, hit.ng, wi));
+    }
+    if (!sent) {
+      ++(*counters)[kGlossyTracedUnread];
+      continue;
+    }
+    sum += s->f * (std::abs(s->wi.z) / s->pdf) * *sent;
+  }
+  const Rgb lo = sum / static_cast<float>(tracedRays_);
+  if (absl::Status st = checkGathered(lo); !st.ok()) return st;
+  return lo;
+}
+
 absl::StatusOr<Rgb> PixelGathers::reflect(TreePageSource& tree, const Scene& scene,
                                           const Receiver& r, const Rgb& albedo, Rng& rng,
                                           GatherStats* stats, RenderCounters* counters) {
+  if (tracedRays_ > 0) return reflectByRays(tree, scene, r, albedo, rng, counters);
   if (product_) {
     PBGI_ASSIGN_OR_RETURN(const WaveletBsdf* slices, productSlices(scene, r.hit.material));
     const float cosThetaO = dot(r.wo, r.n);

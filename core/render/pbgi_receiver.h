@@ -46,6 +46,8 @@ enum PbgiCounter : size_t {
   kGlossyProductsSkipped,
   kGlossyNarrowLobes,
   kGlossyAsDiffuse,
+  kGlossyTracedRays,
+  kGlossyTracedUnread,
   kNodesVisited,
   kNodesCulledPlane,
   kClustersSplatted,
@@ -178,10 +180,15 @@ class PixelGathers {
   absl::StatusOr<Rgb> reflectByProduct(TreePageSource& tree, const WaveletBsdf& slices,
                                        const Receiver& r, GatherStats* stats,
                                        RenderCounters* counters);
+  // The traced gather's (GlossyGatherKind::kTraced): the sample's own BSDF rays.
+  absl::StatusOr<Rgb> reflectByRays(TreePageSource& tree, const Scene& scene, const Receiver& r,
+                                    const Rgb& albedo, Rng& rng, RenderCounters* counters);
 
   std::optional<WarpedGatherer> warped_;      // as the settings say: warped, adaptive, or
   std::optional<AdaptiveGatherer> adaptive_;  // product and adaptive (for narrow lobes)
   std::optional<ProductGatherer> product_;
+  int tracedRays_ = 0;        // the traced gather's rays a sample (0: another gather)
+  float readRadius_ = -1.0f;  // how far its hits read the tree (surfaceReadRadius; < 0: not yet)
   std::shared_ptr<WaveletBsdfCache> bsdfs_;
   std::vector<ProductGather> products_;  // the pixel's, by slot (capacity kept across pixels)
   size_t productsUsed_ = 0;

@@ -297,7 +297,8 @@ double relMseWhereAlbedo(const Image& image, const Image& reference, const Rgb& 
 // one added. Both buffers at 64 spp against 1024 on a 200,000-surfel bake: 0.0017 (adaptive),
 // 0.0016 (warped); 32 against 512 on 100,000 surfels: 0.0022, 0.0022; 16 against 128 on 50,000
 // surfels: 0.0050, 0.0051. The walls as now, 8 against 128 spp: red 0.0048 (adaptive), 0.0049
-// (warped), 0.0049 (product); green 0.0206 (adaptive and product), 0.118 (warped).
+// (warped), 0.0049 (product); green 0.0206 (adaptive and product), 0.118 (warped). The traced
+// gather: BSDF-sampled rays reading the tree where they land.
 TEST_F(PbgiRender, GlossyReceiversGatherThroughEveryGlossyGather) {
   const Rgb specular(0.9f, 0.3f, 0.2f), sharpSpecular(0.2f, 0.8f, 0.3f);
   for (MaterialDesc& m : shot_.materials) {
@@ -312,13 +313,21 @@ TEST_F(PbgiRender, GlossyReceiversGatherThroughEveryGlossyGather) {
   p.overrides.spp = 128;
   const Image path = render(p);
   FrameRenderReport perPixelProduct;
-  for (const std::string kind : {"adaptive", "warped", "product"}) {
+  for (const std::string kind : {"adaptive", "warped", "product", "traced"}) {
     FrameRenderRequest r = request("glossy-" + kind, tree);
     r.overrides.spp = 8;
     testing::setParam(r.overrides.params, "glossy_gather", kind);
     FrameRenderReport report;
     const Image pbgi = render(r, &report);
-    EXPECT_GT(report.counters[kGlossyGathers], 0u);
+    if (kind == "traced") {
+      // Rays of the samples' own, no microbuffer.
+      EXPECT_EQ(report.counters[kGlossyGathers], 0u);
+      EXPECT_GT(report.counters[kGlossyTracedRays], 0u);
+      EXPECT_LT(report.counters[kGlossyTracedUnread], report.counters[kGlossyTracedRays] / 100);
+    } else {
+      EXPECT_GT(report.counters[kGlossyGathers], 0u);
+      EXPECT_EQ(report.counters[kGlossyTracedRays], 0u);
+    }
     if (kind == "product") {
       // The red wall's samples take the product, the green wall's the adaptive buffer.
       EXPECT_GT(report.counters[kGlossyProducts], 0u);
