@@ -60,7 +60,9 @@ std::optional<Sight> sightOf(const NodeAttributes& a, const Vec3f& p, const Vec3
 // (transfer_bench --light bounce, --light direct --brute).
 //
 // The product is held below kMaxDescentCorrection: a child its parent all but missed is
-// picked rarely, and would be weighed by a spike.
+// picked rarely, and would be weighed by a spike. What the cap cuts off is light lost, most
+// where light reaches a room through a gap a few clusters wide, whose clusters' estimates
+// differ most from their children's; a higher cap loses less and spreads the light more.
 //
 // With CutOptions::coneDescent the children are weighed by coneContribution instead: their
 // power and normal cones, no SH (a quarter less time in a Sponza bake's first bounce, as
@@ -71,7 +73,7 @@ std::optional<Sight> sightOf(const NodeAttributes& a, const Vec3f& p, const Vec3
 // it, so the product is held only at the end, below kMaxConeDescentCorrection: it runs wider
 // (transfer_bench, Sponza 300k, direct light, cut / brute force at the bake's first-bounce
 // thresholds: 0.9953 by SH; by cones held at 4, 16 and 64: 0.9908, 0.9951 and 0.9959).
-inline constexpr float kMaxDescentCorrection = 4.0f;
+inline constexpr float kMaxDescentCorrection = 8.0f;
 inline constexpr float kMaxConeDescentCorrection = 64.0f;
 
 // What a node sends a receiver at p facing n by its power and normal cone alone: its front
