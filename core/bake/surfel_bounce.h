@@ -47,18 +47,16 @@ namespace pbgi {
 // later bounces gather with the first's solid-angle thresholds (eps_L, eps~_L, eps~_E) times
 // kLaterBounceCoarsening, clamped to their valid range. The first bounce's shadow rays descend
 // by cones (CutOptions::coneDescent): the first bounce is most of a bake's time, and its
-// records are dense and its clusters small, where cones lose least (transfer_bench: cut / brute
-// force 0.9959 against 0.9953 by SH at its thresholds, 0.9858 against 0.9888 at the later
-// bounces', which stay by SH).
+// records are dense and its clusters small, where cones lose least (transfer_bench compares
+// cones and SH against brute force); the later bounces' coarser clusters stay by SH.
 inline constexpr float kLaterBounceCoarsening = 4.0f;
 CutOptions bounceCutOptions(const CutOptions& first, int bounce);
 
 // The first bounce's cut for a quality preset: the preset without the near field's rays
 // (CutOptions::nearRays) and with one shadow ray a cluster pair (CutOptions::recordVisibility:
-// a bounce's records already stand for patches of surfels). Bounce light reaches the frame through one more gather, whose records
-// take the near field by rays; in the bounces too they cost 4 s of a 57 s bake (1M-surfel
-// Sponza) for 0.25 % more of the image's mean and 2.5 % less relMSE, and since the cut's
-// descent corrections 13 % more bake for 0.22 % more of the mean (bake_quality draft).
+// a bounce's records already stand for patches of surfels). Bounce light reaches the frame
+// through one more gather, whose records take the near field by rays; in the bounces the rays
+// would cost more of the bake than the light they add.
 absl::StatusOr<CutOptions> bounceCutPreset(std::string_view quality);
 
 // Whether a surfel reflects gathered light at all.
@@ -76,9 +74,8 @@ inline constexpr int kMaxBounceSpacing = 1024;
 // Bounce `bounce`'s spacing, given the first's: light reflected twice or more is smoother, so
 // the second bounce's records stand for kLaterBounceSpacing times as many surfels and each
 // later bounce's for twice as many as the one before (up to kMaxBounceSpacing; a spacing of 1
-// stays 1, every surfel its own). Sponza, 1M surfels, 16 / 128 / 256 against 16 / 64 / 64: the
-// bake 60.5 s against 67.9 s in one run, the image's mean 0.13 % lower, its relMSE the same
-// (0.00479); 16 / 256 / 1024: 57.3 s, the mean 0.23 % lower, relMSE 0.00482.
+// stays 1, every surfel its own): later bounces cost a fraction of the first, for a fraction of
+// a percent of the image's mean.
 inline constexpr int kLaterBounceSpacing = 8;
 int bounceReceiverSpacing(int first, int bounce);
 // The least cosine between the normals of surfels of one patch, and of a surfel and a record

@@ -442,7 +442,7 @@ int runBench(const Args& args) {
   }
 
   if (!treePath.empty()) {
-    // The tree's size, and what of it is glossy light (wavelets, issue 14): against the rest.
+    // The tree's size, and what of it is glossy light (wavelets) against the rest.
     auto tree = TreeFile::open(treePath);
     if (tree.ok()) {
       std::error_code ec;

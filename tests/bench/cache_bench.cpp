@@ -1,4 +1,4 @@
-// The page cache at small budgets (issue 13's targets): for each dev scene of ../shared/scenes,
+// The page cache at small budgets: for each dev scene of ../shared/scenes,
 // one bake, then each gather renders the same frame with page caches of 100 (unlimited), 20,
 // 10, 5, 2 and 1 % of the tree's decoded bytes. For each run: render seconds and their ratio to
 // the unlimited run's, the cache's hit rate, hits and misses (pages loaded from the file),

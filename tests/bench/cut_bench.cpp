@@ -1,4 +1,4 @@
-// The bidirectional cut against the per-pixel gather (issue 12's targets), on the dev scenes
+// The bidirectional cut against the per-pixel gather, on the dev scenes
 // of ../shared/scenes: for each scene, one bake (reported apart), then both gathers at square
 // resolutions (512, 1024, 2048 by default) and samples per pixel (1, 4), and a light field (a
 // 4 x 4 camera array) against a single view of the same size. For each run: render seconds,

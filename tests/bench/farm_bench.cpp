@@ -1,4 +1,5 @@
-// The farm's throughput, measured in one run (these machines are noisy; compare within a run):
+// The farm's throughput, every figure from one process (these machines are noisy; compare within
+// a run):
 //   1. lease round trips per second (LeaseTask + CompleteTask over gRPC, every state change
 //      committed) with 200 simulated workers: SQLite (group commit), PostgreSQL (a throwaway
 //      cluster), and two coordinators on one PostgreSQL database; then the dispatch query's

@@ -285,9 +285,9 @@ TEST(BidirectionalCut, TheNearFieldByRaysGathersAWallAtItsFoot) {
 
 // Two closed rooms either side of a wall 1 cm thick, a light in one: the other stays dark.
 // A cluster of the wall's two faces can send, by its SH, a little light towards the dark room
-// that none of its children does (its lit face looks the other way); that light used to be
-// deposited unseen, with no shadow ray ("nothing to hide"), into the dark room and into the
-// sides of surfels that face into the wall (surfels gather on both sides).
+// that none of its children does (its lit face looks the other way); deposited unseen, with no
+// shadow ray ("nothing to hide"), it would light the dark room and the sides of surfels that
+// face into the wall (surfels gather on both sides).
 TEST(BidirectionalCut, NoLightThroughAThinWall) {
   auto scene = testing::makeTwoRoomsScene();
   ASSERT_NE(scene, nullptr);

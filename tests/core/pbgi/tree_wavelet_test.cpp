@@ -1,4 +1,4 @@
-// Wavelets in the tree (issue 14): the writer's sums, the pages' hierarchical coding, and what
+// Wavelets in the tree (glossy light): the writer's sums, the pages' hierarchical coding, and what
 // a page's wavelet section refuses.
 #include <gtest/gtest.h>
 

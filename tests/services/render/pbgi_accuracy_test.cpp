@@ -114,48 +114,28 @@ void expectAccurate(const Case& c) {
   fs::remove_all(dir);
 }
 
-// Measured: mean indirect 0.981 / 0.980 / 0.985 of the path tracer's, relMSE 4.9e-4, with the
-// cut's descent corrections (0.9589 / 0.9622 / 0.9709 and 9.9e-4 without them, which fails the
-// bound), the bake's bounces gathered at records (16 surfels a record, then 128 and 256).
-// Before the corrections, 0.964 / 0.967 / 0.978 with every surfel gathering (--bounce-spacing
-// 1): the records' interpolation cost about 0.5 % of the indirect light here (0.1 % of the
-// image's mean at 256^2), for a bake 2 to 4 times faster.
+// The Cornell box at the default preset with its bake's bounces gathered at records: the mean
+// indirect light within 3 % of the path tracer's, and the cut's descent corrections are what keep
+// it inside (without them a coarse cluster drops light its children send).
 TEST(PbgiAccuracy, CornellBoxDefaultPresetMatchesThePathTracer) {
   expectAccurate({"cornell-box/cornell.shot.toml", 64, 64, 60000, 3, 0.03, 0.01});
 }
 
-// 100,000 surfels are coarse for Sponza (a radius of 15 cm): its mean indirect light measures
-// 0.892 / 0.903 / 0.917 of the path tracer's here, relMSE 0.0059, with the cut's descent
-// corrections (the bound fails without them; 0.890 / 0.904 / 0.921 before the bake's first
-// bounce descended by normal cones; later bounces' cuts over larger chunks, fewer records,
-// measured 0.875 / 0.892 / 0.911 and failed it). Before them, 0.854 / 0.866 / 0.880 and relMSE
-// 0.01131, with the bake's bounces at records (0.876 / 0.887 / 0.899 and relMSE 0.01155 with
-// every surfel gathering: at 100,000 surfels a record's cell is a metre wide, and interpolating
-// records loses light where it grows steeply, beside creases; at the dev shot's 1M surfels,
-// 0.45 % of the image's mean. Making every surfel beside a crease its own record gave 0.868 but a 1M
-// bake of 231 s against 62 s) (0.863 / 0.881 / 0.901 and 0.01135 before stop 22 changed how the
-// cut treats near surfels and light no surfel sends: transfer_bench shows each change; at the dev
-// shot's 1M surfels they lowered the indirect light's relMSE by 12 %). What is left is lost where
-// surfels pass light to surfels one to four radii from other geometry (transfer_bench --light
-// bounce --brute); 250,000 surfels lose less. The bound holds this bake's bias; accuracy_bench
-// reports the product's. The figures above are against a 1024-spp reference; the test path
-// traces 512 (0.8895 / 0.9009 / 0.9149, relMSE 0.0075), for 28 s of CPU instead of 41.
+// 100,000 surfels are coarse for Sponza (a radius of 15 cm): light is lost where surfels pass it
+// to surfels one to four radii from other geometry (transfer_bench --light bounce --brute shows
+// it), so the bound on the mean indirect light is 12 %: it holds this small bake's bias, and
+// accuracy_bench reports the product's at the shot's own bake. The path tracer's reference is
+// 512 spp, its noise far inside the bounds.
 TEST(PbgiAccuracy, SponzaDefaultPresetMatchesThePathTracer) {
   expectAccurate({"sponza/sponza.shot.toml", 80, 45, 100000, 3, 0.12, 0.05, false, 512});
 }
 
-// Issue 14's glossy scene: most of the light reaches the walls by way of the two GGX blocks,
-// which the tree carries as wavelets (before them the mean indirect light was 0.43 of the path
-// tracer's at 128 x 128). Measured here: mean indirect 0.955 / 0.978 / 0.998 of the path
-// tracer's, relMSE 0.0033, with the cut's descent corrections (0.907 / 0.921 / 0.941 and 0.0054
-// without them, which fails the bound). The corrections leave a glossy leaf's estimate as it
-// is: weighing it by its surfels' diffuse estimates measured 0.863 / 0.879 / 0.860.
+// The glossy Cornell box: most of the light reaches the walls by way of the two GGX blocks, which
+// the tree carries as wavelets; without them the walls get less than half their indirect light.
+// A glossy leaf's estimate in the cut's descent stays its wavelet's (its surfels' diffuse
+// estimates lose a seventh of the light).
 TEST(PbgiAccuracy, GlossyCornellBoxCarriesTheBlocksLight) {
-  // Against a 512-spp reference (1024 before; 2.6 s less of a 2-core run): 0.9825 / 1.0111 /
-  // 1.0311 of its mean indirect light, relMSE 0.0045 (against 1024 spp at this stop: 0.9803 /
-  // 1.0102 / 1.0292, 0.0034): its noise is far inside the bounds. With the wavelet product as
-  // the glossy gather and glossy gathers shared across the record spacing (issue 31): 0.9746 /
-  // 1.0028 / 1.0179, relMSE 0.0038.
+  // Against a 512-spp reference, whose noise is far inside the bounds.
   expectAccurate({"glossy-cornell/glossy-cornell.shot.toml", 64, 64, 60000, 3, 0.07,
                   0.05, true, 512});
 }
