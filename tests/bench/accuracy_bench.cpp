@@ -591,6 +591,20 @@ int runSuite(const Args& args) {
   std::fprintf(csv, "scene,width,height,spp,mean_r,mean_g,mean_b,relmse,lowfreq_relmse,"
                     "seam_step_ratio,reference_relmse,pbgi_seconds,bake_seconds,"
                     "path_seconds_equal_error,extrapolated\n");
+  const std::string mdPath = (fs::path(args.out) / "suite.md").string();
+  std::FILE* md = std::fopen(mdPath.c_str(), "w");
+  if (!md) return std::fclose(csv), std::fprintf(stderr, "cannot write %s\n", mdPath.c_str()), 1;
+  std::fprintf(md,
+               "# PBGI against the path tracer on the scene suite\n\n"
+               "Written by `accuracy_bench --suite` (tests/bench/accuracy_bench.cpp): each shot at "
+               "its own size, samples, preset and bake, against a %d-spp path trace; the path "
+               "tracer's render time at PBGI's relMSE from its sweep (%s spp), extrapolated past "
+               "it where marked ~. Means: PBGI's over the reference's, per channel. Low-frequency "
+               "relMSE and seams: `pbgi compare`. Ref relMSE: the reference's own noise.\n\n"
+               "| scene | size | spp | means R G B | relMSE | low-freq relMSE | seams | ref relMSE "
+               "| PBGI render | bake | path tracer at equal error | speed-up |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+               args.referenceSpp, fmt::format("{}", fmt::join(args.ptSpp, ", ")).c_str());
   std::printf("\nthe suite against path-traced references at %d spp (means: PBGI over the "
               "reference; PT: the path tracer's render time at PBGI's relMSE, ~ past its sweep)\n",
               args.referenceSpp);
@@ -609,6 +623,14 @@ int runSuite(const Args& args) {
                 r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio, r.referenceRelMse,
                 r.pbgi.renderSeconds, r.pbgi.bakeSeconds, r.extrapolated ? "~" : " ", r.ptSeconds,
                 r.ptSeconds / std::max(r.pbgi.renderSeconds, 1e-9));
+    std::fprintf(md,
+                 "| %s | %s | %d | %.3f %.3f %.3f | %.2e | %.1e | %.2f | %.1e | %.1f s | %.1f s "
+                 "| %s%.1f s | %.1fx |\n",
+                 r.name.c_str(), size.c_str(), r.spp, mean[0], mean[1], mean[2],
+                 r.pbgi.rgb.relMse, r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio,
+                 r.referenceRelMse, r.pbgi.renderSeconds, r.pbgi.bakeSeconds,
+                 r.extrapolated ? "~" : "", r.ptSeconds,
+                 r.ptSeconds / std::max(r.pbgi.renderSeconds, 1e-9));
     std::fprintf(csv, "%s,%d,%d,%d,%.5f,%.5f,%.5f,%.6g,%.6g,%.4f,%.6g,%.4f,%.4f,%.4f,%d\n",
                  r.name.c_str(), r.width, r.height, r.spp, mean[0], mean[1], mean[2],
                  r.pbgi.rgb.relMse, r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio,
@@ -616,7 +638,8 @@ int runSuite(const Args& args) {
                  r.extrapolated ? 1 : 0);
   }
   std::fclose(csv);
-  std::printf("wrote %s\n", csvPath.c_str());
+  std::fclose(md);
+  std::printf("wrote %s and %s\n", csvPath.c_str(), mdPath.c_str());
   return 0;
 }
 
