@@ -145,8 +145,13 @@ async function main() {
   };
   // Frame 1's tile 2 dies at its first failure, which blocklists w1, the only worker, for the
   // job: its other tiles are ready and nobody may take them. The page says stalled, and why.
-  await waitFor('job 1 to stall on the page', async () => (await watch()).jobs['1'] === 'stalled', 180);
-  const f1 = s.frames.find((f) => f.frame === 1).states;
+  // The jobs table and the grid refresh from their own requests: wait until both have shown it.
+  const frameOne = (st) => st.frames.find((f) => f.frame === 1).states;
+  await waitFor('job 1 to stall on the page, its tile 2 dead in the grid', async () => {
+    const st = await watch();
+    return st.jobs['1'] === 'stalled' && frameOne(st)[2] === '4';
+  }, 180);
+  const f1 = frameOne(s);
   check(f1[2] === '4', `frame 1: tile 2 dead: ${f1}`);
   const stalledRow = await page.textContent('#jobs tbody tr[data-job="1"]');
   check(stalledRow.includes('blocklisted: w1') && stalledRow.includes('tile.0002.exr'),
