@@ -718,6 +718,16 @@ struct BidirectionalCut::State {
     }
     const bool small =
         boundsSmall && within(solidAngle, opts.lightSolidAngle) && !reachesNear();
+    if (small && !rv.single && page.waveletOf(node) != nullptr) {
+      // Directional light (glossy surfels' wavelets) is taken receiver by receiver: a node's
+      // receivers share the surfel one descent picks for their shadow rays, which stands for
+      // the share of the light that arrives only where that share is the same across them. A
+      // glossy cluster's surfels aim their lobes at some receivers and not at others, so a
+      // shared pick sends a lobe's visible share to receivers the lobe misses: a metal floor
+      // running under a wall into a lit room brightens the dark room's walls with it.
+      refineReceiver(pair, page.id);
+      return absl::OkStatus();
+    }
     if (small) return evaluateSmall(pair, page, node, rv, view, dir, d2);
 
     if (node.leaf()) {

@@ -336,5 +336,45 @@ TEST(PbgiDoorAjar, NoLightCrossesTheWallOfADoorwayShut) {
   EXPECT_LT(dark, 1e-3 * light);
 }
 
+// The door-ajar rooms with a checkerboard floor of rough conductors (config/scenes/metal-floor:
+// GGX 0.1, a complex index of refraction, tints 0.8 and 0.2), at its 256 x 256, 16 spp and own
+// bake. The floor runs on under the dividing wall into the lit room, whose bright floor is in
+// the same clusters as the dark room's. Everything the camera sees but the floor (walls,
+// ceiling, door, furniture) within 4 % of the path tracer (64 spp) on each channel; the floor's
+// own pixels, which the glossy gather shades, within 15 %.
+TEST(PbgiMetalFloor, TheWallsGetWhatTheMetalFloorReflects) {
+  const OwnBake room("metal-floor");
+  ASSERT_TRUE(room.status().ok()) << room.status();
+  const Image pbgi = room.render("pbgi", "pbgi", 16);
+  const Image path = room.render("path", "path", 64);
+  ASSERT_EQ(pbgi.width(), 256);
+  ASSERT_EQ(path.width(), 256);
+  const int ny = path.channelIndex("normal.Y");
+  ASSERT_GE(ny, 0);
+  // The floor: level surfaces in the lower part of the frame (the ceiling is in the upper).
+  const auto isFloor = [&](int x, int y) {
+    return std::abs(path.at(x, y, ny)) > 0.99f && y > path.height() * 45 / 100;
+  };
+  for (const bool floor : {false, true}) {
+    const char* name = floor ? "floor" : "rest of the room";
+    for (int c = 0; c < 3; ++c) {
+      double a = 0.0, b = 0.0;
+      int pixels = 0;
+      for (int y = 0; y < path.height(); ++y) {
+        for (int x = 0; x < path.width(); ++x) {
+          if (isFloor(x, y) != floor) continue;
+          a += pbgi.at(x, y, c);
+          b += path.at(x, y, c);
+          ++pixels;
+        }
+      }
+      std::printf("[ measured ] metal floor, %s, channel %d: mean PBGI / path tracer %.4f\n",
+                  name, c, a / b);
+      ASSERT_GT(pixels, 5000) << name;
+      EXPECT_NEAR(a / b, 1.0, floor ? 0.15 : 0.04) << name << ", channel " << c;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace pbgi
