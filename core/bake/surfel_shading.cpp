@@ -8,7 +8,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
-#include "core/pbgi/bidirectional_cut.h"
 #include "core/pbgi/gather.h"
 #include "core/render/path_tracer.h"
 #include "core/sampling/rng.h"
@@ -210,21 +209,12 @@ constexpr uint64_t kGlossyLeafDomain = 0x474c4f5353594c46ull;
 constexpr int kMaxSpecularChain = 8;
 constexpr int kSmoothRays = 1;
 
-// What a chain that ends on a rough surface brings back: the light of `tree` (a bake's tree of
-// the bounces so far) that the surface sends along the chain's last ray, read from its surfels
-// within `radius` of the hit; none without a tree.
-struct RoughEnd {
-  TreePageSource* tree = nullptr;
-  float radius = 0.0f;
-};
-
 // The light leaving a smooth (delta) surface at p towards unit world direction `out`: the
 // BSDF sampled at the surface (lobe by uc), the ray traced on through every smooth surface it
-// meets, and the emission of the light it ends on (lights hit or escaped to), or the light a
-// rough surface it ends on sends back (`rough`), times the chain's throughput. Black when it
-// goes on too long.
+// meets, and the emission of the light it ends on (lights hit or escaped to), times the
+// chain's throughput. Black when it ends on a rough surface or goes on too long.
 Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame, const Bsdf& bsdf,
-                          const Vec3f& out, float uc, const RoughEnd& rough, Rng& rng) {
+                          const Vec3f& out, float uc, Rng& rng) {
   const std::optional<BsdfSample> first =
       bsdf.sample(frame.toLocal(out), uc, Vec2f(rng.uniform(), rng.uniform()));
   if (!first || !(first->pdf > 0.0f) || isBlack(first->f)) return Rgb(0.0f);
@@ -241,13 +231,7 @@ Rgb specularChainRadiance(const Scene& scene, const Vec3f& p, const Frame& frame
     if (hit.light >= 0) return beta * scene.lights()[hit.light]->emitted(hit.ng, -dir);
     if (hit.material == kNoMaterial) return Rgb(0.0f);
     const Bsdf next(scene.material(hit.material), scene.albedoAt(hit));
-    if (!next.isDelta()) {
-      if (rough.tree == nullptr) return Rgb(0.0f);
-      // A failed read (a damaged page) brings nothing, as a leaf whose gather fails.
-      const absl::StatusOr<std::optional<Rgb>> read =
-          readSurfaceRadiance(*rough.tree, scene, rough.radius, hit.p, hit.ng, dir);
-      return read.ok() && read->has_value() ? beta * **read : Rgb(0.0f);
-    }
+    if (!next.isDelta()) return Rgb(0.0f);
     const Frame at(hit.ns);
     const std::optional<BsdfSample> bs =
         next.sample(at.toLocal(-dir), rng.uniform(), Vec2f(rng.uniform(), rng.uniform()));
@@ -388,18 +372,10 @@ void GlossyLeafBaker::reflectIncoming(Leaf& leaf, uint64_t leafKey) const {
 // Mirrors and glass (delta BSDFs): the lights seen through them, each texel's direction traced
 // back through their specular chain (up to kMaxSpecularChain surfaces, each lobe picked by the
 // BSDF's own sampling) to the light it ends on, from the centroid of the leaf's smooth surfels,
-// kSmoothRays jittered rays a texel. This is what puts a glass sphere's caustic on the floor
-// under it. A chain that ends on a rough surface brings the light the incoming tree's surfels
-// there send back (setIncoming): the room seen through the glass, which the glass hides from
-// the gathers' shadow rays; nothing in a bake without bounces.
+// kSmoothRays jittered rays a texel. A chain that ends on a rough surface brings nothing here:
+// that light is the tree's. This is what puts a glass sphere's caustic on the floor under it.
 void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
   const size_t texels = leaf.cube->directions.size();
-  RoughEnd rough;
-  if (incoming_ != nullptr && !leaf.smooth.empty()) {
-    if (const absl::StatusOr<float> radius = surfaceReadRadius(*incoming_); radius.ok()) {
-      rough = {incoming_, *radius};
-    }
-  }
   for (const Leaf::Glossy& g : leaf.smooth) {
     if (leaf.reflects(g.material)) continue;
     Vec3f n(0.0f), p(0.0f);
@@ -424,7 +400,7 @@ void GlossyLeafBaker::traceSpecularChains(Leaf& leaf, uint64_t leafKey) const {
             leaf.cube->directions[t] +
             Vec3f(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f) * jitter);
         const float uc = (static_cast<float>(k) + rng.uniform()) / kSmoothRays;
-        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rough, rng);
+        sum += specularChainRadiance(*scene_, p, frame, g.bsdf, d, uc, rng);
       }
       if (isFinite(sum)) table[t] = sum / static_cast<float>(kSmoothRays);
     }
