@@ -140,7 +140,7 @@ TEST(PbgiAccuracy, GlossyCornellBoxCarriesTheBlocksLight) {
                   0.05, true, 512});
 }
 
-// Issue 31's glossy bounce: a glossy plate (GGX 0.15) tilted under a sphere light sends the
+// A glossy bounce: a glossy plate (GGX 0.15) tilted under a sphere light sends the
 // light's reflection onto the wall in front of it, a spot that is all of the wall's indirect
 // light (the floor is black). PBGI carries it through the plate's glossy surfels, whose light
 // leaves as wavelets (their direct light, and each bounce's light they reflect), and the wall's
