@@ -60,9 +60,10 @@ std::vector<double> maskedBoxBlur(const std::vector<float>& rgb, int channel,
 }
 
 // The low-frequency relMSE and the seam step ratio (compare.h), from the packed images with
-// left-out pixels marked.
+// left-out pixels marked. Pixel (0, 0) is the frame's (originX, originY): block borders lie on the
+// frame's grid, wherever a crop starts.
 void artefactMetrics(const std::vector<float>& a, const std::vector<float>& b,
-                     const std::vector<uint8_t>& in, int width, int height,
+                     const std::vector<uint8_t>& in, int width, int height, int originX, int originY,
                      const CompareOptions& options, ImageMetrics* metrics) {
   const size_t pixels = static_cast<size_t>(width) * height;
   const double n = static_cast<double>(metrics->comparedPixels);
@@ -103,7 +104,7 @@ void artefactMetrics(const std::vector<float>& a, const std::vector<float>& b,
       right += error[q];
     }
     const double d = (right - left) / (2 * r + 1);
-    if ((u + 1) % options.blockSize == 0) {
+    if (((columns ? originX : originY) + u + 1) % options.blockSize == 0) {
       border += d * d;
       ++borderPairs;
     } else {
@@ -224,7 +225,8 @@ absl::StatusOr<ImageMetrics> compareImages(const Image& image, const Image& refe
     metrics.relMse = relTotal / 3.0;
     metrics.psnr = psnrFromMse(mseTotal / 3.0);
     if (metrics.comparedPixels > 0) {
-      artefactMetrics(a, b, compared, width, height, options, &metrics);
+      const ImageWindow window = image.window();
+      artefactMetrics(a, b, compared, width, height, window.x, window.y, options, &metrics);
     } else {
       metrics.lowFrequencyRelMse = metrics.seamStepRatio = std::numeric_limits<double>::quiet_NaN();
       metrics.lowFrequencyRelMseChannels.fill(metrics.lowFrequencyRelMse);

@@ -17,8 +17,9 @@
 //            box is clipped at the image's edges and at left-out pixels, the same for both).
 //            Patches and a wrong mean show; noise falls by the box's area.
 //   seam step ratio = the mean squared step of the error across the borders of the render's
-//            cut blocks (a grid of `blockSize` pixels from the image's origin), against the
-//            mean squared step between every other pair of neighbouring pixels. The error is
+//            cut blocks (a grid of `blockSize` pixels from the origin of the image's frame, so a
+//            crop's borders lie where the full frame's do), against the mean squared step
+//            between every other pair of neighbouring pixels. The error is
 //            (a - b) / sqrt(b_blurred^2 + epsilon) summed over R, G and B, averaged along the
 //            border's direction over 2 blurRadius + 1 pixels, so that a step that runs along
 //            a border stands out of the noise. 1 where blocks join seamlessly; NaN when the

@@ -196,6 +196,39 @@ TEST(CompareTest, SeamRatioFindsStepsAtTheBlockBorders) {
   EXPECT_TRUE(std::isnan(one->seamStepRatio));
 }
 
+// A crop of a frame whose blocks have steps at their borders: the borders are the frame's,
+// wherever the crop starts, so the crop's ratio sees them as the whole frame's does.
+TEST(CompareTest, SeamRatioOfACropFollowsTheFramesBlocks) {
+  const int w = 128, h = 96, x0 = 9, y0 = 5;
+  Image frame = constantImage(w, h, 1.0f, 1.0f, 1.0f);
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float block = static_cast<float>(((x / 16) + (y / 16)) % 2) * 0.03f;
+      for (int c = 0; c < 3; ++c) {
+        frame.at(x, y, c) +=
+            block + static_cast<float>(0.05 * gaussian((static_cast<uint64_t>(y) * w + x) * 3 + c));
+      }
+    }
+  }
+  const int cw = w - x0 - 20, ch = h - y0 - 10;
+  Image crop(cw, ch, {"R", "G", "B"});
+  for (int y = 0; y < ch; ++y) {
+    for (int x = 0; x < cw; ++x) {
+      for (int c = 0; c < 3; ++c) crop.at(x, y, c) = frame.at(x + x0, y + y0, c);
+    }
+  }
+  crop.setWindow({x0, y0, w, h});
+  Image ref = constantImage(cw, ch, 1.0f, 1.0f, 1.0f);
+  ref.setWindow({x0, y0, w, h});
+  const absl::StatusOr<ImageMetrics> placed = compareImages(crop, ref, nullptr, {.blockSize = 16});
+  crop.setWindow({0, 0, cw, ch});
+  ref.setWindow({0, 0, cw, ch});
+  const absl::StatusOr<ImageMetrics> unplaced = compareImages(crop, ref, nullptr, {.blockSize = 16});
+  ASSERT_TRUE(placed.ok() && unplaced.ok());
+  EXPECT_GT(placed->seamStepRatio, 2.0);
+  EXPECT_LT(unplaced->seamStepRatio, placed->seamStepRatio / 2.0);
+}
+
 TEST(CompareTest, ArtefactOptionsOutOfRangeAreRejected) {
   const Image a = constantImage(4, 4, 1, 1, 1);
   EXPECT_EQ(compareImages(a, a, nullptr, {.blockSize = 0}).status().code(),
