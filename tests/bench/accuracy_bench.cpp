@@ -23,7 +23,9 @@
 // size, samples, preset and bake, one row each in one table (and OUT/suite.csv): PBGI's channel
 // means over the reference's, its relMSE, low-frequency relMSE and seam step ratio, the
 // reference's own relMSE (estimated from the path tracer's sweep, --pt-spp), and the path
-// tracer's render time at PBGI's relMSE against PBGI's.
+// tracer's render time at PBGI's relMSE against PBGI's. A production-size frame (over
+// kSuiteFullFramePixels) is measured on its central crop of about kSuiteCropPixels, of the
+// frame's shape, unless --crop names one: its bake covers the whole frame.
 //
 // Render seconds are the render stage alone (the scene load, the bake and the EXR write are
 // reported apart). Reports numbers; never fails on time.
@@ -525,11 +527,30 @@ int runBench(const Args& args) {
 struct SuiteRow {
   std::string name;
   int width = 0, height = 0, spp = 0;
+  std::vector<int> crop;  // X0,Y0,X1,Y1 where measured on a crop
   Run pbgi;
   double referenceRelMse = 0.0;  // the reference's own, estimated from the path tracer's sweep
   double ptSeconds = 0.0;        // the path tracer's time to PBGI's relMSE
   bool extrapolated = false;     // past the sweep, at the path tracer's 1/spp rate
 };
+
+// Frames larger than this are measured on a central crop of about kSuiteCropPixels: a 4096-spp
+// reference of a whole 1920x1080 frame takes hours on a workstation.
+constexpr int64_t kSuiteFullFramePixels = 512 * 512;
+constexpr int64_t kSuiteCropPixels = 400 * 225;
+
+// The crop a suite scene is measured on: --crop where given, else the central crop of a frame
+// over kSuiteFullFramePixels, else none (the whole frame).
+std::vector<int> suiteCrop(const Args& args, int width, int height) {
+  if (!args.crop.empty()) return args.crop;
+  const int64_t pixels = int64_t(width) * height;
+  if (pixels <= kSuiteFullFramePixels) return {};
+  const double scale = std::sqrt(double(kSuiteCropPixels) / double(pixels));
+  const int w = std::max(1, int(std::lround(width * scale)));
+  const int h = std::max(1, int(std::lround(height * scale)));
+  const int x0 = (width - w) / 2, y0 = (height - h) / 2;
+  return {x0, y0, x0 + w, y0 + h};
+}
 
 // The scenes of `folder` (each subfolder's *.shot.toml), in name order.
 std::vector<fs::path> suiteShots(const fs::path& folder) {
@@ -561,16 +582,20 @@ int runSuite(const Args& args) {
     auto shot = loadShotFile(file.string());
     if (!shot.ok()) return std::fprintf(stderr, "%s\n", shot.status().ToString().c_str()), 1;
     if (const int rc = adjustShot(args, *shot); rc != 0) return rc;
-    std::printf("== %s (%dx%d)\n", shot->name.c_str(), shot->width, shot->height);
+    Args sceneArgs = args;
+    sceneArgs.crop = suiteCrop(args, shot->width, shot->height);
+    std::printf("== %s (%dx%d%s)\n", shot->name.c_str(), shot->width, shot->height,
+                sceneArgs.crop.empty() ? "" : fmt::format(", measured on its crop {}",
+                                                          fmt::join(sceneArgs.crop, ",")).c_str());
     const int frame = args.frame.value_or(shot->firstFrame);
-    auto measured = referenceAndPathSweep(args, *shot, frame);
+    auto measured = referenceAndPathSweep(sceneArgs, *shot, frame);
     if (!measured.ok()) return std::fprintf(stderr, "%s\n", measured.status().ToString().c_str()), 1;
     const std::vector<Run>& path = measured->path;
     auto pbgi = measure(*shot, measured->base, measured->reference, args.out,
                         Run{.integrator = "pbgi", .spp = shot->render.spp});
     if (!pbgi.ok()) return std::fprintf(stderr, "%s\n", pbgi.status().ToString().c_str()), 1;
     SuiteRow row{.name = shot->name, .width = shot->width, .height = shot->height,
-                 .spp = shot->render.spp, .pbgi = *pbgi};
+                 .spp = shot->render.spp, .crop = sceneArgs.crop, .pbgi = *pbgi};
     if (!path.empty()) {
       const Run& last = path.back();
       const double n = last.spp, big = args.referenceSpp;
@@ -590,25 +615,27 @@ int runSuite(const Args& args) {
   if (!csv) return std::fprintf(stderr, "cannot write %s\n", csvPath.c_str()), 1;
   std::fprintf(csv, "scene,width,height,spp,mean_r,mean_g,mean_b,relmse,lowfreq_relmse,"
                     "seam_step_ratio,reference_relmse,pbgi_seconds,bake_seconds,"
-                    "path_seconds_equal_error,extrapolated\n");
+                    "path_seconds_equal_error,extrapolated,crop\n");
   const std::string mdPath = (fs::path(args.out) / "suite.md").string();
   std::FILE* md = std::fopen(mdPath.c_str(), "w");
   if (!md) return std::fclose(csv), std::fprintf(stderr, "cannot write %s\n", mdPath.c_str()), 1;
   std::fprintf(md,
                "# PBGI against the path tracer on the scene suite\n\n"
                "Written by `accuracy_bench --suite` (tests/bench/accuracy_bench.cpp): each shot at "
-               "its own size, samples, preset and bake, against a %d-spp path trace; the path "
+               "its own size, samples, preset and bake (a frame over %lld pixels measured on its "
+               "central crop, its bake the whole frame's), against a %d-spp path trace; the path "
                "tracer's render time at PBGI's relMSE from its sweep (%s spp), extrapolated past "
                "it where marked ~. Means: PBGI's over the reference's, per channel. Low-frequency "
                "relMSE and seams: `pbgi compare`. Ref relMSE: the reference's own noise.\n\n"
                "| scene | size | spp | means R G B | relMSE | low-freq relMSE | seams | ref relMSE "
                "| PBGI render | bake | path tracer at equal error | speed-up |\n"
                "|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-               args.referenceSpp, fmt::format("{}", fmt::join(args.ptSpp, ", ")).c_str());
+               static_cast<long long>(kSuiteFullFramePixels), args.referenceSpp,
+               fmt::format("{}", fmt::join(args.ptSpp, ", ")).c_str());
   std::printf("\nthe suite against path-traced references at %d spp (means: PBGI over the "
               "reference; PT: the path tracer's render time at PBGI's relMSE, ~ past its sweep)\n",
               args.referenceSpp);
-  std::printf("%-16s %9s %4s  %-20s %9s %9s %6s %9s %8s %8s %9s %8s\n", "scene", "size", "spp",
+  std::printf("%-16s %22s %4s  %-20s %9s %9s %6s %9s %8s %8s %9s %8s\n", "scene", "size", "spp",
               "means R G B", "relMSE", "low-freq", "seams", "ref rel", "PBGI s", "bake s",
               "PT s", "speed-up");
   for (const SuiteRow& r : rows) {
@@ -617,8 +644,11 @@ int runSuite(const Args& args) {
       const ChannelMetrics& m = r.pbgi.rgb.channels[c];
       mean[c] = m.meanReference != 0.0 ? m.meanImage / m.meanReference : 0.0;
     }
-    const std::string size = fmt::format("{}x{}", r.width, r.height);
-    std::printf("%-16s %9s %4d  %.3f %.3f %.3f  %9.2e %9.2e %6.2f %9.2e %8.2f %8.2f %s%8.1f %7.1fx\n",
+    const std::string size =
+        r.crop.size() == 4 ? fmt::format("{}x{} crop {}x{}", r.width, r.height, r.crop[2] - r.crop[0],
+                                         r.crop[3] - r.crop[1])
+                           : fmt::format("{}x{}", r.width, r.height);
+    std::printf("%-16s %22s %4d  %.3f %.3f %.3f  %9.2e %9.2e %6.2f %9.2e %8.2f %8.2f %s%8.1f %7.1fx\n",
                 r.name.c_str(), size.c_str(), r.spp, mean[0], mean[1], mean[2], r.pbgi.rgb.relMse,
                 r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio, r.referenceRelMse,
                 r.pbgi.renderSeconds, r.pbgi.bakeSeconds, r.extrapolated ? "~" : " ", r.ptSeconds,
@@ -631,11 +661,11 @@ int runSuite(const Args& args) {
                  r.referenceRelMse, r.pbgi.renderSeconds, r.pbgi.bakeSeconds,
                  r.extrapolated ? "~" : "", r.ptSeconds,
                  r.ptSeconds / std::max(r.pbgi.renderSeconds, 1e-9));
-    std::fprintf(csv, "%s,%d,%d,%d,%.5f,%.5f,%.5f,%.6g,%.6g,%.4f,%.6g,%.4f,%.4f,%.4f,%d\n",
+    std::fprintf(csv, "%s,%d,%d,%d,%.5f,%.5f,%.5f,%.6g,%.6g,%.4f,%.6g,%.4f,%.4f,%.4f,%d,%s\n",
                  r.name.c_str(), r.width, r.height, r.spp, mean[0], mean[1], mean[2],
                  r.pbgi.rgb.relMse, r.pbgi.rgb.lowFrequencyRelMse, r.pbgi.rgb.seamStepRatio,
                  r.referenceRelMse, r.pbgi.renderSeconds, r.pbgi.bakeSeconds, r.ptSeconds,
-                 r.extrapolated ? 1 : 0);
+                 r.extrapolated ? 1 : 0, fmt::format("{}", fmt::join(r.crop, " ")).c_str());
   }
   std::fclose(csv);
   std::fclose(md);
