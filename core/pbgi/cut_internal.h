@@ -22,7 +22,10 @@ constexpr float kShortFraction = 1e-4f;
 
 // Whether the segment from a receiver to a surfel's centre is free: from off the receiver's
 // surface to off the surfel's, on the sides that face each other (Scene::spawnSegment), stopping
-// just short of it.
+// just short of it. Glass does not block it (Scene::occludedByOpaque): a floor beside a glass
+// object gathers the room behind the glass, which no surfel of the glass carries (its light is
+// what it brings from the lights). Light from surfels of glass is blocked by other glass, as
+// the glass's own surfels stand for the light that crosses it.
 bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s, CutStats* stats);
 
 // The light one surfel sends one receiver, into `light` (cut_surfel_light.cpp): as a virtual

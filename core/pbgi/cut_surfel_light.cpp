@@ -91,7 +91,8 @@ bool visibleSurfel(const Scene& scene, const CutReceiver& from, const Surfel& s,
   const Ray ray = scene.spawnSegment(from.p, from.ng, s.position, s.normal, stop);
   if (!(ray.tMax > 0.0f)) return true;
   ++stats->shadowRays;
-  const bool blocked = scene.occluded(ray);
+  const bool blocked = s.materialClass == MaterialClass::kTransmissive ? scene.occluded(ray)
+                                                                       : scene.occludedByOpaque(ray);
   if (blocked) ++stats->occluded;
   return !blocked;
 }

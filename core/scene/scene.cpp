@@ -204,6 +204,24 @@ bool Scene::occluded(const Ray& ray) const {
   return r.tfar < 0.0f;  // Embree sets tfar to -inf on a hit
 }
 
+bool Scene::occludedByOpaque(const Ray& ray) const {
+  if (!occluded(ray)) return false;
+  if (!anyDielectric_) return true;
+  Ray r = ray;
+  for (int crossing = 0; crossing <= kMaxDielectricCrossings; ++crossing) {
+    SurfaceHit hit;
+    if (!intersect(r, &hit)) return false;
+    if (hit.material == kNoMaterial || materials_[hit.material].type != MaterialType::kDielectric) {
+      return true;
+    }
+    if (crossing == kMaxDielectricCrossings) break;
+    // On past the glass's surface, by its ray offset: the segment's end stays where it was.
+    r.tMin = hit.t + offsetScale(hit.p) / std::max(std::abs(dot(hit.ng, r.dir)), 1e-3f);
+    if (!(r.tMin < r.tMax)) return false;
+  }
+  return true;
+}
+
 const Light* Scene::sampleLight(float u, float* probability, bool withoutSky) const {
   if (lights_.empty() || (withoutSky && !anyLightButSky_)) return nullptr;
   const int i = (withoutSky ? lightDistributionWithoutSky_ : lightDistribution_)
@@ -424,6 +442,9 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
   scene->impl_ = std::make_unique<Scene::Impl>();
   Scene::Impl& impl = *scene->impl_;
   scene->materials_ = std::move(materials_);
+  for (const Material& m : scene->materials_) {
+    scene->anyDielectric_ = scene->anyDielectric_ || m.type == MaterialType::kDielectric;
+  }
 
   impl.device = rtcNewDevice("threads=0");
   if (!impl.device) {

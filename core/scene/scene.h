@@ -48,6 +48,13 @@ class Scene {
   bool intersect(const Ray& ray, SurfaceHit* hit) const;
   // True when anything blocks the segment [ray.tMin, ray.tMax].
   bool occluded(const Ray& ray) const;
+  // True when anything but a dielectric blocks the segment: glass is passed straight through,
+  // unrefracted, up to kMaxDielectricCrossings surfaces (past them, blocked). Light seen
+  // through glass is then gathered where the glass stands, which is what a diffuse receiver
+  // averages; refraction moves it within the glass's outline. As occluded() in a scene
+  // without dielectrics.
+  bool occludedByOpaque(const Ray& ray) const;
+  static constexpr int kMaxDielectricCrossings = 8;
 
   // A ray leaving surface point p (with geometric normal ng) in direction dir, offset off
   // the surface on dir's side so that it cannot hit the surface it starts on.
@@ -114,6 +121,7 @@ class Scene {
   Distribution1D lightDistribution_;
   Distribution1D lightDistributionWithoutSky_;
   bool anyLightButSky_ = false;  // with power
+  bool anyDielectric_ = false;
   std::array<std::vector<int>, 2> deltaLightsOnly_;  // with the sky, without
   Bounds3f bounds_;
   SceneStats stats_;

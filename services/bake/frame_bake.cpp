@@ -35,7 +35,7 @@ namespace {
 constexpr size_t kChunkSurfels = 64 * 1024;
 // How bounces gather, for the bake hash: raised whenever a change makes the bounces' light
 // differ, so that no bake made before it is reused (the commit log says what each changed).
-constexpr int kBounceRevision = 19;
+constexpr int kBounceRevision = 20;
 // What OpenVDB holds per point while it builds a cloud, with our copy of the surfels.
 constexpr uint64_t kPointCloudBytesPerPoint = 48 + sizeof(Surfel);
 
