@@ -1,6 +1,7 @@
 #include "core/scene/scene.h"
 
 #include <algorithm>
+#include <memory>
 
 #include <embree3/rtcore.h>
 
@@ -38,6 +39,8 @@ struct Scene::Impl {
   std::vector<uint64_t> triangleBase;  // per mesh: global id of its first triangle
   std::vector<std::vector<int>> triangleLights;  // per mesh: light per triangle, or empty
   std::vector<GeometryInfo> geometries;          // by Embree geometry id
+  // Per mesh with dielectric triangles: 1 for each of them (the occlusion filter's user data).
+  std::vector<std::unique_ptr<uint8_t[]>> dielectricTriangles;
 
   ~Impl() {
     if (scene) rtcReleaseScene(scene);
@@ -183,10 +186,37 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   return true;
 }
 
-bool Scene::occluded(const Ray& ray) const {
+namespace {
+
+// An occlusion query's context: Embree hands the filter below its first member.
+struct OcclusionContext {
+  RTCIntersectContext base;
+  bool passDielectrics = false;
+};
+
+// The occlusion filter of a mesh with dielectric triangles: their hits do not count when the
+// query passes dielectrics.
+void passDielectrics(const RTCFilterFunctionNArguments* args) {
+  const auto* context = reinterpret_cast<const OcclusionContext*>(args->context);
+  if (!context->passDielectrics) return;
+  const auto* dielectric = static_cast<const uint8_t*>(args->geometryUserPtr);
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    if (dielectric[RTCHitN_primID(args->hit, args->N, i)]) args->valid[i] = 0;
+  }
+}
+
+}  // namespace
+
+bool Scene::occluded(const Ray& ray) const { return occludedBy(ray, false); }
+
+bool Scene::occludedByOpaque(const Ray& ray) const { return occludedBy(ray, true); }
+
+bool Scene::occludedBy(const Ray& ray, bool passDielectrics) const {
   if (!traceable(ray)) return false;
-  RTCIntersectContext context;
-  rtcInitIntersectContext(&context);
+  OcclusionContext context;
+  rtcInitIntersectContext(&context.base);
+  context.passDielectrics = passDielectrics;
   RTCRay r;
   r.org_x = ray.origin.x;
   r.org_y = ray.origin.y;
@@ -200,27 +230,10 @@ bool Scene::occluded(const Ray& ray) const {
   r.mask = ~0u;
   r.id = 0;
   r.flags = 0;
-  rtcOccluded1(impl_->scene, &context, &r);
+  rtcOccluded1(impl_->scene, &context.base, &r);
   return r.tfar < 0.0f;  // Embree sets tfar to -inf on a hit
 }
 
-bool Scene::occludedByOpaque(const Ray& ray) const {
-  if (!occluded(ray)) return false;
-  if (!anyDielectric_) return true;
-  Ray r = ray;
-  for (int crossing = 0; crossing <= kMaxDielectricCrossings; ++crossing) {
-    SurfaceHit hit;
-    if (!intersect(r, &hit)) return false;
-    if (hit.material == kNoMaterial || materials_[hit.material].type != MaterialType::kDielectric) {
-      return true;
-    }
-    if (crossing == kMaxDielectricCrossings) break;
-    // On past the glass's surface, by its ray offset: the segment's end stays where it was.
-    r.tMin = hit.t + offsetScale(hit.p) / std::max(std::abs(dot(hit.ng, r.dir)), 1e-3f);
-    if (!(r.tMin < r.tMax)) return false;
-  }
-  return true;
-}
 
 const Light* Scene::sampleLight(float u, float* probability, bool withoutSky) const {
   if (lights_.empty() || (withoutSky && !anyLightButSky_)) return nullptr;
@@ -320,6 +333,17 @@ absl::Status SceneBuilder::buildMesh(Scene& scene, MeshData& mesh) {
       rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                               3 * sizeof(uint32_t), mesh.triangleCount()));
   std::copy(mesh.indices.begin(), mesh.indices.end(), indices);
+  std::unique_ptr<uint8_t[]> dielectric;
+  for (size_t t = 0; t < mesh.triangleCount(); ++t) {
+    if (scene.materials_[mesh.materials[t]].type != MaterialType::kDielectric) continue;
+    if (!dielectric) dielectric = std::make_unique<uint8_t[]>(mesh.triangleCount());
+    dielectric[t] = 1;
+  }
+  if (dielectric) {
+    rtcSetGeometryUserData(geom, dielectric.get());
+    rtcSetGeometryOccludedFilterFunction(geom, passDielectrics);
+    impl.dielectricTriangles.push_back(std::move(dielectric));
+  }
   GeometryInfo info;
   info.kind = GeometryInfo::Kind::kMesh;
   info.mesh = meshIndex;
@@ -442,9 +466,6 @@ absl::StatusOr<std::unique_ptr<Scene>> SceneBuilder::build() {
   scene->impl_ = std::make_unique<Scene::Impl>();
   Scene::Impl& impl = *scene->impl_;
   scene->materials_ = std::move(materials_);
-  for (const Material& m : scene->materials_) {
-    scene->anyDielectric_ = scene->anyDielectric_ || m.type == MaterialType::kDielectric;
-  }
 
   impl.device = rtcNewDevice("threads=0");
   if (!impl.device) {

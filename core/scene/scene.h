@@ -49,12 +49,10 @@ class Scene {
   // True when anything blocks the segment [ray.tMin, ray.tMax].
   bool occluded(const Ray& ray) const;
   // True when anything but a dielectric blocks the segment: glass is passed straight through,
-  // unrefracted, up to kMaxDielectricCrossings surfaces (past them, blocked). Light seen
-  // through glass is then gathered where the glass stands, which is what a diffuse receiver
-  // averages; refraction moves it within the glass's outline. As occluded() in a scene
-  // without dielectrics.
+  // unrefracted (its hits are filtered out of the one occlusion query). Light seen through
+  // glass is then gathered where the glass stands, which is what a diffuse receiver averages;
+  // refraction moves it within the glass's outline.
   bool occludedByOpaque(const Ray& ray) const;
-  static constexpr int kMaxDielectricCrossings = 8;
 
   // A ray leaving surface point p (with geometric normal ng) in direction dir, offset off
   // the surface on dir's side so that it cannot hit the surface it starts on.
@@ -112,6 +110,7 @@ class Scene {
   friend class SceneBuilder;
   Scene() = default;
   float offsetScale(const Vec3f& p) const;
+  bool occludedBy(const Ray& ray, bool passDielectrics) const;
 
   struct Impl;
   std::unique_ptr<Impl> impl_;
@@ -121,7 +120,6 @@ class Scene {
   Distribution1D lightDistribution_;
   Distribution1D lightDistributionWithoutSky_;
   bool anyLightButSky_ = false;  // with power
-  bool anyDielectric_ = false;
   std::array<std::vector<int>, 2> deltaLightsOnly_;  // with the sky, without
   Bounds3f bounds_;
   SceneStats stats_;

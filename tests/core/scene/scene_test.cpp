@@ -50,18 +50,37 @@ TEST(SceneTest, OpaqueOcclusionIsOcclusionWithoutGlass) {
   }
 }
 
-// Past kMaxDielectricCrossings glass surfaces the segment counts as blocked: a bound on the
-// rays one test may cast.
-TEST(SceneTest, GlassCrossingsAreBounded) {
-  for (const int panes : {Scene::kMaxDielectricCrossings, Scene::kMaxDielectricCrossings + 1}) {
-    SceneBuilder b;
-    const uint32_t g = b.addMaterial(glass());
-    for (int i = 0; i < panes; ++i) addPanes(b, {1.0f + 0.1f * static_cast<float>(i)}, g);
-    auto scene = b.build();
-    ASSERT_TRUE(scene.ok()) << scene.status();
-    EXPECT_EQ((*scene)->occludedByOpaque(alongZ(5.0f)), panes > Scene::kMaxDielectricCrossings)
-        << panes << " panes";
-  }
+// Any number of glass surfaces in a row is passed: each is filtered out of the one query.
+TEST(SceneTest, ManyPanesOfGlassArePassed) {
+  SceneBuilder b;
+  const uint32_t g = b.addMaterial(glass());
+  const uint32_t wall = b.addMaterial(Material{});
+  for (int i = 0; i < 20; ++i) addPanes(b, {1.0f + 0.1f * static_cast<float>(i)}, g);
+  addPanes(b, {4.0f}, wall);
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  EXPECT_FALSE((*scene)->occludedByOpaque(alongZ(3.5f)));
+  EXPECT_TRUE((*scene)->occludedByOpaque(alongZ(4.5f)));
+  EXPECT_TRUE((*scene)->occluded(alongZ(3.5f)));
+}
+
+// One mesh holding a glass triangle and an opaque one: only the glass is passed.
+TEST(SceneTest, GlassIsPassedTriangleByTriangle) {
+  SceneBuilder b;
+  const uint32_t g = b.addMaterial(glass());
+  const uint32_t wall = b.addMaterial(Material{});
+  MeshData pane = testing::makeQuadMesh({-1.0f, -1.0f, 1.0f}, {2.0f, 0.0f, 0.0f},
+                                        {0.0f, 2.0f, 0.0f}, g);
+  pane.materials = {g, wall};  // the second triangle (corners 0, 2, 3) opaque
+  b.addMesh(std::move(pane));
+  auto scene = b.build();
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  // Through the first triangle (below the diagonal y = x) and through the second.
+  const auto segment = [](float x, float y) {
+    return Ray{Vec3f(x, y, 0.0f), Vec3f(0.0f, 0.0f, 1.0f), 0.0f, 2.0f};
+  };
+  EXPECT_FALSE((*scene)->occludedByOpaque(segment(0.5f, -0.5f)));
+  EXPECT_TRUE((*scene)->occludedByOpaque(segment(-0.5f, 0.5f)));
 }
 
 }  // namespace
